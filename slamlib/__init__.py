@@ -1,0 +1,44 @@
+"""slamlib: the reference implementation behind the course book.
+
+Every algorithm of the course lives here exactly once; chapters, exercises'
+self-checks and the autograder import it (``import slamlib as sl``).
+
+Layers, bottom up:
+
+* :mod:`slamlib.angles` -- wrapping, differences, circular means
+* :mod:`slamlib.motion`, :mod:`slamlib.sensors` -- probabilistic models
+* :mod:`slamlib.maps`, :mod:`slamlib.sim`, :mod:`slamlib.metrics`
+* :mod:`slamlib.gaussian`, :mod:`slamlib.particle`, :mod:`slamlib.mcl` -- localization
+* :mod:`slamlib.ekf_slam`, :mod:`slamlib.fastslam` -- SLAM
+* :mod:`slamlib.datasets` -- loaders of the real robot logs shipped in ``slamlib/data``
+* :mod:`slamlib.viz` -- plotting (the only module that imports matplotlib)
+"""
+
+from . import angles, motion, sensors, maps, sim, metrics, gaussian, particle, mcl, ekf_slam, fastslam
+from .angles import *  # noqa: F401,F403
+from .motion import *  # noqa: F401,F403
+from .sensors import *  # noqa: F401,F403
+from .maps import *  # noqa: F401,F403
+from .sim import *  # noqa: F401,F403
+from .metrics import *  # noqa: F401,F403
+from .gaussian import *  # noqa: F401,F403
+from .particle import *  # noqa: F401,F403
+from .mcl import *  # noqa: F401,F403
+from .ekf_slam import *  # noqa: F401,F403
+from .fastslam import *  # noqa: F401,F403
+
+__version__ = "0.1.0"
+
+__all__ = (
+    angles.__all__ + motion.__all__ + sensors.__all__ + maps.__all__ + sim.__all__ + metrics.__all__
+    + gaussian.__all__ + particle.__all__ + mcl.__all__ + ekf_slam.__all__ + fastslam.__all__
+)
+
+
+def __getattr__(name):
+    # viz and datasets import lazily: viz pulls in matplotlib, datasets reads files
+    if name in ("viz", "datasets"):
+        import importlib
+
+        return importlib.import_module(f".{name}", __name__)
+    raise AttributeError(f"module 'slamlib' has no attribute {name!r}")

@@ -1,0 +1,82 @@
+"""Angles: wrapping, differences and circular means.
+
+Every angle ``slamlib`` returns (headings, bearings, bearing innovations) goes
+through :func:`wrap_angle`, so it lies in ``[-pi, pi)``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._checks import as_array
+
+__all__ = ["wrap_angle", "angle_diff", "circular_mean"]
+
+_TWO_PI = 2.0 * np.pi
+
+
+def wrap_angle(a):
+    """Wrap angles to ``[-pi, pi)``.
+
+    Parameters
+    ----------
+    a : float or ndarray, any shape
+        Angles in radians.
+
+    Returns
+    -------
+    float or ndarray, same shape as `a`
+        ``(a + pi) mod 2 pi - pi``; ``pi`` itself maps to ``-pi``.
+    """
+    arr = as_array(a, "a", ndim=range(0, 33))
+    out = np.mod(arr + np.pi, _TWO_PI) - np.pi
+    # np.mod can round up to exactly 2 pi for tiny negative inputs
+    out = np.where(out >= np.pi, out - _TWO_PI, out)
+    return float(out) if out.ndim == 0 else out
+
+
+def angle_diff(a, b):
+    """Wrapped difference ``wrap(a - b)`` in ``[-pi, pi)``.
+
+    Parameters
+    ----------
+    a, b : float or ndarray
+        Angles in radians; they broadcast against each other.
+
+    Returns
+    -------
+    float or ndarray
+        The signed smallest rotation taking `b` to `a`.
+    """
+    a = as_array(a, "a", ndim=range(0, 33))
+    b = as_array(b, "b", ndim=range(0, 33))
+    return wrap_angle(a - b)
+
+
+def circular_mean(angles, weights=None, axis=0):
+    """Weighted circular mean ``atan2(sum w sin a, sum w cos a)``.
+
+    Parameters
+    ----------
+    angles : ndarray
+        Angles in radians.
+    weights : ndarray, optional
+        Non-negative weights of the same shape as `angles`; uniform if omitted.
+    axis : int
+        Axis to average over.
+
+    Returns
+    -------
+    float or ndarray
+        The mean direction, wrapped to ``[-pi, pi)``.
+    """
+    a = as_array(angles, "angles", ndim=range(1, 33))
+    if weights is None:
+        w = np.ones_like(a)
+    else:
+        w = as_array(weights, "weights", a.shape)
+        if np.any(w < 0):
+            raise ValueError("weights must be non-negative")
+    s = np.sum(w * np.sin(a), axis=axis)
+    c = np.sum(w * np.cos(a), axis=axis)
+    return wrap_angle(np.arctan2(s, c))

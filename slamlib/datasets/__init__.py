@@ -1,0 +1,19 @@
+"""Loaders for the real robot logs shipped (compressed) in ``slamlib/data``.
+
+Each data set keeps its attribution in ``slamlib/data/<name>/ATTRIBUTION.md``.
+"""
+
+from importlib import resources
+from pathlib import Path
+
+__all__ = ["data_path"]
+
+
+def data_path(*parts: str) -> Path:
+    """Path of a file shipped in ``slamlib/data`` (e.g. ``data_path("cmu_wean", "wean.dat.gz")``)."""
+    path = Path(str(resources.files("slamlib"))) / "data"
+    for p in parts:
+        path = path / p
+    if not path.exists():
+        raise FileNotFoundError(f"no data file {path} in the installed slamlib package")
+    return path

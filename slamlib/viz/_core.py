@@ -1,0 +1,3 @@
+"""Core plotting helpers (placeholder)."""
+
+__all__: list[str] = []
