@@ -6,21 +6,24 @@ self-checks and the autograder import it (``import slamlib as sl``).
 Layers, bottom up:
 
 * :mod:`slamlib.angles` -- wrapping, differences, circular means
+* :mod:`slamlib.bayes` -- Bayes rule and discrete (histogram) Bayes filters
 * :mod:`slamlib.motion`, :mod:`slamlib.sensors` -- probabilistic models
-* :mod:`slamlib.maps`, :mod:`slamlib.sim`, :mod:`slamlib.metrics`
+* :mod:`slamlib.maps`, :mod:`slamlib.sim`, :mod:`slamlib.metrics`, :mod:`slamlib.scoring`
 * :mod:`slamlib.gaussian`, :mod:`slamlib.particle`, :mod:`slamlib.mcl` -- localization
 * :mod:`slamlib.ekf_slam`, :mod:`slamlib.fastslam` -- SLAM
 * :mod:`slamlib.datasets` -- loaders of the real robot logs shipped in ``slamlib/data``
 * :mod:`slamlib.viz` -- plotting (the only module that imports matplotlib)
 """
 
-from . import angles, motion, sensors, maps, sim, metrics, gaussian, particle, mcl, ekf_slam, fastslam
+from . import angles, bayes, motion, sensors, maps, sim, metrics, scoring, gaussian, particle, mcl, ekf_slam, fastslam
 from .angles import *  # noqa: F401,F403
+from .bayes import *  # noqa: F401,F403
 from .motion import *  # noqa: F401,F403
 from .sensors import *  # noqa: F401,F403
 from .maps import *  # noqa: F401,F403
 from .sim import *  # noqa: F401,F403
 from .metrics import *  # noqa: F401,F403
+from .scoring import *  # noqa: F401,F403
 from .gaussian import *  # noqa: F401,F403
 from .particle import *  # noqa: F401,F403
 from .mcl import *  # noqa: F401,F403
@@ -30,7 +33,7 @@ from .fastslam import *  # noqa: F401,F403
 __version__ = "0.1.0"
 
 __all__ = (
-    angles.__all__ + motion.__all__ + sensors.__all__ + maps.__all__ + sim.__all__ + metrics.__all__
+    angles.__all__ + bayes.__all__ + motion.__all__ + sensors.__all__ + maps.__all__ + sim.__all__ + metrics.__all__ + scoring.__all__
     + gaussian.__all__ + particle.__all__ + mcl.__all__ + ekf_slam.__all__ + fastslam.__all__
 )
 

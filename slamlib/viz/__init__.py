@@ -6,3 +6,9 @@ re-exported here. Every function takes an optional ``ax`` and returns it.
 """
 
 from ._core import *  # noqa: F401,F403
+from ._bayes import *  # noqa: F401,F403
+from ._filters import *  # noqa: F401,F403
+from ._mcl import *  # noqa: F401,F403
+from ._slam import *  # noqa: F401,F403
+from ._fastslam import *  # noqa: F401,F403
+from ._real_data import *  # noqa: F401,F403

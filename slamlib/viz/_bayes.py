@@ -1,0 +1,3 @@
+"""Plotting helpers (placeholder: filled in by its owner)."""
+
+__all__: list[str] = []
