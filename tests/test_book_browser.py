@@ -1,0 +1,181 @@
+"""Drive headless Chromium over every page of the built book.
+
+Run after ``jupyter-book build .``::
+
+    SLAM_BOOK_BROWSER=1 python -m pytest -m browser tests/test_book_browser.py
+
+It serves ``_build/html`` on localhost and checks, page by page: HTTP 200, no
+JavaScript errors in the console, nothing fetched from outside localhost (the
+book must read offline), MathJax finished with no unrendered TeX and no TeX
+errors, every ``<img>`` loaded, every animation's controls present with its
+first frame drawn; and the search page finds "particle". Screenshots of a few
+pages go to ``artifacts/screenshots``.
+
+Without a built book or Chromium the tests are skipped, unless
+``SLAM_BOOK_BROWSER=1`` (set by ``.ci/browser``), which turns a missing
+prerequisite into a failure.
+"""
+
+from __future__ import annotations
+
+import functools
+import http.server
+import os
+import re
+import shutil
+import tempfile
+import threading
+import urllib.request
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+HTML = ROOT / "_build" / "html"
+SHOTS = ROOT / "artifacts" / "screenshots"
+REQUIRED = os.environ.get("SLAM_BOOK_BROWSER") == "1"
+SCREENSHOT_PAGES = {"chapters/00_intro", "chapters/02_motion_sensor_models", "chapters/05_mcl",
+                    "chapters/07_ekf_slam", "chapters/09_real_data_mrclam", "chapters/algorithm_index"}
+
+pytestmark = pytest.mark.browser
+
+
+def _missing(reason):
+    if REQUIRED:
+        pytest.fail(reason)
+    pytest.skip(reason)
+
+
+def toc_pages():
+    text = (ROOT / "_toc.yml").read_text(encoding="utf-8")
+    return re.findall(r"^\s*(?:root|- file):\s*(\S+)", text, flags=re.M)
+
+
+@pytest.fixture(scope="module")
+def server():
+    if not (HTML / "index.html").is_file():
+        _missing("no built book: run  jupyter-book build .  first")
+    handler = functools.partial(_QuietHandler, directory=str(HTML))
+    httpd = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
+    thread = threading.Thread(target=httpd.serve_forever, daemon=True)
+    thread.start()
+    yield f"http://127.0.0.1:{httpd.server_address[1]}"
+    httpd.shutdown()
+
+
+class _QuietHandler(http.server.SimpleHTTPRequestHandler):
+    def log_message(self, *args):
+        pass
+
+
+@pytest.fixture(scope="module")
+def driver():
+    try:
+        from selenium import webdriver
+        from selenium.webdriver.chrome.service import Service
+    except ImportError:
+        _missing("selenium is not installed (python -m pip install -e '.[dev]')")
+    chrome = shutil.which("chromium") or shutil.which("chromium-browser") or shutil.which("google-chrome")
+    chromedriver = shutil.which("chromedriver")
+    if not chrome or not chromedriver:
+        _missing("Chromium and ChromeDriver are not installed (apt-get install chromium chromium-driver)")
+    profile = tempfile.mkdtemp(prefix="slam-book-chromium-")
+    opts = webdriver.ChromeOptions()
+    opts.binary_location = chrome
+    for arg in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                "--disable-background-networking", "--disable-component-update", "--disable-sync",
+                "--disable-dev-shm-usage", "--window-size=1280,1600", f"--user-data-dir={profile}"):
+        opts.add_argument(arg)
+    opts.set_capability("goog:loggingPrefs", {"browser": "ALL"})
+    drv = webdriver.Chrome(service=Service(chromedriver), options=opts)
+    drv.set_page_load_timeout(60)
+    drv.set_script_timeout(60)
+    yield drv
+    drv.quit()
+    shutil.rmtree(profile, ignore_errors=True)
+
+
+# JavaScript run in the page once it has loaded
+_WAIT_MATHJAX = """
+const done = arguments[arguments.length - 1];
+if (!document.querySelector('script[src*="mathjax"]')) { done('no-mathjax'); return; }
+const t0 = Date.now();
+(function poll() {
+  if (window.MathJax && MathJax.startup && MathJax.startup.promise) {
+    MathJax.startup.promise.then(() => done('ok')).catch(e => done('error: ' + e));
+  } else if (Date.now() - t0 > 30000) { done('timeout'); } else { setTimeout(poll, 100); }
+})();
+"""
+
+_PAGE_FACTS = """
+const clone = document.querySelector('main') ? document.querySelector('main').cloneNode(true) : document.body.cloneNode(true);
+clone.querySelectorAll('pre, code, script, style, mjx-container, .highlight, textarea').forEach(e => e.remove());
+const imgs = Array.from(document.images).map(i => ({src: i.currentSrc || i.src, ok: i.complete && i.naturalWidth > 0}));
+const anims = Array.from(document.querySelectorAll('.animation')).map(a => {
+  const img = a.querySelector('img');
+  return {controls: a.querySelectorAll('.anim-buttons button, button').length,
+          slider: !!a.querySelector('input[type=range]'),
+          frame: !!(img && img.complete && img.naturalWidth > 0)};
+});
+const resources = performance.getEntriesByType('resource').map(r => r.name);
+return {text: clone.innerText, imgs: imgs, anims: anims, resources: resources,
+        merror: document.querySelectorAll('mjx-merror, .MathJax_Error').length,
+        mjx: document.querySelectorAll('mjx-container').length};
+"""
+
+
+def _severe_console_errors(drv):
+    out = []
+    for entry in drv.get_log("browser"):
+        if entry.get("level") == "SEVERE" and "favicon.ico" not in entry.get("message", ""):
+            out.append(entry["message"])
+    return out
+
+
+@pytest.mark.parametrize("page", toc_pages())
+def test_page_renders(page, server, driver):
+    url = f"{server}/{page}.html"
+    with urllib.request.urlopen(url, timeout=30) as resp:
+        assert resp.status == 200, f"{url}: HTTP {resp.status}"
+    driver.get_log("browser")  # drop messages of earlier pages
+    driver.get(url)
+    state = driver.execute_async_script(_WAIT_MATHJAX)
+    assert state in ("ok", "no-mathjax"), f"{page}: MathJax did not finish ({state})"
+    facts = driver.execute_script(_PAGE_FACTS)
+
+    errors = _severe_console_errors(driver)
+    assert not errors, f"{page}: JavaScript console errors: {errors}"
+
+    outside = [r for r in facts["resources"] if not r.startswith((server, "data:", "blob:"))]
+    assert not outside, f"{page}: fetched from outside the book (must read offline): {outside}"
+
+    assert facts["merror"] == 0, f"{page}: {facts['merror']} TeX errors rendered by MathJax"
+    raw = [m for m in re.findall(r"\$\$|\\\(|\\\[|\\begin\{", facts["text"])]
+    assert not raw, f"{page}: unrendered TeX left in the page text: {raw[:5]}"
+
+    broken = [i["src"] for i in facts["imgs"] if not i["ok"]]
+    assert not broken, f"{page}: images that did not load: {broken}"
+
+    for k, anim in enumerate(facts["anims"]):
+        assert anim["controls"] >= 3 and anim["slider"], f"{page}: animation {k} has no controls"
+        assert anim["frame"], f"{page}: animation {k} did not draw its first frame"
+
+    if page in SCREENSHOT_PAGES:
+        SHOTS.mkdir(parents=True, exist_ok=True)
+        driver.save_screenshot(str(SHOTS / (page.replace("/", "__") + ".png")))
+
+
+def test_search_finds_particle(server, driver):
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    driver.get(f"{server}/search.html?q=particle")
+    def _results(d):
+        return d.execute_script(
+            "return document.querySelectorAll('#search-results li, ul.search li').length;")
+    try:
+        n = WebDriverWait(driver, 30, poll_frequency=0.25).until(lambda d: _results(d) or False)
+    except Exception:
+        n = 0
+    assert n > 0, "the search page returned no results for 'particle'"
+    SHOTS.mkdir(parents=True, exist_ok=True)
+    driver.save_screenshot(str(SHOTS / "search_particle.png"))
