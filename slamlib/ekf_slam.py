@@ -1,3 +1,1171 @@
-"""Placeholder: filled in by its owner."""
+"""EKF SLAM: known correspondences (Algorithm 1) and unknown ones (Algorithm 2).
 
-__all__: list[str] = []
+The state is the robot pose followed by the landmark positions,
+``mu = [x, y, theta, m1x, m1y, ..., mNx, mNy]`` of shape ``(3+2N,)``, with a
+full ``(3+2N, 3+2N)`` covariance ``Sigma``.
+
+Two implementations of the same mathematics live here.
+
+* **Teaching version**: the contract functions :func:`ekf_slam_predict`,
+  :func:`ekf_slam_measurement`, :func:`ekf_slam_init_landmark`,
+  :func:`ekf_slam_update` and :func:`ekf_slam_associate` write every line of
+  the algorithms with explicit projection matrices ``F_x`` and ``F_{x,j}`` and
+  dense ``(3+2N) x (3+2N)`` algebra, exactly as printed. A prediction and an
+  update each cost ``O(N^3)``.
+* **Fast version**: the :class:`EKFSLAM` filter. Its prediction only touches
+  the three robot rows and columns (``O(N)``); an update uses only the five
+  non-zero columns of ``H`` and applies the covariance correction
+  ``Sigma -= K S K^T = (Sigma H^T) S^-1 (Sigma H^T)^T`` as a symmetric rank-2
+  term (``O(N^2)``). The rank-2 terms of one time step are accumulated and
+  applied to the dense covariance together, once per step (the pending terms
+  enter every read of the covariance, so each update still sees the exact
+  sequential posterior). The buffers are preallocated and doubled when full,
+  so a new landmark does not copy the covariance.
+
+:func:`run_ekf_slam` runs either version over a simulated
+:class:`~slamlib.sim.LandmarkRun`, with known or unknown correspondences and an
+optional provisional landmark list that keeps clutter out of the map.
+
+A landmark not seen yet has the course's ``Sigma_0`` entry "infinity"; here it
+gets the large finite variance ``prior_var`` on the diagonal and no
+correlation, which is the same up to ``O(1 / prior_var)``.
+
+References
+----------
+Course text, SLAM chapter: Algorithm 1 (EKF SLAM, known correspondences),
+Algorithm 2 (unknown correspondences), Eqs. 17.2, 17.3 (range-bearing example,
+``H = h F_{x,j}``). Thrun, Burgard & Fox, *Probabilistic Robotics* (2005),
+Table 10.1 (known correspondences), Table 10.2 (unknown correspondences),
+Sec. 10.3.3 (provisional landmark list).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from ._checks import as_array, as_covariance, as_index, as_scalar, check_rng
+from .angles import wrap_angle
+from .motion import STRAIGHT_LINE_OMEGA, velocity_motion
+from .sensors import landmark_from_measurement, landmark_measurement
+
+__all__ = [
+    "ekf_slam_predict",
+    "ekf_slam_measurement",
+    "ekf_slam_init_landmark",
+    "ekf_slam_update",
+    "ekf_slam_associate",
+    "EKFSLAM",
+    "EKFSLAMResult",
+    "run_ekf_slam",
+    "add_clutter",
+    "DEFAULT_ALPHA",
+    "DEFAULT_PRIOR_VAR",
+]
+
+#: Default new-landmark threshold ``alpha`` on the squared Mahalanobis distance:
+#: the 99.9 % quantile of the chi-square distribution with 2 degrees of freedom,
+#: ``-2 ln(0.001)``.
+DEFAULT_ALPHA = float(-2.0 * np.log(1e-3))
+#: Default prior variance (m^2) of a landmark before its first sighting (the
+#: finite stand-in for the infinite ``Sigma_0`` entries of Algorithm 1).
+DEFAULT_PRIOR_VAR = 1e4
+_PENDING_COLS = 32  # rank-2 terms held back before they are applied to the dense covariance
+
+
+# --------------------------------------------------------------------------- input checks
+def _check_mu(mu, name="mu"):
+    mu = as_array(mu, name, ndim=1)
+    if mu.shape[0] < 3 or (mu.shape[0] - 3) % 2:
+        raise ValueError(f"{name} must have shape (3+2N,) = [x, y, theta, m1x, m1y, ...], got {mu.shape}")
+    return mu
+
+
+def _check_state(mu, Sigma, mu_name="mu", sigma_name="Sigma"):
+    mu = _check_mu(mu, mu_name)
+    n = mu.shape[0]
+    # symmetry is checked in O(n^2); a full eigen-decomposition would cost as much as the update itself
+    Sigma = as_covariance(Sigma, sigma_name, n, psd=False)
+    if np.any(np.diag(Sigma) < 0):
+        raise ValueError(f"{sigma_name} must have a non-negative diagonal (it is a covariance)")
+    return mu, Sigma
+
+
+def _check_z(z, name="z"):
+    return as_array(z, name, (2,))
+
+
+def _check_alpha(alpha):
+    alpha = as_scalar(alpha, "alpha", nonnegative=True, finite=False)
+    return alpha
+
+
+def _innovation(z, z_hat):
+    """``nu = z - z_hat`` with the bearing wrapped, for ``(..., 2)`` arrays."""
+    nu = z - z_hat
+    nu[..., 1] = wrap_angle(nu[..., 1])
+    return nu
+
+
+# --------------------------------------------------------------------------- teaching version
+def _F_x(n):
+    """``F_x = [I_3  0]``, shape ``(3, n)`` (Algorithm 1 line 2)."""
+    F = np.zeros((3, n))
+    F[:, :3] = np.eye(3)
+    return F
+
+
+def _F_xj(n, j):
+    """``F_{x,j}``, shape ``(5, n)``: picks the robot pose and landmark ``j`` (Algorithm 1 line 15)."""
+    F = np.zeros((5, n))
+    F[:3, :3] = np.eye(3)
+    F[3, 3 + 2 * j] = 1.0
+    F[4, 4 + 2 * j] = 1.0
+    return F
+
+
+def ekf_slam_predict(mu, Sigma, u, dt, M):
+    """EKF SLAM prediction: the robot moves, the landmarks stay put.
+
+    Parameters
+    ----------
+    mu : ndarray, shape (3+2N,)
+        State mean ``[x, y, theta, m1x, m1y, ...]``.
+    Sigma : ndarray, shape (3+2N, 3+2N)
+        State covariance.
+    u : ndarray, shape (2,)
+        Velocity control ``[v, omega]``.
+    dt : float
+        Duration of the control (seconds, non-negative).
+    M : ndarray, shape (2, 2)
+        Control-noise covariance.
+
+    Returns
+    -------
+    mu_bar : ndarray, shape (3+2N,)
+        Predicted mean: the robot pose moved along the exact arc (heading
+        wrapped), the landmarks unchanged.
+    Sigma_bar : ndarray, shape (3+2N, 3+2N)
+        ``G Sigma G^T + F_x^T R F_x`` with ``G = I + F_x^T (G_x - I) F_x`` and
+        ``R = V M V^T``: the robot block and the robot-landmark
+        cross-covariances change, the landmark block does not.
+
+    Notes
+    -----
+    Teaching version: builds the ``(3+2N, 3+2N)`` matrix ``G`` and multiplies
+    densely, ``O(N^3)``. :meth:`EKFSLAM.predict` computes the same in ``O(N)``.
+
+    References
+    ----------
+    Course text, Algorithm 1 lines 2-5; Thrun, Burgard & Fox (2005),
+    Table 10.1 lines 2-5 and Table 7.2 lines 2-5 (``G``, ``V``, ``M``).
+    """
+    mu, Sigma = _check_state(mu, Sigma)
+    u = as_array(u, "u", (2,))
+    dt = as_scalar(dt, "dt", nonnegative=True)
+    M = as_covariance(M, "M", 2)
+    n = mu.shape[0]
+    F = _F_x(n)  # F_x = [I 0]  (Algorithm 1 line 2)
+    x_next, G_x, V = velocity_motion(mu[:3], u, dt)
+    delta = x_next - mu[:3]
+    delta[2] = wrap_angle(delta[2])
+    mu_bar = mu + F.T @ delta  # mu_bar = mu + F_x^T g(u, mu)  (Algorithm 1 line 3)
+    mu_bar[2] = wrap_angle(mu_bar[2])
+    G = np.eye(n) + F.T @ (G_x - np.eye(3)) @ F  # G = I + F_x^T g_x F_x  (Algorithm 1 line 4)
+    R = V @ M @ V.T  # R = V M V^T  (Table 7.2 line 5, mapped into state space)
+    Sigma_bar = G @ Sigma @ G.T + F.T @ R @ F  # Sigma_bar = G Sigma G^T + F_x^T R F_x  (Algorithm 1 line 5)
+    return mu_bar, 0.5 * (Sigma_bar + Sigma_bar.T)
+
+
+def _measurement(mu, j):
+    n = mu.shape[0]
+    a = 3 + 2 * j
+    # z_hat = [sqrt(q), atan2(dy, dx) - theta]  (Eq. 17.2; Algorithm 1 lines 12-14)
+    z_hat, Hx, Hm = landmark_measurement(mu[:3], mu[a:a + 2])
+    h = np.hstack([Hx, Hm])  # low-dimensional Jacobian h_t^j, shape (2, 5)
+    H = h @ _F_xj(n, j)  # H = h_t^j F_{x,j}  (Eq. 17.3; Algorithm 1 line 16)
+    return z_hat, H
+
+
+def ekf_slam_measurement(mu, j):
+    """Expected measurement of landmark `j` and its Jacobian in the full state.
+
+    Parameters
+    ----------
+    mu : ndarray, shape (3+2N,)
+        State mean.
+    j : int
+        Landmark index, ``0 <= j < N``.
+
+    Returns
+    -------
+    z_hat : ndarray, shape (2,)
+        ``h(mu, j) = [sqrt(q), wrap(atan2(dy, dx) - theta)]`` with
+        ``(dx, dy) = m_j - (x, y)`` and ``q = dx^2 + dy^2``.
+    H : ndarray, shape (2, 3+2N)
+        ``H = h_t^j F_{x,j}``: the ``(2, 5)`` Jacobian ``h_t^j`` of ``h`` with
+        respect to ``(x, y, theta, m_jx, m_jy)``, spread into the full state by
+        ``F_{x,j}``. Only five columns are non-zero.
+
+    Raises
+    ------
+    ValueError
+        If landmark `j` sits on the robot (range 0: bearing undefined).
+
+    References
+    ----------
+    Course text, Eqs. 17.2 and 17.3, Algorithm 1 lines 12-16; Thrun, Burgard &
+    Fox (2005), Table 10.1 lines 12-16.
+    """
+    mu = _check_mu(mu)
+    j = as_index(j, "j", (mu.shape[0] - 3) // 2)
+    return _measurement(mu, j)
+
+
+def ekf_slam_init_landmark(mu, z, j):
+    """Initialise landmark `j`'s mean from its first sighting.
+
+    Parameters
+    ----------
+    mu : ndarray, shape (3+2N,)
+        State mean.
+    z : ndarray, shape (2,)
+        Measurement ``[r, phi]`` of landmark `j`.
+    j : int
+        Landmark index, ``0 <= j < N``.
+
+    Returns
+    -------
+    mu : ndarray, shape (3+2N,)
+        A copy of `mu` with ``m_j = [x + r cos(phi + theta), y + r sin(phi +
+        theta)]``; nothing else changes (the covariance keeps its prior).
+
+    References
+    ----------
+    Course text, Algorithm 1 lines 9-11; Thrun, Burgard & Fox (2005),
+    Table 10.1 line 10.
+    """
+    mu = _check_mu(mu)
+    z = _check_z(z)
+    j = as_index(j, "j", (mu.shape[0] - 3) // 2)
+    out = mu.copy()
+    # mu_j = (x + r cos(phi + theta), y + r sin(phi + theta))  (Algorithm 1 line 10)
+    out[3 + 2 * j:5 + 2 * j] = landmark_from_measurement(mu[:3], z)
+    return out
+
+
+def ekf_slam_update(mu_bar, Sigma_bar, z, j, Q):
+    """EKF SLAM correction with one measurement of a known landmark.
+
+    Parameters
+    ----------
+    mu_bar : ndarray, shape (3+2N,)
+        Predicted mean (landmark `j` already initialised).
+    Sigma_bar : ndarray, shape (3+2N, 3+2N)
+        Predicted covariance.
+    z : ndarray, shape (2,)
+        Measurement ``[r, phi]`` of landmark `j`.
+    j : int
+        Landmark index, ``0 <= j < N``.
+    Q : ndarray, shape (2, 2)
+        Measurement-noise covariance.
+
+    Returns
+    -------
+    mu : ndarray, shape (3+2N,)
+        ``mu_bar + K nu`` with ``nu = z - z_hat`` (bearing wrapped) and the
+        heading wrapped.
+    Sigma : ndarray, shape (3+2N, 3+2N)
+        ``(I - K H) Sigma_bar``, symmetrised.
+
+    Notes
+    -----
+    Teaching version: dense ``(I - K H) Sigma_bar``, ``O(N^3)``.
+    :meth:`EKFSLAM.update` computes the same in ``O(N^2)``.
+
+    References
+    ----------
+    Course text, Algorithm 1 lines 12-19, Eqs. 17.2, 17.3; Thrun, Burgard &
+    Fox (2005), Table 10.1 lines 12-19.
+    """
+    mu_bar, Sigma_bar = _check_state(mu_bar, Sigma_bar, "mu_bar", "Sigma_bar")
+    z = _check_z(z)
+    j = as_index(j, "j", (mu_bar.shape[0] - 3) // 2)
+    Q = as_covariance(Q, "Q", 2)
+    n = mu_bar.shape[0]
+    z_hat, H = _measurement(mu_bar, j)  # (Algorithm 1 lines 12-16)
+    S = H @ Sigma_bar @ H.T + Q  # S = H Sigma_bar H^T + Q  (Algorithm 1 line 17)
+    K = np.linalg.solve(S, H @ Sigma_bar).T  # K = Sigma_bar H^T S^-1  (Algorithm 1 line 17)
+    nu = _innovation(z, z_hat)
+    mu = mu_bar + K @ nu  # mu = mu_bar + K (z - z_hat)  (Algorithm 1 line 18)
+    mu[2] = wrap_angle(mu[2])
+    Sigma = (np.eye(n) - K @ H) @ Sigma_bar  # Sigma = (I - K H) Sigma_bar  (Algorithm 1 line 19)
+    return mu, 0.5 * (Sigma + Sigma.T)
+
+
+def ekf_slam_associate(mu_bar, Sigma_bar, z, n_seen, Q, alpha):
+    """Maximum-likelihood data association with a new-landmark threshold.
+
+    Parameters
+    ----------
+    mu_bar : ndarray, shape (3+2N,)
+        Predicted mean; only the robot pose and the first `n_seen` landmarks
+        are read.
+    Sigma_bar : ndarray, shape (3+2N, 3+2N)
+        Predicted covariance.
+    z : ndarray, shape (2,)
+        Measurement ``[r, phi]``.
+    n_seen : int
+        Number of landmarks in the map so far, ``0 <= n_seen <= N``; slots
+        ``n_seen`` and beyond are ignored.
+    Q : ndarray, shape (2, 2)
+        Measurement-noise covariance.
+    alpha : float
+        New-landmark threshold on the squared Mahalanobis distance
+        (non-negative; ``inf`` never creates a landmark).
+
+    Returns
+    -------
+    int
+        In ``[0, n_seen]``: the landmark ``k < n_seen`` with the smallest
+        ``d_k = nu_k^T S_k^-1 nu_k`` (``nu_k = z - h(mu_bar, k)``, bearing
+        wrapped, ``S_k = H_k Sigma_bar H_k^T + Q``) if ``d_k <= alpha``; ties
+        go to the smallest index. ``n_seen`` (a new landmark) when every
+        distance exceeds `alpha` or ``n_seen = 0``.
+
+    Notes
+    -----
+    Setting the distance of the hypothesised new landmark ``N+1`` to
+    ``alpha`` and taking the arg-min, as Algorithm 2 does, is the same rule.
+
+    References
+    ----------
+    Course text, Algorithm 2; Thrun, Burgard & Fox (2005), Table 10.2
+    lines 9-18.
+    """
+    mu_bar, Sigma_bar = _check_state(mu_bar, Sigma_bar, "mu_bar", "Sigma_bar")
+    z = _check_z(z)
+    n_seen = as_index(n_seen, "n_seen", (mu_bar.shape[0] - 3) // 2 + 1)
+    Q = as_covariance(Q, "Q", 2)
+    alpha = _check_alpha(alpha)
+    best, best_d = n_seen, np.inf
+    for k in range(n_seen):  # for k = 1 to N_t  (Algorithm 2)
+        z_hat, H = _measurement(mu_bar, k)  # z_hat_k, H_k  (Eqs. 17.2, 17.3)
+        S = H @ Sigma_bar @ H.T + Q  # Psi_k = H_k Sigma_bar H_k^T + Q  (Table 10.2 line 15)
+        nu = _innovation(z, z_hat)
+        d = float(nu @ np.linalg.solve(S, nu))  # pi_k = nu^T Psi_k^-1 nu  (Table 10.2 line 16)
+        if d < best_d:  # strict: ties keep the smallest index
+            best, best_d = k, d
+    # pi_{N+1} = alpha; j = argmin_k pi_k  (Table 10.2 lines 17-18); equality counts as a match
+    return best if best_d <= alpha else n_seen
+
+
+class _PlainEKFSLAM:
+    """The teaching version behind the same interface as :class:`EKFSLAM`.
+
+    Holds ``mu`` and ``Sigma`` and calls the contract functions; a new landmark
+    is appended (the state grows by concatenation, copying ``Sigma``).
+    """
+
+    def __init__(self, x0, Sigma0, prior_var):
+        self.mu = np.array(x0, dtype=float)
+        self.Sigma = np.array(Sigma0, dtype=float)
+        self.prior_var = prior_var
+
+    @property
+    def n_landmarks(self):
+        return (self.mu.shape[0] - 3) // 2
+
+    @property
+    def x(self):
+        return self.mu[:3]
+
+    @property
+    def Sigma_x(self):
+        return self.Sigma[:3, :3]
+
+    def predict(self, u, dt, M):
+        self.mu, self.Sigma = ekf_slam_predict(self.mu, self.Sigma, u, dt, M)
+
+    def add_landmark(self, z):
+        j = self.n_landmarks
+        n = self.mu.shape[0]
+        mu = np.concatenate([self.mu, np.zeros(2)])
+        Sigma = np.zeros((n + 2, n + 2))
+        Sigma[:n, :n] = self.Sigma
+        Sigma[n, n] = Sigma[n + 1, n + 1] = self.prior_var  # Sigma_0 of a landmark not seen before
+        self.mu, self.Sigma = ekf_slam_init_landmark(mu, z, j), Sigma
+        return j
+
+    def update(self, z, j, Q):
+        self.mu, self.Sigma = ekf_slam_update(self.mu, self.Sigma, z, j, Q)
+
+    def associate(self, z, Q, alpha):
+        return ekf_slam_associate(self.mu, self.Sigma, z, self.n_landmarks, Q, alpha)
+
+    def landmark_variances(self):
+        d = np.diag(self.Sigma)[3:]
+        return d[0::2] + d[1::2]
+
+
+# --------------------------------------------------------------------------- fast version
+class EKFSLAM:
+    """Fast EKF SLAM filter that owns growable state buffers.
+
+    Parameters
+    ----------
+    x0 : ndarray, shape (3,)
+        Initial robot pose.
+    Sigma0 : ndarray, shape (3, 3), optional
+        Initial robot covariance (default zero: the map frame is the robot's
+        start, as in Algorithm 1).
+    capacity : int, keyword-only
+        Landmarks the buffers hold before they first double.
+    prior_var : float, keyword-only
+        Variance (m^2) given to each coordinate of a new landmark before its
+        first update (the finite stand-in for Algorithm 1's infinite
+        ``Sigma_0``).
+
+    Attributes
+    ----------
+    mu : ndarray, shape (3+2N,)
+        Read-only view of the current mean.
+    Sigma : ndarray, shape (3+2N, 3+2N)
+        Read-only view of the current covariance.
+    n_landmarks : int
+        ``N``.
+
+    Notes
+    -----
+    Same mathematics as the contract functions, cheaper:
+
+    * :meth:`predict` changes only the robot rows and columns:
+      ``Sigma_xx <- G_x Sigma_xx G_x^T + R`` and ``Sigma_xm <- G_x Sigma_xm``
+      (``O(N)``).
+    * :meth:`update` reads the five columns ``idx`` of ``Sigma`` where ``H``
+      is non-zero, forms ``PHt = Sigma[:, idx] h^T`` (``n x 2``) and
+      ``S = h PHt[idx] + Q``, and corrects the covariance by
+      ``K S K^T = PHt S^-1 PHt^T = W W^T`` with ``W = PHt L^-T``
+      (``S = L L^T``), a symmetric rank-2 term. The terms are collected in an
+      ``n x k`` matrix ``P`` and applied as ``Sigma -= P P^T`` before the next
+      prediction or when ``Sigma`` is read; every read in between subtracts
+      the pending terms from the columns it needs, so results equal the
+      sequential algorithm to rounding.
+    * The buffers have room for `capacity` landmarks and double when full:
+      adding a landmark writes two rows and columns, it does not copy the
+      covariance.
+
+    The views `mu` and `Sigma` change as the filter runs; copy them to keep a
+    snapshot.
+
+    References
+    ----------
+    Course text, Algorithms 1 and 2, Eqs. 17.2, 17.3; Thrun, Burgard & Fox
+    (2005), Tables 10.1 and 10.2; Guivant & Nebot (2001) on delaying the
+    full-covariance update.
+    """
+
+    def __init__(self, x0, Sigma0=None, *, capacity=16, prior_var=DEFAULT_PRIOR_VAR):
+        x0 = as_array(x0, "x0", (3,))
+        x0[2] = wrap_angle(x0[2])
+        Sigma0 = np.zeros((3, 3)) if Sigma0 is None else as_covariance(Sigma0, "Sigma0", 3)
+        capacity = as_index(capacity, "capacity", lower=1)
+        self.prior_var = as_scalar(prior_var, "prior_var", positive=True)
+        self._alloc(capacity)
+        self._n = 3
+        self._mu[:3] = x0
+        self._S[:3, :3] = Sigma0
+
+    @classmethod
+    def from_state(cls, mu, Sigma, *, capacity=None, prior_var=DEFAULT_PRIOR_VAR):
+        """Start the filter from a full state.
+
+        Parameters
+        ----------
+        mu : ndarray, shape (3+2N,)
+            State mean.
+        Sigma : ndarray, shape (3+2N, 3+2N)
+            State covariance.
+        capacity : int, optional
+            Landmark capacity (at least ``N``; default ``max(16, 2N)``).
+        prior_var : float
+            Prior variance of landmarks added later.
+
+        Returns
+        -------
+        EKFSLAM
+            A filter holding copies of `mu` and `Sigma`.
+
+        References
+        ----------
+        Course text, Algorithm 1 (state layout).
+        """
+        mu, Sigma = _check_state(mu, Sigma)
+        N = (mu.shape[0] - 3) // 2
+        capacity = max(16, 2 * N) if capacity is None else as_index(capacity, "capacity", lower=max(N, 1))
+        f = cls(mu[:3], Sigma[:3, :3], capacity=capacity, prior_var=prior_var)
+        f._n = mu.shape[0]
+        f._mu[:f._n] = mu
+        f._mu[2] = wrap_angle(mu[2])
+        f._S[:f._n, :f._n] = Sigma
+        return f
+
+    # ----------------------------------------------------------------- buffers
+    def _alloc(self, capacity):
+        size = 3 + 2 * capacity
+        self._cap = capacity
+        self._mu = np.zeros(size)
+        self._S = np.zeros((size, size))
+        self._P = np.zeros((size, _PENDING_COLS))
+        self._k = 0
+
+    def _grow(self):
+        self._flush()
+        n, mu, S = self._n, self._mu, self._S
+        self._alloc(2 * self._cap)  # doubling: amortised O(n) per added landmark
+        self._mu[:n] = mu[:n]
+        self._S[:n, :n] = S[:n, :n]
+
+    def _flush(self):
+        """Apply the pending rank-2 terms: ``Sigma -= P P^T``."""
+        if self._k:
+            n, k = self._n, self._k
+            P = self._P[:n, :k]
+            # Sigma -= sum_i K_i S_i K_i^T = P P^T  (Algorithm 1 line 19, symmetric form)
+            self._S[:n, :n] -= P @ P.T
+            self._k = 0
+
+    def _cols(self, idx):
+        """Current ``Sigma[:, idx]`` including the pending terms, shape ``(n, len(idx))``."""
+        n, k = self._n, self._k
+        C = self._S[:n, idx]
+        if k:
+            C -= self._P[:n, :k] @ self._P[idx, :k].T
+        return C
+
+    @property
+    def capacity(self):
+        """Landmarks the buffers hold before they double."""
+        return self._cap
+
+    @property
+    def n_landmarks(self):
+        """Number of landmarks ``N`` in the state."""
+        return (self._n - 3) // 2
+
+    @property
+    def mu(self):
+        """Read-only view of the mean, shape ``(3+2N,)``."""
+        v = self._mu[:self._n]
+        v.flags.writeable = False
+        return v
+
+    @property
+    def Sigma(self):
+        """Read-only view of the covariance, shape ``(3+2N, 3+2N)``."""
+        self._flush()
+        v = self._S[:self._n, :self._n]
+        v.flags.writeable = False
+        return v
+
+    @property
+    def x(self):
+        """Copy of the robot pose, shape ``(3,)``."""
+        return self._mu[:3].copy()
+
+    @property
+    def Sigma_x(self):
+        """Copy of the robot covariance, shape ``(3, 3)``."""
+        P = self._P[:3, :self._k]
+        return self._S[:3, :3] - P @ P.T
+
+    def landmark_variances(self):
+        """``Var(m_jx) + Var(m_jy)`` of every landmark, shape ``(N,)``."""
+        self._flush()
+        d = np.diagonal(self._S)[3:self._n]
+        return d[0::2] + d[1::2]
+
+    def copy(self):
+        """An independent copy of the filter (buffers included)."""
+        new = object.__new__(EKFSLAM)
+        new.__dict__.update(self.__dict__)
+        new._mu, new._S, new._P = self._mu.copy(), self._S.copy(), self._P.copy()
+        return new
+
+    # ----------------------------------------------------------------- steps
+    def predict(self, u, dt, M):
+        """Prediction step in ``O(N)``: only the robot rows and columns change.
+
+        Parameters
+        ----------
+        u : ndarray, shape (2,)
+            Velocity control ``[v, omega]``.
+        dt : float
+            Duration (seconds, non-negative).
+        M : ndarray, shape (2, 2)
+            Control-noise covariance.
+
+        Returns
+        -------
+        EKFSLAM
+            The filter itself (updated in place).
+
+        References
+        ----------
+        Course text, Algorithm 1 lines 2-5; Thrun, Burgard & Fox (2005),
+        Table 10.1 lines 2-5.
+        """
+        u = as_array(u, "u", (2,))
+        dt = as_scalar(dt, "dt", nonnegative=True)
+        M = as_covariance(M, "M", 2)
+        self._predict(u, dt, M)
+        return self
+
+    def _predict(self, u, dt, M):
+        self._flush()
+        n, S = self._n, self._S
+        x_next, G, V = _velocity_motion(self._mu[:3], u, dt)
+        self._mu[:3] = x_next  # mu_bar = mu + F_x^T g(u, mu)  (Algorithm 1 line 3)
+        R = V @ M @ V.T  # R = V M V^T  (Table 7.2 line 5)
+        Sxx = G @ S[:3, :3] @ G.T + R  # robot block of G Sigma G^T + F_x^T R F_x  (Algorithm 1 line 5)
+        S[:3, :3] = 0.5 * (Sxx + Sxx.T)
+        if n > 3:
+            Sxm = G @ S[:3, 3:n]  # robot-landmark block G_x Sigma_xm  (Algorithm 1 line 5)
+            S[:3, 3:n] = Sxm
+            S[3:n, :3] = Sxm.T
+
+    def add_landmark(self, z):
+        """Append a landmark initialised from measurement `z`.
+
+        Parameters
+        ----------
+        z : ndarray, shape (2,)
+            Measurement ``[r, phi]`` from the current robot pose.
+
+        Returns
+        -------
+        int
+            The new landmark's index ``j = N`` (before the call).
+
+        Notes
+        -----
+        The mean is the inverse measurement (Algorithm 1 line 10); the
+        covariance of the new landmark is ``prior_var I`` with no correlation,
+        as a landmark not yet seen has in ``Sigma_0``. Follow with
+        :meth:`update` to fuse `z`. Amortised cost ``O(N)``.
+
+        References
+        ----------
+        Course text, Algorithm 1 lines 9-11; Thrun, Burgard & Fox (2005),
+        Table 10.1 line 10.
+        """
+        return self._add_landmark(_check_z(z))
+
+    def _add_landmark(self, z):
+        if self.n_landmarks == self._cap:
+            self._grow()
+        j, a = self.n_landmarks, self._n
+        # mu_j = (x + r cos(phi + theta), y + r sin(phi + theta))  (Algorithm 1 line 10)
+        self._mu[a:a + 2] = landmark_from_measurement(self._mu[:3], z)
+        self._S[a, a] = self._S[a + 1, a + 1] = self.prior_var
+        self._P[a:a + 2] = 0.0
+        self._n += 2
+        return j
+
+    def update(self, z, j, Q):
+        """Correction with one measurement of landmark `j` in ``O(N)`` (+ ``O(N^2)`` per step).
+
+        Parameters
+        ----------
+        z : ndarray, shape (2,)
+            Measurement ``[r, phi]``.
+        j : int
+            Landmark index, ``0 <= j < N``.
+        Q : ndarray, shape (2, 2)
+            Measurement-noise covariance.
+
+        Returns
+        -------
+        EKFSLAM
+            The filter itself (updated in place).
+
+        References
+        ----------
+        Course text, Algorithm 1 lines 12-19, Eqs. 17.2, 17.3; Thrun, Burgard
+        & Fox (2005), Table 10.1 lines 12-19.
+        """
+        z = _check_z(z)
+        j = as_index(j, "j", self.n_landmarks)
+        Q = as_covariance(Q, "Q", 2)
+        self._update(z, j, Q)
+        return self
+
+    def _update(self, z, j, Q):
+        if self._k + 2 > _PENDING_COLS:
+            self._flush()
+        n, k, mu = self._n, self._k, self._mu
+        a = 3 + 2 * j
+        idx = np.array([0, 1, 2, a, a + 1])
+        r_hat, phi_hat, h = _range_bearing(mu, a)  # z_hat, h_t^j  (Eqs. 17.2, 17.3; Algorithm 1 lines 12-16)
+        PHt = self._cols(idx) @ h.T  # Sigma H^T from the 5 non-zero columns of H = h F_{x,j}  (Eq. 17.3)
+        S = h @ PHt[idx] + Q  # S = H Sigma_bar H^T + Q  (Algorithm 1 line 17)
+        Linv = _inv_chol2(S)  # S = L L^T, Linv = L^-1
+        W = PHt @ Linv.T  # K S K^T = PHt S^-1 PHt^T = W W^T
+        nu = np.array([z[0] - r_hat, _wrap(z[1] - phi_hat)])  # nu = z - z_hat, bearing wrapped
+        mu[:n] += W @ (Linv @ nu)  # mu = mu_bar + K nu, K = PHt S^-1 = W L^-1  (Algorithm 1 line 18)
+        mu[2] = _wrap(mu[2])
+        self._P[:n, k:k + 2] = W  # Sigma -= W W^T, applied in _flush  (Algorithm 1 line 19)
+        self._k = k + 2
+
+    def mahalanobis(self, z, Q):
+        """Squared Mahalanobis distance of `z` to every landmark, vectorised.
+
+        Parameters
+        ----------
+        z : ndarray, shape (2,)
+            Measurement ``[r, phi]``.
+        Q : ndarray, shape (2, 2)
+            Measurement-noise covariance.
+
+        Returns
+        -------
+        ndarray, shape (N,)
+            ``d_k = nu_k^T S_k^-1 nu_k`` with ``S_k = H_k Sigma H_k^T + Q``.
+
+        References
+        ----------
+        Course text, Algorithm 2; Thrun, Burgard & Fox (2005), Table 10.2
+        lines 15-16.
+        """
+        return self._mahalanobis(_check_z(z), as_covariance(Q, "Q", 2))
+
+    def _mahalanobis(self, z, Q):
+        N, n, k = self.n_landmarks, self._n, self._k
+        if N == 0:
+            return np.empty(0)
+        mu, S, P = self._mu, self._S, self._P[:n, :k]
+        lm = mu[3:n].reshape(N, 2)
+        z_hat, Hx, Hm = landmark_measurement(mu[:3], lm)  # (Eq. 17.2, 17.3) for every landmark
+        Sxx = S[:3, :3] - P[:3] @ P[:3].T  # robot block
+        Sxm = S[:3, 3:n] - P[:3] @ P[3:].T  # robot-landmark blocks, (3, 2N)
+        Sxm = Sxm.reshape(3, N, 2).transpose(1, 0, 2)
+        r = np.arange(3, n, 2)
+        Smm = np.empty((N, 2, 2))  # landmark diagonal blocks
+        Smm[:, 0, 0] = S[r, r]
+        Smm[:, 0, 1] = Smm[:, 1, 0] = S[r, r + 1]
+        Smm[:, 1, 1] = S[r + 1, r + 1]
+        if k:
+            Pl = P[3:].reshape(N, 2, k)
+            Smm -= Pl @ Pl.transpose(0, 2, 1)
+        cross = Hx @ Sxm @ Hm.transpose(0, 2, 1)
+        # Psi_k = H_k Sigma H_k^T + Q on the 5 non-zero columns  (Table 10.2 line 15)
+        Psi = Hx @ Sxx @ Hx.transpose(0, 2, 1) + cross + cross.transpose(0, 2, 1) + Hm @ Smm @ Hm.transpose(0, 2, 1) + Q
+        nu = _innovation(z, z_hat)
+        det = Psi[:, 0, 0] * Psi[:, 1, 1] - Psi[:, 0, 1] * Psi[:, 1, 0]
+        # pi_k = nu^T Psi_k^-1 nu with the 2 x 2 inverse written out  (Table 10.2 line 16)
+        return (Psi[:, 1, 1] * nu[:, 0] ** 2 - (Psi[:, 0, 1] + Psi[:, 1, 0]) * nu[:, 0] * nu[:, 1]
+                + Psi[:, 0, 0] * nu[:, 1] ** 2) / det
+
+    def associate(self, z, Q, alpha):
+        """Data association of Algorithm 2, vectorised over landmarks.
+
+        Parameters
+        ----------
+        z : ndarray, shape (2,)
+            Measurement ``[r, phi]``.
+        Q : ndarray, shape (2, 2)
+            Measurement-noise covariance.
+        alpha : float
+            New-landmark threshold on the squared Mahalanobis distance.
+
+        Returns
+        -------
+        int
+            Same rule as :func:`ekf_slam_associate` with ``n_seen = N``: the
+            closest landmark if its distance is ``<= alpha`` (ties to the
+            smallest index), else ``N`` (a new landmark).
+
+        References
+        ----------
+        Course text, Algorithm 2; Thrun, Burgard & Fox (2005), Table 10.2
+        lines 9-18.
+        """
+        return self._associate(_check_z(z), as_covariance(Q, "Q", 2), _check_alpha(alpha))
+
+    def _associate(self, z, Q, alpha):
+        d = self._mahalanobis(z, Q)
+        if d.size == 0:
+            return 0
+        best = int(np.argmin(d))  # argmin returns the first (smallest) index among ties
+        return best if d[best] <= alpha else self.n_landmarks  # (Table 10.2 lines 17-18)
+
+
+_TWO_PI = 2.0 * np.pi
+
+
+def _wrap(a):
+    """:func:`~slamlib.angles.wrap_angle` for one Python float, without the array checks (hot path)."""
+    w = (float(a) + math.pi) % _TWO_PI - math.pi
+    return w - _TWO_PI if w >= math.pi else w
+
+
+def _velocity_motion(x, u, dt):
+    """Hot-path copy of :func:`~slamlib.motion.velocity_motion` for one pose (same chord form).
+
+    Returns ``x_next (3,)``, ``G (3, 3)``, ``V (3, 2)``; the tests check it
+    against ``velocity_motion``.
+    """
+    th, v, w = float(x[2]), float(u[0]), float(u[1])
+    if abs(w) < STRAIGHT_LINE_OMEGA:  # straight-line limit of the contract
+        cx, cy = math.cos(th), math.sin(th)
+        v01, v11 = -0.5 * v * dt * dt * cy, 0.5 * v * dt * dt * cx
+    else:  # chord form of Table 5.3: (x' - x) / (v dt) = cos(theta + a) sinc(a), a = omega dt / 2
+        a = 0.5 * w * dt
+        sa = math.sin(a) / a if a != 0.0 else 1.0
+        dsa = (a * math.cos(a) - math.sin(a)) / (a * a) if abs(a) >= 1e-3 else -a / 3.0 + a**3 / 30.0
+        cc, sc = math.cos(th + a), math.sin(th + a)
+        cx, cy = cc * sa, sc * sa
+        half = 0.5 * v * dt * dt
+        v01, v11 = half * (-sc * sa + cc * dsa), half * (cc * sa + sc * dsa)
+    x_next = np.array([x[0] + v * dt * cx, x[1] + v * dt * cy, _wrap(th + w * dt)])
+    # G = d x' / d x, V = d x' / d u  (Table 7.2 lines 3-4)
+    G = np.array([[1.0, 0.0, -v * dt * cy], [0.0, 1.0, v * dt * cx], [0.0, 0.0, 1.0]])
+    V = np.array([[dt * cx, v01], [dt * cy, v11], [0.0, dt]])
+    return x_next, G, V
+
+
+def _range_bearing(mu, a):
+    """Hot-path copy of :func:`~slamlib.sensors.landmark_measurement` for landmark slot `a`.
+
+    Returns ``r_hat``, ``phi_hat`` (floats) and ``h = [Hx Hm]``, shape ``(2, 5)``
+    (the tests check it against ``landmark_measurement``).
+    """
+    x, y, th, mx, my = float(mu[0]), float(mu[1]), float(mu[2]), float(mu[a]), float(mu[a + 1])
+    dx, dy = mx - x, my - y
+    q = dx * dx + dy * dy  # q = delta^T delta  (Algorithm 1 line 13)
+    if q < 1e-24:
+        raise ValueError("a landmark coincides with the robot pose (range 0): bearing and Jacobians are undefined")
+    r = math.sqrt(q)
+    # h_t^j = 1/q [[-r dx, -r dy, 0, r dx, r dy], [dy, -dx, -q, -dy, dx]]  (Eq. 17.3)
+    h = np.array([[-dx / r, -dy / r, 0.0, dx / r, dy / r], [dy / q, -dx / q, -1.0, -dy / q, dx / q]])
+    # z_hat = [sqrt(q), atan2(dy, dx) - theta]  (Eq. 17.2)
+    return r, _wrap(math.atan2(dy, dx) - th), h
+
+
+def _inv_chol2(S):
+    """``L^-1`` for the Cholesky factor ``S = L L^T`` of a 2 x 2 SPD matrix (upper triangle read)."""
+    s00, s01, s11 = float(S[0, 0]), float(S[0, 1]), float(S[1, 1])
+    if not s00 > 0:
+        raise ValueError("innovation covariance S = H Sigma H^T + Q is not positive definite")
+    l00 = np.sqrt(s00)
+    l10 = s01 / l00
+    rest = s11 - l10 * l10
+    if not rest > 0:
+        raise ValueError("innovation covariance S = H Sigma H^T + Q is not positive definite")
+    l11 = np.sqrt(rest)
+    return np.array([[1.0 / l00, 0.0], [-l10 / (l00 * l11), 1.0 / l11]])
+
+
+# --------------------------------------------------------------------------- provisional list
+class _ProvisionalList:
+    """Candidate landmarks that must be re-observed before they enter the map.
+
+    A measurement that matches no landmark of the map starts or re-observes a
+    candidate: a 2-D Gaussian in the world frame from the inverse measurement,
+    ``m = h^-1(x, z)`` with covariance ``J_x Sigma_x J_x^T + J_z Q J_z^T``
+    (``J_z = Hm^-1``, ``J_x = -Hm^-1 Hx``: the implicit-function Jacobians of
+    ``h(x, m) = z``). A candidate re-observed (squared Mahalanobis distance
+    ``<= alpha``) `confirm` times within `window` steps of its first sighting
+    becomes a landmark; one that is not is forgotten. Measurements that only
+    feed candidates never reach the filter (outlier rejection).
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Sec. 10.3.3 (provisional landmark list).
+    """
+
+    def __init__(self, confirm, window):
+        self.confirm, self.window = confirm, window
+        self.m = np.empty((0, 2))
+        self.P = np.empty((0, 2, 2))
+        self.count = np.empty(0, dtype=int)
+        self.first = np.empty(0, dtype=int)
+
+    def _keep(self, mask):
+        self.m, self.P, self.count, self.first = self.m[mask], self.P[mask], self.count[mask], self.first[mask]
+
+    def observe(self, x, Sigma_x, z, Q, alpha, t):
+        """Return True when `z` confirms a candidate (or confirmation is off)."""
+        if self.confirm <= 1:
+            return True
+        self._keep(t - self.first < self.window)  # forget candidates older than the window
+        m_new = landmark_from_measurement(x, z)
+        _, Hx, Hm = landmark_measurement(x, m_new)
+        Jz = np.linalg.inv(Hm)
+        Jx = -Jz @ Hx
+        P_new = Jx @ Sigma_x @ Jx.T + Jz @ Q @ Jz.T
+        if self.m.shape[0]:
+            zc, Hxc, Hmc = landmark_measurement(x, self.m)
+            Psi = Hxc @ Sigma_x @ Hxc.transpose(0, 2, 1) + Hmc @ self.P @ Hmc.transpose(0, 2, 1) + Q
+            nu = _innovation(z, zc)
+            d = np.einsum("ki,ki->k", nu, np.linalg.solve(Psi, nu[..., None])[..., 0])
+            best = int(np.argmin(d))
+            if d[best] <= alpha:
+                self.count[best] += 1
+                self.m[best], self.P[best] = m_new, P_new
+                if self.count[best] >= self.confirm:
+                    self._keep(np.arange(self.m.shape[0]) != best)
+                    return True
+                return False
+        self.m = np.vstack([self.m, m_new])
+        self.P = np.concatenate([self.P, P_new[None]])
+        self.count = np.append(self.count, 1)
+        self.first = np.append(self.first, t)
+        return False
+
+
+# --------------------------------------------------------------------------- full runs
+class EKFSLAMResult(NamedTuple):
+    """What :func:`run_ekf_slam` returns.
+
+    Attributes
+    ----------
+    x : ndarray, shape (T+1, 3)
+        Robot pose estimates, ``x[0]`` the initial pose, ``x[t+1]`` after
+        the step with control ``t`` and measurements ``z[t]``.
+    Sigma_x : ndarray, shape (T+1, 3, 3)
+        Robot covariances.
+    landmarks : ndarray, shape (L, 2)
+        Final landmark estimates in the order they entered the map.
+    landmark_cov : ndarray, shape (L, 2, 2)
+        Their marginal covariances.
+    landmark_ids : ndarray of int, shape (L,)
+        Ground-truth index (into ``run.landmarks``) of the measurement that
+        created each landmark; ``-1`` for a landmark created by clutter. With
+        unknown correspondences the filter never reads these, they are for
+        evaluation only.
+    landmark_var : ndarray, shape (T+1, L)
+        ``Var(m_x) + Var(m_y)`` of each landmark over time; NaN before the
+        landmark exists.
+    n_landmarks : ndarray of int, shape (T+1,)
+        Size of the map over time.
+    mu : ndarray, shape (3+2L,)
+        Final state mean.
+    Sigma : ndarray, shape (3+2L, 3+2L)
+        Final state covariance.
+    snapshots : dict
+        ``{t: (mu, Sigma, landmark_ids)}`` copies at the requested steps.
+    n_rejected : int
+        Measurements the provisional list kept out of the filter.
+    """
+
+    x: np.ndarray
+    Sigma_x: np.ndarray
+    landmarks: np.ndarray
+    landmark_cov: np.ndarray
+    landmark_ids: np.ndarray
+    landmark_var: np.ndarray
+    n_landmarks: np.ndarray
+    mu: np.ndarray
+    Sigma: np.ndarray
+    snapshots: dict
+    n_rejected: int
+
+
+def run_ekf_slam(run, *, known=True, fast=True, alpha=DEFAULT_ALPHA, confirm=1, window=10, M=None, Q=None,
+                 Sigma0=None, prior_var=DEFAULT_PRIOR_VAR, capacity=16, snapshots=()):
+    """Run EKF SLAM over a simulated landmark run.
+
+    Parameters
+    ----------
+    run : LandmarkRun
+        From :func:`~slamlib.sim.simulate_landmark_run` (optionally with
+        :func:`add_clutter`); uses ``x0``, ``u``, ``dt``, ``z``, ``ids`` and,
+        by default, ``M`` and ``Q``.
+    known : bool, keyword-only
+        Known correspondences (Algorithm 1: ``run.ids`` say which landmark
+        each measurement is; clutter, id ``-1``, is skipped) or unknown ones
+        (Algorithm 2: association by Mahalanobis distance).
+    fast : bool, keyword-only
+        Use :class:`EKFSLAM` (default) or the teaching contract functions.
+    alpha : float, keyword-only
+        New-landmark threshold of Algorithm 2 (squared Mahalanobis distance).
+    confirm : int, keyword-only
+        Provisional list: sightings a new landmark needs within `window`
+        steps before it enters the map; ``1`` (default) is plain Algorithm 2,
+        every unmatched measurement starts a landmark.
+    window : int, keyword-only
+        Steps a candidate has to collect its `confirm` sightings.
+    M, Q : ndarray, shape (2, 2), keyword-only
+        Noise covariances the filter assumes (default: the run's).
+    Sigma0 : ndarray, shape (3, 3), keyword-only
+        Initial robot covariance (default zero).
+    prior_var : float, keyword-only
+        Prior variance of a landmark before its first update.
+    capacity : int, keyword-only
+        Initial landmark capacity of the fast filter.
+    snapshots : iterable of int, keyword-only
+        Steps ``t`` in ``[0, T]`` at which to keep a copy of the full state.
+
+    Returns
+    -------
+    EKFSLAMResult
+        Estimates, covariances and map size over time.
+
+    Notes
+    -----
+    Each step predicts with ``u[t]`` and then processes the measurements
+    ``z[t]`` one by one in their stored order (sequential updates, each
+    re-linearised at the current mean).
+
+    References
+    ----------
+    Course text, Algorithms 1 and 2; Thrun, Burgard & Fox (2005), Tables 10.1,
+    10.2 and Sec. 10.3.3 (provisional landmark list).
+    """
+    for attr in ("x0", "u", "dt", "z", "ids", "M", "Q"):
+        if not hasattr(run, attr):
+            raise TypeError(f"run must be a LandmarkRun (simulate_landmark_run), it has no attribute {attr!r}")
+    x0 = as_array(run.x0, "run.x0", (3,))
+    u = as_array(run.u, "run.u", (None, 2))
+    dt = as_scalar(run.dt, "run.dt", positive=True)
+    T = u.shape[0]
+    if len(run.z) != T or len(run.ids) != T:
+        raise ValueError(f"run.z and run.ids must hold one entry per control ({T}), got {len(run.z)} and {len(run.ids)}")
+    M = as_covariance(run.M if M is None else M, "M", 2)
+    Q = as_covariance(run.Q if Q is None else Q, "Q", 2)
+    Sigma0 = np.zeros((3, 3)) if Sigma0 is None else as_covariance(Sigma0, "Sigma0", 3)
+    alpha = _check_alpha(alpha)
+    confirm = as_index(confirm, "confirm", lower=1)
+    window = as_index(window, "window", lower=1)
+    prior_var = as_scalar(prior_var, "prior_var", positive=True)
+    capacity = as_index(capacity, "capacity", lower=1)
+    keep = {as_index(t, "snapshots", T + 1) for t in snapshots}
+    zs = [as_array(z, f"run.z[{t}]", (None, 2)) for t, z in enumerate(run.z)]
+    ids = [np.asarray(i, dtype=int) for i in run.ids]
+    for t, (z, i) in enumerate(zip(zs, ids)):
+        if i.shape != (z.shape[0],):
+            raise ValueError(f"run.ids[{t}] must have shape ({z.shape[0]},), got {i.shape}")
+
+    if fast:
+        filt = EKFSLAM(x0, Sigma0, capacity=capacity, prior_var=prior_var)
+        predict, update, add, associate = filt._predict, filt._update, filt._add_landmark, filt._associate
+    else:
+        filt = _PlainEKFSLAM(x0, Sigma0, prior_var)
+        predict, update, add, associate = filt.predict, filt.update, filt.add_landmark, filt.associate
+    provisional = _ProvisionalList(confirm, window)
+    slot_of, landmark_ids = {}, []
+    xs = np.empty((T + 1, 3))
+    Sxs = np.empty((T + 1, 3, 3))
+    n_lm = np.empty(T + 1, dtype=int)
+    variances = []
+    kept = {}
+    n_rejected = 0
+
+    def record(t):
+        xs[t] = filt.x
+        Sxs[t] = filt.Sigma_x
+        n_lm[t] = filt.n_landmarks
+        variances.append(filt.landmark_variances())
+        if t in keep:
+            kept[t] = (np.array(filt.mu), np.array(filt.Sigma), np.array(landmark_ids, dtype=int))
+
+    record(0)
+    for t in range(T):
+        predict(u[t], dt, M)  # (Algorithm 1 lines 2-5)
+        for z, i in zip(zs[t], ids[t]):  # for all observed features  (Algorithm 1 line 7)
+            if known:
+                if i < 0:
+                    continue  # known to be clutter
+                j = slot_of.get(int(i))
+                if j is None:  # never seen before: initialise  (Algorithm 1 lines 9-11)
+                    j = slot_of[int(i)] = add(z)
+                    landmark_ids.append(int(i))
+            else:
+                j = associate(z, Q, alpha)  # (Algorithm 2)
+                if j == filt.n_landmarks:  # new landmark hypothesis wins
+                    if not provisional.observe(filt.x, filt.Sigma_x, z, Q, alpha, t):
+                        n_rejected += 1
+                        continue
+                    j = add(z)
+                    landmark_ids.append(int(i))
+            update(z, j, Q)  # (Algorithm 1 lines 12-19)
+        record(t + 1)
+
+    L = filt.n_landmarks
+    var = np.full((T + 1, L), np.nan)
+    for t, v in enumerate(variances):
+        var[t, :v.shape[0]] = v
+    mu = np.array(filt.mu)
+    Sigma = np.array(filt.Sigma)
+    r = np.arange(3, 3 + 2 * L, 2)
+    lcov = np.empty((L, 2, 2))
+    lcov[:, 0, 0] = Sigma[r, r]
+    lcov[:, 0, 1] = lcov[:, 1, 0] = Sigma[r, r + 1]
+    lcov[:, 1, 1] = Sigma[r + 1, r + 1]
+    return EKFSLAMResult(x=xs, Sigma_x=Sxs, landmarks=mu[3:].reshape(L, 2), landmark_cov=lcov,
+                         landmark_ids=np.array(landmark_ids, dtype=int), landmark_var=var, n_landmarks=n_lm,
+                         mu=mu, Sigma=Sigma, snapshots=kept, n_rejected=n_rejected)
+
+
+def add_clutter(run, rate, *, rng, max_range=None, min_range=0.5):
+    """Add spurious measurements (clutter) to a simulated run.
+
+    Parameters
+    ----------
+    run : LandmarkRun
+        A simulated run.
+    rate : float
+        Mean number of spurious measurements per step (Poisson), non-negative.
+    rng : numpy.random.Generator, keyword-only
+        Draws, per step: ``poisson(rate)`` for the count ``c``, then
+        ``uniform(min_range, max_range, c)`` ranges,
+        ``uniform(-fov/2, fov/2, c)`` bearings and one ``permutation`` that
+        mixes them among the true measurements.
+    max_range : float, keyword-only
+        Largest clutter range (default ``run.max_range``; required when that
+        is infinite).
+    min_range : float, keyword-only
+        Smallest clutter range, positive.
+
+    Returns
+    -------
+    LandmarkRun
+        A copy of `run` whose measurements include the clutter, marked with
+        id ``-1`` in ``ids``.
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Sec. 10.3.3 (spurious measurements and the
+    provisional landmark list).
+    """
+    for attr in ("z", "ids", "fov", "max_range"):
+        if not hasattr(run, attr):
+            raise TypeError(f"run must be a LandmarkRun (simulate_landmark_run), it has no attribute {attr!r}")
+    rate = as_scalar(rate, "rate", nonnegative=True)
+    check_rng(rng)
+    min_range = as_scalar(min_range, "min_range", positive=True)
+    if max_range is None:
+        if not np.isfinite(run.max_range):
+            raise ValueError("max_range must be given when run.max_range is infinite")
+        max_range = run.max_range
+    max_range = as_scalar(max_range, "max_range", positive=True)
+    if max_range <= min_range:
+        raise ValueError(f"max_range must exceed min_range ({min_range}), got {max_range}")
+    zs, ids = [], []
+    for z, i in zip(run.z, run.ids):
+        c = int(rng.poisson(rate))
+        fake = np.column_stack([rng.uniform(min_range, max_range, c), rng.uniform(-run.fov / 2, run.fov / 2, c)])
+        fake[:, 1] = wrap_angle(fake[:, 1]) if c else fake[:, 1]
+        allz = np.vstack([np.asarray(z, dtype=float).reshape(-1, 2), fake])
+        alli = np.concatenate([np.asarray(i, dtype=int), np.full(c, -1)])
+        order = rng.permutation(allz.shape[0])
+        zz, ii = allz[order], alli[order]
+        zz.setflags(write=False)
+        ii.setflags(write=False)
+        zs.append(zz)
+        ids.append(ii)
+    return dataclasses.replace(run, z=tuple(zs), ids=tuple(ids))

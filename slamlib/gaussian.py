@@ -1,3 +1,673 @@
-"""Placeholder: filled in by its owner."""
+"""Gaussian filters: the Kalman filter and EKF localization with landmarks.
 
-__all__: list[str] = []
+* :func:`kf_predict`, :func:`kf_update` -- the linear Kalman filter (Table 3.1),
+  written in the common ``x, P, F, Q, H, R`` notation of linear filtering.
+* :func:`ekf_predict`, :func:`ekf_update` -- one prediction with the velocity
+  motion model and one update with a range-bearing measurement of a known
+  landmark (Table 7.2).
+* :func:`landmark_mahalanobis`, :func:`associate_ml` -- data association by
+  the nearest neighbour in squared Mahalanobis distance with a gate.
+* :func:`ekf_localization_known`, :func:`ekf_localization_unknown` -- a full
+  filter step (prediction plus every measurement of the step, applied one after
+  the other) with known and with unknown correspondences (Tables 7.2, 7.3);
+  :func:`ekf_localization_run` runs either over a simulated
+  :class:`~slamlib.sim.LandmarkRun`.
+
+Notation of the Kalman filter (Table 3.1 writes the same filter as
+``A_t, B_t, R_t, C_t, Q_t``):
+
+=================  =======================  ==================
+quantity           here (``kf_*``)          Table 3.1
+=================  =======================  ==================
+state transition   ``F``                    ``A_t``
+control matrix     ``B``                    ``B_t``
+process noise      ``Q``                    ``R_t``
+measurement model  ``H``                    ``C_t``
+measurement noise  ``R``                    ``Q_t``
+=================  =======================  ==================
+
+The EKF functions use the book's notation: ``M`` is the control-noise
+covariance ``(2, 2)`` of ``[v, omega]`` and ``Q`` the measurement-noise
+covariance ``(2, 2)`` of ``[r, phi]``.
+
+Every function returns new arrays (no argument is modified), wraps every
+returned heading and every bearing innovation to ``[-pi, pi)`` and returns
+covariances symmetrised as ``(Sigma + Sigma^T) / 2``. The predict and update
+functions broadcast over leading axes, so a batch of independent filters goes
+through the same call.
+
+References
+----------
+Thrun, Burgard & Fox, *Probabilistic Robotics* (2005), Table 3.1 (Kalman
+filter), Table 3.3 (EKF), Sec. 7.4 with Table 7.2 (EKF localization with known
+correspondences) and Table 7.3 (unknown correspondences).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from ._checks import as_array, as_scalar
+from .angles import wrap_angle
+from .motion import velocity_motion
+from .sensors import landmark_measurement
+
+__all__ = [
+    "Gaussian",
+    "kf_predict",
+    "kf_update",
+    "ekf_predict",
+    "ekf_update",
+    "landmark_mahalanobis",
+    "associate_ml",
+    "ekf_localization_known",
+    "ekf_localization_unknown",
+    "EKFRunResult",
+    "ekf_localization_run",
+]
+
+#: Default association gate on the squared Mahalanobis distance: the 99 %
+#: quantile of the chi-square distribution with 2 degrees of freedom,
+#: ``-2 ln(0.01)``.
+DEFAULT_GATE = float(-2.0 * np.log(0.01))
+
+
+class Gaussian(NamedTuple):
+    """A Gaussian belief ``N(mean, cov)``; unpacks as ``mean, cov = g``.
+
+    Attributes
+    ----------
+    mean : ndarray, shape (..., n)
+        Mean vector(s).
+    cov : ndarray, shape (..., n, n)
+        Covariance matrix (matrices), symmetric positive semi-definite.
+    """
+
+    mean: np.ndarray
+    cov: np.ndarray
+
+
+# --------------------------------------------------------------------------- validation helpers
+def _as_vec(value, name, n=None):
+    arr = as_array(value, name, ndim=range(1, 33))
+    if n is not None and arr.shape[-1] != n:
+        raise ValueError(f"{name} must have shape ({n},) or (..., {n}), got {arr.shape}")
+    return arr
+
+
+def _as_mat(value, name, rows=None, cols=None):
+    arr = as_array(value, name, ndim=range(2, 33))
+    r, c = arr.shape[-2:]
+    if (rows is not None and r != rows) or (cols is not None and c != cols):
+        want = f"({'n' if rows is None else rows}, {'n' if cols is None else cols})"
+        raise ValueError(f"{name} must have shape {want} or (..., {want[1:-1]}), got {arr.shape}")
+    return arr
+
+
+def _as_cov(value, name, n=None, *, definite=False):
+    """A (batch of) symmetric PSD (or PD) ``(n, n)`` matrices, checked per matrix."""
+    arr = _as_mat(value, name, n, n)
+    if arr.shape[-1] != arr.shape[-2]:
+        raise ValueError(f"{name} must be square, got shape {arr.shape}")
+    scale = np.maximum(1.0, np.abs(arr).max(axis=(-2, -1), initial=0.0))
+    asym = np.abs(arr - np.swapaxes(arr, -1, -2)).max(axis=(-2, -1), initial=0.0)
+    if np.any(asym > 1e-9 * scale):
+        raise ValueError(f"{name} must be symmetric")
+    if arr.shape[-1] > 0:
+        eig = np.linalg.eigvalsh(arr)
+        tol = 1e-9 * np.maximum(1.0, np.abs(eig).max(axis=-1))
+        if definite and np.any(eig.min(axis=-1) <= 0.0):
+            raise ValueError(f"{name} must be positive definite (smallest eigenvalue {eig.min():.3g})")
+        if np.any(eig.min(axis=-1) < -tol):
+            raise ValueError(f"{name} must be positive semi-definite (smallest eigenvalue {eig.min():.3g})")
+    return arr
+
+
+def _check_batch(*named):
+    """Leading axes of (array, core ndim, name) triples must broadcast."""
+    try:
+        return np.broadcast_shapes(*(a.shape[: a.ndim - k] for a, k, _ in named))
+    except ValueError:
+        desc = ", ".join(f"{name} {a.shape}" for a, _, name in named)
+        raise ValueError(f"leading (batch) axes do not broadcast: {desc}") from None
+
+
+def _T(A):
+    return np.swapaxes(A, -1, -2)
+
+
+def _sym(S):
+    return 0.5 * (S + _T(S))
+
+
+def _mv(A, x):
+    """Matrix-vector product over leading axes."""
+    return (A @ x[..., None])[..., 0]
+
+
+# --------------------------------------------------------------------------- linear Kalman filter
+def kf_predict(x, P, F, Q, *, B=None, u=None):
+    """Kalman filter prediction.
+
+    Parameters
+    ----------
+    x : ndarray, shape (n,) or (..., n)
+        Mean of the belief at time ``t-1``.
+    P : ndarray, shape (n, n) or (..., n, n)
+        Its covariance, symmetric positive semi-definite.
+    F : ndarray, shape (n, n) or (..., n, n)
+        State-transition matrix (``A_t`` of Table 3.1).
+    Q : ndarray, shape (n, n) or (..., n, n)
+        Process-noise covariance (``R_t`` of Table 3.1).
+    B : ndarray, shape (n, k) or (..., n, k), keyword-only, optional
+        Control matrix; given together with `u`.
+    u : ndarray, shape (k,) or (..., k), keyword-only, optional
+        Control vector.
+
+    Returns
+    -------
+    Gaussian
+        ``(x_bar (..., n), P_bar (..., n, n))`` with ``x_bar = F x + B u`` and
+        ``P_bar = F P F^T + Q``.
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Table 3.1 lines 2-3.
+    """
+    x = _as_vec(x, "x")
+    n = x.shape[-1]
+    P = _as_cov(P, "P", n)
+    F = _as_mat(F, "F", n, n)
+    Q = _as_cov(Q, "Q", n)
+    if (B is None) != (u is None):
+        raise ValueError("B and u must be given together (or both omitted)")
+    named = [(x, 1, "x"), (P, 2, "P"), (F, 2, "F"), (Q, 2, "Q")]
+    if B is not None:
+        B = _as_mat(B, "B", n)
+        u = _as_vec(u, "u", B.shape[-1])
+        named += [(B, 2, "B"), (u, 1, "u")]
+    _check_batch(*named)
+    # x_bar = A x + B u  (Table 3.1 line 2)
+    x_bar = _mv(F, x)
+    if B is not None:
+        x_bar = x_bar + _mv(B, u)
+    # P_bar = A P A^T + R  (Table 3.1 line 3)
+    P_bar = F @ P @ _T(F) + Q
+    return Gaussian(x_bar, _sym(P_bar))
+
+
+def kf_update(x, P, z, H, R):
+    """Kalman filter measurement update.
+
+    Parameters
+    ----------
+    x : ndarray, shape (n,) or (..., n)
+        Predicted mean.
+    P : ndarray, shape (n, n) or (..., n, n)
+        Predicted covariance.
+    z : ndarray, shape (k,) or (..., k)
+        Measurement.
+    H : ndarray, shape (k, n) or (..., k, n)
+        Measurement matrix (``C_t`` of Table 3.1).
+    R : ndarray, shape (k, k) or (..., k, k)
+        Measurement-noise covariance (``Q_t`` of Table 3.1), positive definite.
+
+    Returns
+    -------
+    Gaussian
+        ``(x (..., n), P (..., n, n))``: ``K = P H^T (H P H^T + R)^-1``,
+        ``x + K (z - H x)``, ``(I - K H) P``.
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Table 3.1 lines 4-6.
+    """
+    x = _as_vec(x, "x")
+    n = x.shape[-1]
+    P = _as_cov(P, "P", n)
+    z = _as_vec(z, "z")
+    k = z.shape[-1]
+    H = _as_mat(H, "H", k, n)
+    R = _as_cov(R, "R", k, definite=True)
+    _check_batch((x, 1, "x"), (P, 2, "P"), (z, 1, "z"), (H, 2, "H"), (R, 2, "R"))
+    # S = C P C^T + Q ; K = P C^T S^-1  (Table 3.1 line 4)
+    PHt = P @ _T(H)
+    S = _sym(H @ PHt + R)
+    K = _T(np.linalg.solve(S, _T(PHt)))
+    # x = x_bar + K (z - C x_bar)  (Table 3.1 line 5)
+    x_new = x + _mv(K, z - _mv(H, x))
+    # P = (I - K C) P_bar  (Table 3.1 line 6)
+    P_new = P - K @ H @ P
+    return Gaussian(x_new, _sym(P_new))
+
+
+# --------------------------------------------------------------------------- EKF localization
+def _ekf_predict(mu, Sigma, u, dt, M):
+    mu_bar, G, V = velocity_motion(mu, u, dt)  # g(u, mu), G, V  (Table 7.2 lines 2-4, 6)
+    # Sigma_bar = G Sigma G^T + V M V^T  (Table 7.2 line 7)
+    Sigma_bar = G @ Sigma @ _T(G) + V @ M @ _T(V)
+    return Gaussian(mu_bar, _sym(Sigma_bar))
+
+
+def ekf_predict(mu, Sigma, u, dt, M):
+    """EKF prediction with the velocity motion model.
+
+    Parameters
+    ----------
+    mu : ndarray, shape (3,) or (..., 3)
+        Mean pose ``[x, y, theta]`` at time ``t-1``.
+    Sigma : ndarray, shape (3, 3) or (..., 3, 3)
+        Its covariance, symmetric positive semi-definite.
+    u : ndarray, shape (2,) or (..., 2)
+        Control ``[v, omega]``.
+    dt : float
+        Duration of the control, non-negative seconds.
+    M : ndarray, shape (2, 2) or (..., 2, 2)
+        Control-noise covariance of ``[v, omega]`` (e.g.
+        :func:`~slamlib.motion.velocity_noise_cov`).
+
+    Returns
+    -------
+    Gaussian
+        ``(mu_bar (..., 3), Sigma_bar (..., 3, 3))``: ``mu_bar = g(u, mu)``
+        (exact arc, heading wrapped) and ``Sigma_bar = G Sigma G^T + V M V^T``
+        with the Jacobians ``G = dg/dx`` and ``V = dg/du`` at ``(mu, u)``.
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Table 7.2 lines 2-7.
+    """
+    mu = _as_vec(mu, "mu", 3)
+    Sigma = _as_cov(Sigma, "Sigma", 3)
+    u = _as_vec(u, "u", 2)
+    dt = as_scalar(dt, "dt", nonnegative=True)
+    M = _as_cov(M, "M", 2)
+    _check_batch((mu, 1, "mu"), (Sigma, 2, "Sigma"), (u, 1, "u"), (M, 2, "M"))
+    return _ekf_predict(mu, Sigma, u, dt, M)
+
+
+def _innovation(mu_bar, Sigma_bar, z, m, Q):
+    """Innovation ``nu`` (bearing wrapped), its covariance ``S`` and ``H``."""
+    z_hat, H, _ = landmark_measurement(mu_bar, m)  # (Table 7.2 lines 12-14)
+    nu = z - z_hat
+    nu[..., 1] = wrap_angle(nu[..., 1])  # bearing innovation wrapped to [-pi, pi)
+    # S = H Sigma_bar H^T + Q  (Table 7.2 line 15)
+    S = _sym(H @ Sigma_bar @ _T(H) + Q)
+    return nu, S, H
+
+
+def _ekf_update(mu_bar, Sigma_bar, z, m, Q):
+    nu, S, H = _innovation(mu_bar, Sigma_bar, z, m, Q)
+    SigHt = Sigma_bar @ _T(H)
+    # K = Sigma_bar H^T S^-1  (Table 7.2 line 16)
+    K = _T(np.linalg.solve(S, _T(SigHt)))
+    # mu = mu_bar + K (z - z_hat)  (Table 7.2 line 17)
+    mu = mu_bar + _mv(K, nu)
+    mu[..., 2] = wrap_angle(mu[..., 2])
+    # Sigma = (I - K H) Sigma_bar  (Table 7.2 line 18)
+    Sigma = Sigma_bar - K @ H @ Sigma_bar
+    return Gaussian(mu, _sym(Sigma))
+
+
+def ekf_update(mu_bar, Sigma_bar, z, m, Q):
+    """EKF update with one range-bearing measurement of a known landmark.
+
+    Parameters
+    ----------
+    mu_bar : ndarray, shape (3,) or (..., 3)
+        Predicted mean pose.
+    Sigma_bar : ndarray, shape (3, 3) or (..., 3, 3)
+        Predicted covariance.
+    z : ndarray, shape (2,) or (..., 2)
+        Measurement ``[r, phi]``.
+    m : ndarray, shape (2,) or (..., 2)
+        Position of the measured landmark.
+    Q : ndarray, shape (2, 2) or (..., 2, 2)
+        Measurement-noise covariance of ``[r, phi]``, positive definite.
+
+    Returns
+    -------
+    Gaussian
+        ``(mu (..., 3), Sigma (..., 3, 3))`` with ``S = H Sigma_bar H^T + Q``,
+        ``K = Sigma_bar H^T S^-1``, ``mu = mu_bar + K nu`` (``nu = z - z_hat``
+        with its bearing wrapped; heading of `mu` wrapped) and
+        ``Sigma = (I - K H) Sigma_bar``.
+
+    Raises
+    ------
+    ValueError
+        If `m` coincides with the position of `mu_bar` (the bearing is
+        undefined there).
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Table 7.2 lines 10-18.
+    """
+    mu_bar = _as_vec(mu_bar, "mu_bar", 3)
+    Sigma_bar = _as_cov(Sigma_bar, "Sigma_bar", 3)
+    z = _as_vec(z, "z", 2)
+    m = _as_vec(m, "m", 2)
+    Q = _as_cov(Q, "Q", 2, definite=True)
+    _check_batch((mu_bar, 1, "mu_bar"), (Sigma_bar, 2, "Sigma_bar"), (z, 1, "z"), (m, 1, "m"), (Q, 2, "Q"))
+    return _ekf_update(mu_bar, Sigma_bar, z, m, Q)
+
+
+def _mahalanobis(mu_bar, Sigma_bar, z, landmarks, Q):
+    """Squared Mahalanobis distances ``(K,)`` of ``z`` to every landmark."""
+    if landmarks.shape[0] == 0:
+        return np.zeros(0)
+    nu, S, _ = _innovation(mu_bar, Sigma_bar, z, landmarks, Q)
+    # d = nu^T S^-1 nu  (squared Mahalanobis distance, cf. Table 7.3 line 15)
+    return np.einsum("...i,...i->...", nu, np.linalg.solve(S, nu[..., None])[..., 0])
+
+
+def landmark_mahalanobis(mu_bar, Sigma_bar, z, landmarks, Q):
+    """Squared Mahalanobis distance of one measurement to every landmark.
+
+    Parameters
+    ----------
+    mu_bar : ndarray, shape (3,)
+        Predicted mean pose.
+    Sigma_bar : ndarray, shape (3, 3)
+        Predicted covariance.
+    z : ndarray, shape (2,)
+        Measurement ``[r, phi]``.
+    landmarks : ndarray, shape (K, 2)
+        Candidate landmark positions (``K`` may be 0).
+    Q : ndarray, shape (2, 2)
+        Measurement-noise covariance, positive definite.
+
+    Returns
+    -------
+    ndarray, shape (K,)
+        ``d_k = nu_k^T S_k^-1 nu_k`` with ``nu_k = z - h(mu_bar, m_k)`` (bearing
+        wrapped) and ``S_k = H_k Sigma_bar H_k^T + Q``.
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Table 7.3 lines 10-15 (the quantities
+    that enter the association), Eq. 3.1 (Gaussian exponent).
+    """
+    mu_bar = as_array(mu_bar, "mu_bar", (3,))
+    Sigma_bar = _as_cov(Sigma_bar, "Sigma_bar", 3)
+    z = as_array(z, "z", (2,))
+    landmarks = as_array(landmarks, "landmarks", (None, 2))
+    Q = _as_cov(Q, "Q", 2, definite=True)
+    if Sigma_bar.ndim != 2 or Q.ndim != 2:
+        raise ValueError("Sigma_bar must have shape (3, 3) and Q shape (2, 2)")
+    return _mahalanobis(mu_bar, Sigma_bar, z, landmarks, Q)
+
+
+def _associate(d, gate):
+    if d.size == 0:
+        return -1
+    j = int(np.argmin(d))  # first minimum: ties go to the smallest index
+    return j if d[j] <= gate else -1
+
+
+def associate_ml(mu_bar, Sigma_bar, z, landmarks, Q, gate):
+    """Nearest-neighbour data association with a Mahalanobis gate.
+
+    Parameters
+    ----------
+    mu_bar : ndarray, shape (3,)
+        Predicted mean pose.
+    Sigma_bar : ndarray, shape (3, 3)
+        Predicted covariance.
+    z : ndarray, shape (2,)
+        Measurement ``[r, phi]``.
+    landmarks : ndarray, shape (K, 2)
+        Candidate landmark positions; ``K = 0`` is allowed.
+    Q : ndarray, shape (2, 2)
+        Measurement-noise covariance, positive definite.
+    gate : float
+        Non-negative threshold on the squared Mahalanobis distance (e.g.
+        ``slamlib.gaussian.DEFAULT_GATE``, the 99 % chi-square quantile with 2 degrees of
+        freedom); ``numpy.inf`` accepts every measurement.
+
+    Returns
+    -------
+    int
+        Index ``j`` of the landmark with the smallest ``d_j = nu^T S^-1 nu``
+        (see :func:`landmark_mahalanobis`; ties go to the smallest index), or
+        ``-1`` if ``d_j > gate`` or ``K = 0``. ``d_j == gate`` is a match.
+
+    Notes
+    -----
+    Table 7.3 picks the landmark of largest likelihood, which also weighs
+    ``det(2 pi S)``; the nearest neighbour in Mahalanobis distance drops that
+    factor, so a far, uncertain landmark does not win merely because its
+    ``S`` is large.
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Table 7.3 lines 10-16 (with the Mahalanobis
+    distance in place of the likelihood).
+    """
+    d = landmark_mahalanobis(mu_bar, Sigma_bar, z, landmarks, Q)
+    gate = as_scalar(gate, "gate", nonnegative=True, finite=False)
+    return _associate(d, gate)
+
+
+def _as_measurements(z, name="z"):
+    z = as_array(z, name, ndim=(1, 2))
+    if z.ndim == 1 and z.size == 0:
+        z = z.reshape(0, 2)
+    if z.ndim != 2 or z.shape[1] != 2:
+        raise ValueError(f"{name} must have shape (K, 2), got {z.shape}")
+    return z
+
+
+def _step_inputs(mu, Sigma, u, z, landmarks, dt, M, Q):
+    mu = as_array(mu, "mu", (3,))
+    Sigma = _as_cov(Sigma, "Sigma", 3)
+    u = as_array(u, "u", (2,))
+    z = _as_measurements(z)
+    landmarks = as_array(landmarks, "landmarks", (None, 2))
+    dt = as_scalar(dt, "dt", nonnegative=True)
+    M = _as_cov(M, "M", 2)
+    Q = _as_cov(Q, "Q", 2, definite=True)
+    if Sigma.ndim != 2 or M.ndim != 2 or Q.ndim != 2:
+        raise ValueError("Sigma must have shape (3, 3), M and Q shape (2, 2)")
+    return mu, Sigma, u, z, landmarks, dt, M, Q
+
+
+def _known_step(mu, Sigma, u, z, ids, landmarks, dt, M, Q):
+    mu, Sigma = _ekf_predict(mu, Sigma, u, dt, M)
+    for zi, j in zip(z, ids):  # for all observed features  (Table 7.2 line 10)
+        mu, Sigma = _ekf_update(mu, Sigma, zi, landmarks[j], Q)
+    return Gaussian(mu, Sigma)
+
+
+def ekf_localization_known(mu, Sigma, u, z, ids, landmarks, dt, M, Q):
+    """One step of EKF localization with known correspondences.
+
+    Parameters
+    ----------
+    mu : ndarray, shape (3,)
+        Mean pose at time ``t-1``.
+    Sigma : ndarray, shape (3, 3)
+        Its covariance.
+    u : ndarray, shape (2,)
+        Control ``[v, omega]``.
+    z : ndarray, shape (K, 2)
+        The step's measurements ``[r, phi]`` (``K`` may be 0).
+    ids : ndarray of int, shape (K,)
+        Index into `landmarks` of each measurement (the correspondences).
+    landmarks : ndarray, shape (N, 2)
+        The map.
+    dt : float
+        Duration of the control, seconds.
+    M : ndarray, shape (2, 2)
+        Control-noise covariance.
+    Q : ndarray, shape (2, 2)
+        Measurement-noise covariance, positive definite.
+
+    Returns
+    -------
+    Gaussian
+        ``(mu (3,), Sigma (3, 3))`` after :func:`ekf_predict` and one
+        :func:`ekf_update` per measurement, applied in order (each update
+        linearises at the mean left by the previous one).
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Table 7.2.
+    """
+    mu, Sigma, u, z, landmarks, dt, M, Q = _step_inputs(mu, Sigma, u, z, landmarks, dt, M, Q)
+    ids = _as_ids(ids, z.shape[0], landmarks.shape[0])
+    return _known_step(mu, Sigma, u, z, ids, landmarks, dt, M, Q)
+
+
+def _as_ids(ids, k, n):
+    arr = np.asarray(ids)
+    if arr.size == 0:
+        arr = arr.reshape(0).astype(np.intp)
+    if arr.dtype.kind not in "iu":
+        raise TypeError(f"ids must be an integer array, got dtype {arr.dtype}")
+    if arr.shape != (k,):
+        raise ValueError(f"ids must have shape ({k},) (one per measurement in z), got {arr.shape}")
+    if k and (arr.min() < 0 or arr.max() >= n):
+        raise ValueError(f"ids must index landmarks, i.e. lie in [0, {n}), got range [{arr.min()}, {arr.max()}]")
+    return arr.astype(np.intp)
+
+
+def _unknown_step(mu, Sigma, u, z, landmarks, dt, M, Q, gate):
+    mu, Sigma = _ekf_predict(mu, Sigma, u, dt, M)
+    ids = np.full(z.shape[0], -1, dtype=np.intp)
+    for i, zi in enumerate(z):  # for all observed features  (Table 7.3 line 9)
+        # j(i) = argmin_k d_k, gated  (Table 7.3 line 16, nearest neighbour)
+        j = _associate(_mahalanobis(mu, Sigma, zi, landmarks, Q), gate)
+        ids[i] = j
+        if j >= 0:
+            mu, Sigma = _ekf_update(mu, Sigma, zi, landmarks[j], Q)
+    return Gaussian(mu, Sigma), ids
+
+
+def ekf_localization_unknown(mu, Sigma, u, z, landmarks, dt, M, Q, *, gate=DEFAULT_GATE):
+    """One step of EKF localization with unknown correspondences.
+
+    Parameters
+    ----------
+    mu : ndarray, shape (3,)
+        Mean pose at time ``t-1``.
+    Sigma : ndarray, shape (3, 3)
+        Its covariance.
+    u : ndarray, shape (2,)
+        Control ``[v, omega]``.
+    z : ndarray, shape (K, 2)
+        The step's measurements; some may be clutter (no landmark).
+    landmarks : ndarray, shape (N, 2)
+        The map.
+    dt : float
+        Duration of the control, seconds.
+    M : ndarray, shape (2, 2)
+        Control-noise covariance.
+    Q : ndarray, shape (2, 2)
+        Measurement-noise covariance, positive definite.
+    gate : float, keyword-only
+        Squared-Mahalanobis gate of :func:`associate_ml`; a measurement whose
+        nearest landmark lies beyond it is discarded as an outlier.
+
+    Returns
+    -------
+    belief : Gaussian
+        ``(mu (3,), Sigma (3, 3))`` after the prediction and the updates.
+    ids : ndarray of int, shape (K,)
+        The landmark chosen for each measurement, ``-1`` for a gated outlier.
+
+    Notes
+    -----
+    Measurements are handled in order: each is associated against the belief
+    left by the previous update and then applied, so later associations use
+    the sharper belief.
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Table 7.3 (association by nearest
+    Mahalanobis neighbour with a gate, cf. Sec. 7.5).
+    """
+    mu, Sigma, u, z, landmarks, dt, M, Q = _step_inputs(mu, Sigma, u, z, landmarks, dt, M, Q)
+    gate = as_scalar(gate, "gate", nonnegative=True, finite=False)
+    return _unknown_step(mu, Sigma, u, z, landmarks, dt, M, Q, gate)
+
+
+class EKFRunResult(NamedTuple):
+    """Output of :func:`ekf_localization_run`.
+
+    Attributes
+    ----------
+    mu : ndarray, shape (T+1, 3)
+        Posterior means, ``mu[0]`` the initial belief.
+    Sigma : ndarray, shape (T+1, 3, 3)
+        Posterior covariances.
+    ids : tuple of ndarray of int, shape (K_t,)
+        Correspondences used at each step (``-1`` marks a gated measurement);
+        the given ones when correspondences are known.
+    """
+
+    mu: np.ndarray
+    Sigma: np.ndarray
+    ids: tuple
+
+
+def ekf_localization_run(run, *, known=True, mu0=None, Sigma0=None, M=None, Q=None, gate=DEFAULT_GATE):
+    """Run EKF localization over a whole simulated run.
+
+    Parameters
+    ----------
+    run : LandmarkRun
+        A run of :func:`~slamlib.sim.simulate_landmark_run`; the filter uses
+        its ``landmarks``, ``dt``, commanded controls ``u (T, 2)``,
+        measurements ``z`` and, when `known`, correspondences ``ids``.
+    known : bool, keyword-only
+        Known correspondences (Table 7.2) or nearest-neighbour association
+        with a gate (Table 7.3).
+    mu0 : ndarray, shape (3,), keyword-only, optional
+        Initial mean; defaults to ``run.x0``.
+    Sigma0 : ndarray, shape (3, 3), keyword-only, optional
+        Initial covariance; defaults to ``diag(0.01, 0.01, 0.001)``.
+    M, Q : ndarray, shape (2, 2), keyword-only, optional
+        Noise covariances assumed by the filter; default to the run's.
+    gate : float, keyword-only
+        Association gate (unknown correspondences only).
+
+    Returns
+    -------
+    EKFRunResult
+        ``(mu (T+1, 3), Sigma (T+1, 3, 3), ids)``.
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Tables 7.2 and 7.3.
+    """
+    for attr in ("landmarks", "dt", "x0", "u", "z", "ids", "M", "Q"):
+        if not hasattr(run, attr):
+            raise TypeError(f"run must be a LandmarkRun (missing attribute {attr!r})")
+    landmarks = as_array(run.landmarks, "run.landmarks", (None, 2))
+    u = as_array(run.u, "run.u", (None, 2))
+    dt = as_scalar(run.dt, "run.dt", nonnegative=True)
+    mu = as_array(run.x0 if mu0 is None else mu0, "mu0", (3,))
+    Sigma = _as_cov(np.diag([0.01, 0.01, 0.001]) if Sigma0 is None else Sigma0, "Sigma0", 3)
+    M = _as_cov(run.M if M is None else M, "M", 2)
+    Q = _as_cov(run.Q if Q is None else Q, "Q", 2, definite=True)
+    gate = as_scalar(gate, "gate", nonnegative=True, finite=False)
+    T = u.shape[0]
+    if len(run.z) != T or len(run.ids) != T:
+        raise ValueError(f"run.z and run.ids must hold one entry per control ({T}), got {len(run.z)} and {len(run.ids)}")
+    mus = np.empty((T + 1, 3))
+    Sigmas = np.empty((T + 1, 3, 3))
+    mus[0], Sigmas[0] = mu, Sigma
+    used = []
+    for t in range(T):
+        z = _as_measurements(run.z[t], f"run.z[{t}]")
+        if known:
+            ids = _as_ids(run.ids[t], z.shape[0], landmarks.shape[0])
+            mu, Sigma = _known_step(mu, Sigma, u[t], z, ids, landmarks, dt, M, Q)
+        else:
+            (mu, Sigma), ids = _unknown_step(mu, Sigma, u[t], z, landmarks, dt, M, Q, gate)
+        mus[t + 1], Sigmas[t + 1] = mu, Sigma
+        used.append(ids)
+    return EKFRunResult(mus, Sigmas, tuple(used))

@@ -1,3 +1,1128 @@
-"""Placeholder: filled in by its owner."""
+"""Monte Carlo localization in an occupancy grid: MCL, Augmented MCL, KLD-sampling.
 
-__all__: list[str] = []
+A particle is a pose hypothesis ``[x, y, theta]``; a set of ``M`` particles is an
+``(M, 3)`` array with log-weights ``(M,)``. One filter step (:func:`mcl_step`)
+
+1. moves every particle with a sample of the odometry motion model (Table 5.6),
+2. weights it by the likelihood of the laser scan, computed either with the
+   likelihood field (Table 6.3, fast: one table look-up per beam) or with the
+   beam model (Table 6.1, slow: one ray cast per beam),
+3. resamples (low-variance resampling, Table 4.4) when the effective sample
+   size drops below ``resample_threshold * M``.
+
+:func:`augmented_mcl_step` adds random particles when the short-term average
+likelihood falls below the long-term one (Table 8.3), which lets the filter
+recover from a kidnapping; :func:`kld_mcl_step` chooses the number of particles
+at every step from the number of histogram bins they occupy (Table 8.4).
+
+Scans of a log are turned into filter steps by :func:`odometry_steps`: the
+control of a step is the odometry increment since the last *used* scan, and a
+scan is skipped while the robot has moved less than ``min_translation`` and
+turned less than ``min_rotation`` (its odometry is merged into the next step).
+Filtering the same scan twice from the same place would count the same evidence
+twice and make the cloud over-confident, so MCL implementations usually update
+only after a minimum motion.
+
+Every function is vectorised over particles: no Python loop runs over them.
+
+References
+----------
+Thrun, Burgard & Fox, *Probabilistic Robotics* (2005), Table 8.2 (MCL),
+Table 8.3 (Augmented MCL), Table 8.4 (KLD-sampling MCL), Tables 6.1 and 6.3
+(measurement models), Table 5.6 (odometry motion model), Table 4.4 (low-variance
+resampling). D. Fox, "KLD-Sampling: Adaptive Particle Filters", NIPS 14 (2001).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import numpy as np
+from scipy.special import logsumexp
+from scipy.stats import norm
+
+from ._checks import as_array, as_index, as_scalar, check_rng
+from .angles import circular_mean, wrap_angle
+from . import maps, particle, sensors
+from .motion import odometry_from_poses, odometry_motion, sample_motion_model_odometry
+
+__all__ = [
+    "MCLParams",
+    "AugmentedParams",
+    "KLDParams",
+    "MCLModel",
+    "MCLState",
+    "MCLStepInfo",
+    "MCLResult",
+    "prepare_mcl",
+    "odometry_steps",
+    "splice_log",
+    "mcl_initialize",
+    "scan_log_likelihood",
+    "mcl_step",
+    "augmented_mcl_step",
+    "kld_sample_size",
+    "kld_mcl_step",
+    "particle_summary",
+    "scan_endpoints",
+    "endpoint_distances",
+    "run_mcl",
+]
+
+_MODELS = ("likelihood_field", "beam")
+_VARIANTS = ("mcl", "augmented", "kld")
+
+
+# --------------------------------------------------------------------------- parameters
+@dataclass(frozen=True)
+class AugmentedParams:
+    """Parameters of Augmented MCL (Table 8.3).
+
+    Attributes
+    ----------
+    alpha_slow, alpha_fast : float
+        Decay rates of the long- and short-term averages of the measurement
+        likelihood, ``0 <= alpha_slow << alpha_fast <= 1``.
+    """
+
+    alpha_slow: float = 0.01
+    alpha_fast: float = 0.3
+
+    def __post_init__(self):
+        a_s = as_scalar(self.alpha_slow, "alpha_slow", nonnegative=True)
+        a_f = as_scalar(self.alpha_fast, "alpha_fast", nonnegative=True)
+        if not (a_s < a_f <= 1.0):
+            raise ValueError(f"alpha_slow and alpha_fast must satisfy 0 <= alpha_slow < alpha_fast <= 1, got {a_s}, {a_f}")
+
+
+@dataclass(frozen=True)
+class KLDParams:
+    """Parameters of KLD-sampling (Table 8.4).
+
+    Attributes
+    ----------
+    epsilon : float
+        Bound on the Kullback-Leibler divergence between the sample-based and
+        the true posterior.
+    delta : float
+        The bound holds with probability ``1 - delta``.
+    bin_size : tuple of float
+        Histogram bin size ``(dx [m], dy [m], dtheta [rad])``.
+    n_min, n_max : int
+        Smallest and largest number of particles.
+    chunk : int
+        Particles are drawn, moved and binned ``chunk`` at a time (vectorised);
+        the count is then cut exactly where Table 8.4's one-at-a-time loop
+        would have stopped.
+    """
+
+    epsilon: float = 0.05
+    delta: float = 0.01
+    bin_size: tuple[float, float, float] = (0.5, 0.5, np.deg2rad(10.0))
+    n_min: int = 200
+    n_max: int = 10_000
+    chunk: int = 1000
+
+    def __post_init__(self):
+        as_scalar(self.epsilon, "epsilon", positive=True)
+        d = as_scalar(self.delta, "delta", positive=True)
+        if d >= 1.0:
+            raise ValueError(f"delta must be in (0, 1), got {d}")
+        b = as_array(self.bin_size, "bin_size", (3,))
+        if np.any(b <= 0):
+            raise ValueError(f"bin_size must be positive, got {tuple(b)}")
+        lo = as_index(self.n_min, "n_min", lower=1)
+        as_index(self.n_max, "n_max", lower=lo)
+        as_index(self.chunk, "chunk", lower=1)
+
+
+@dataclass(frozen=True)
+class MCLParams:
+    """Parameters of Monte Carlo localization with a laser range finder.
+
+    Attributes
+    ----------
+    n_particles : int
+        Number of particles ``M`` (the initial number for KLD-sampling).
+    alpha : tuple of 4 float
+        Odometry motion noise ``[a1, a2, a3, a4]`` in the variance form of
+        Table 5.6 (``rot1`` noise variance ``a1 rot1^2 + a2 trans^2``, ...).
+    model : {"likelihood_field", "beam"}
+        Measurement model: the likelihood field (Table 6.3) or the beam model
+        with ray casting (Table 6.1).
+    beam_step : int
+        Use every ``beam_step``-th beam of a scan (10 turns 180 beams into 18).
+    z_max : float
+        Maximum range [m]; longer readings are clipped to ``z_max`` and count as
+        max-range readings (the likelihood field ignores them).
+    sigma_hit : float
+        Standard deviation of the hit component [m].
+    lambda_short : float
+        Rate of the short-reading component [1/m] (beam model only).
+    w_hit, w_short, w_max, w_rand : float
+        Mixture weights; the likelihood field uses ``w_hit`` and ``w_rand``.
+    max_dist : float
+        Distances to the nearest obstacle are clipped at ``max_dist`` [m] in the
+        likelihood field.
+    likelihood_exponent : float
+        The scan likelihood is raised to this power (tempered) before it
+        multiplies the weights: beams of a real scan are not independent, and
+        the product of their likelihoods is far too peaked (Sec. 6.3.4).
+    resample_threshold : float
+        Resample when ``ESS < resample_threshold * M``; ``1.0`` resamples at
+        every step as in Table 8.2.
+    min_translation, min_rotation : float
+        A scan updates the filter only once the odometry has moved at least
+        ``min_translation`` [m] or turned ``min_rotation`` [rad] since the last
+        update (:func:`odometry_steps`).
+    sensor_offset : float
+        Forward offset of the laser from the robot's centre [m].
+    occupied_threshold : float
+        Cells with occupancy ``>= occupied_threshold`` are obstacles: they stop
+        the rays of the beam model and are the sources of the likelihood field.
+    free_threshold : float
+        Cells with occupancy ``<= free_threshold`` are free space: the initial
+        particles and Augmented MCL's random particles are drawn there.
+    reject_unknown : bool
+        Particles outside free space (in walls, unknown cells or cells whose
+        occupancy exceeds `free_threshold`) get zero weight.
+    augmented : AugmentedParams
+        Used by :func:`augmented_mcl_step`.
+    kld : KLDParams
+        Used by :func:`kld_mcl_step`.
+    """
+
+    n_particles: int = 5000
+    alpha: tuple[float, float, float, float] = (0.005, 0.0005, 0.01, 0.005)
+    model: str = "likelihood_field"
+    beam_step: int = 10
+    z_max: float = 15.0
+    sigma_hit: float = 0.2
+    lambda_short: float = 0.1
+    w_hit: float = 0.85
+    w_short: float = 0.05
+    w_max: float = 0.05
+    w_rand: float = 0.05
+    max_dist: float = 2.0
+    likelihood_exponent: float = 0.5
+    resample_threshold: float = 0.5
+    min_translation: float = 0.05
+    min_rotation: float = 0.05
+    sensor_offset: float = 0.25
+    occupied_threshold: float = 0.5
+    free_threshold: float = 0.2
+    reject_unknown: bool = True
+    augmented: AugmentedParams = field(default_factory=AugmentedParams)
+    kld: KLDParams = field(default_factory=KLDParams)
+
+    def __post_init__(self):
+        as_index(self.n_particles, "n_particles", lower=1)
+        a = as_array(self.alpha, "alpha", (4,))
+        if np.any(a < 0):
+            raise ValueError(f"alpha must be non-negative, got {tuple(a)}")
+        if self.model not in _MODELS:
+            raise ValueError(f"model must be one of {_MODELS}, got {self.model!r}")
+        as_index(self.beam_step, "beam_step", lower=1)
+        for name in ("z_max", "sigma_hit", "lambda_short", "max_dist", "likelihood_exponent"):
+            as_scalar(getattr(self, name), name, positive=True)
+        for name in ("w_hit", "w_short", "w_max", "w_rand", "min_translation", "min_rotation", "sensor_offset"):
+            as_scalar(getattr(self, name), name, nonnegative=True)
+        ft = as_scalar(self.free_threshold, "free_threshold", nonnegative=True)
+        ot = as_scalar(self.occupied_threshold, "occupied_threshold", positive=True)
+        if not ft < ot <= 1.0:
+            raise ValueError(f"thresholds must satisfy 0 <= free_threshold < occupied_threshold <= 1, got {ft}, {ot}")
+        thr = as_scalar(self.resample_threshold, "resample_threshold", nonnegative=True)
+        if thr > 1.0:
+            raise ValueError(f"resample_threshold must be in [0, 1], got {thr}")
+        if not isinstance(self.augmented, AugmentedParams):
+            raise TypeError(f"augmented must be an AugmentedParams, got {type(self.augmented).__name__}")
+        if not isinstance(self.kld, KLDParams):
+            raise TypeError(f"kld must be a KLDParams, got {type(self.kld).__name__}")
+
+
+@dataclass(frozen=True)
+class MCLModel:
+    """Everything a run keeps fixed: the map, its likelihood field and the parameters.
+
+    Build it with :func:`prepare_mcl` (the likelihood field is computed once).
+
+    Attributes
+    ----------
+    grid : OccupancyGrid
+        The map.
+    field : LikelihoodField
+        Distance-to-nearest-obstacle table of `grid` (used by the likelihood
+        field and by :func:`endpoint_distances`).
+    params : MCLParams
+        Filter parameters.
+    """
+
+    grid: OccupancyGrid
+    field: object
+    params: MCLParams
+
+
+@dataclass(frozen=True)
+class MCLState:
+    """A particle set.
+
+    Attributes
+    ----------
+    poses : ndarray, shape (M, 3)
+        Particles ``[x, y, theta]``.
+    log_weights : ndarray, shape (M,)
+        Normalised log-weights (``logsumexp(log_weights) == 0``).
+    w_slow, w_fast : float
+        Long- and short-term averages of the per-beam measurement likelihood
+        (Augmented MCL, Table 8.3); 0 until the first update.
+    """
+
+    poses: np.ndarray
+    log_weights: np.ndarray
+    w_slow: float = 0.0
+    w_fast: float = 0.0
+
+    @property
+    def weights(self):
+        """Normalised weights, shape (M,)."""
+        return np.exp(self.log_weights)
+
+    def __len__(self):
+        return self.poses.shape[0]
+
+
+class MCLStepInfo(NamedTuple):
+    """What one filter step did.
+
+    Attributes
+    ----------
+    ess : float
+        Effective sample size of the weights after the measurement update.
+    n_particles : int
+        Number of particles after the step.
+    resampled : bool
+        Whether the step resampled.
+    n_injected : int
+        Random particles added (Augmented MCL).
+    w_avg : float
+        Weighted average of the per-beam (geometric-mean) likelihood.
+    """
+
+    ess: float
+    n_particles: int
+    resampled: bool
+    n_injected: int
+    w_avg: float
+
+
+@dataclass(frozen=True)
+class MCLResult:
+    """Per-step statistics of a run of :func:`run_mcl` (``S`` filter steps).
+
+    Attributes
+    ----------
+    scan_index : ndarray of int, shape (S,)
+        Index into the log's scans of every filter step.
+    t : ndarray, shape (S,)
+        Time stamp of every step [s] (scan index if no times were given).
+    mean : ndarray, shape (S, 3)
+        Weighted mean pose (circular mean heading) after the update.
+    spread : ndarray, shape (S,)
+        Weighted RMS distance of the particles from the mean position [m].
+    heading_spread : ndarray, shape (S,)
+        Weighted circular standard deviation of the headings [rad].
+    ess : ndarray, shape (S,)
+        Effective sample size after the measurement update.
+    n_particles : ndarray of int, shape (S,)
+        Number of particles.
+    n_injected : ndarray of int, shape (S,)
+        Random particles injected (Augmented MCL).
+    w_slow, w_fast : ndarray, shape (S,)
+        The Augmented MCL averages after every step.
+    snapshot_steps : ndarray of int, shape (N,)
+        Steps at which particles were stored.
+    snapshots : list of ndarray, shape (M_i, 3)
+        Particles after the update of those steps (resampled to equal weights
+        when they were not).
+    final : MCLState
+        Particle set after the last step.
+    runtime : float
+        Wall time of the filter loop [s].
+    """
+
+    scan_index: np.ndarray
+    t: np.ndarray
+    mean: np.ndarray
+    spread: np.ndarray
+    heading_spread: np.ndarray
+    ess: np.ndarray
+    n_particles: np.ndarray
+    n_injected: np.ndarray
+    w_slow: np.ndarray
+    w_fast: np.ndarray
+    snapshot_steps: np.ndarray
+    snapshots: list
+    final: MCLState
+    runtime: float
+
+    def __len__(self):
+        return self.scan_index.shape[0]
+
+
+# --------------------------------------------------------------------------- checks
+def _check_model(model):
+    if not isinstance(model, MCLModel):
+        raise TypeError(f"model must be an MCLModel (from prepare_mcl), got {type(model).__name__}")
+    return model
+
+
+def _check_state(state):
+    if not isinstance(state, MCLState):
+        raise TypeError(f"state must be an MCLState (from mcl_initialize), got {type(state).__name__}")
+    return state
+
+
+def _check_scan(ranges, angles):
+    ranges = as_array(ranges, "ranges", (None,), finite=True)
+    angles = as_array(angles, "angles", (ranges.shape[0],))
+    if np.any(ranges < 0):
+        raise ValueError("ranges must be non-negative")
+    return ranges, angles
+
+
+# --------------------------------------------------------------------------- set-up
+def prepare_mcl(grid, params=None):
+    """Bundle a map and parameters, computing the likelihood field once.
+
+    Parameters
+    ----------
+    grid : OccupancyGrid
+        The map.
+    params : MCLParams, optional
+        Filter parameters (defaults if omitted).
+
+    Returns
+    -------
+    MCLModel
+        ``(grid, field, params)``, with ``field = likelihood_field(grid,
+        max_dist=params.max_dist, threshold=params.occupied_threshold)``.
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Table 6.3 (the likelihood field is
+    precomputed once per map).
+    """
+    if not isinstance(grid, maps.OccupancyGrid):
+        raise TypeError(f"grid must be an OccupancyGrid, got {type(grid).__name__}")
+    params = MCLParams() if params is None else params
+    if not isinstance(params, MCLParams):
+        raise TypeError(f"params must be an MCLParams, got {type(params).__name__}")
+    return MCLModel(grid=grid, field=sensors.likelihood_field(grid, max_dist=params.max_dist, threshold=params.occupied_threshold), params=params)
+
+
+def odometry_steps(odom_poses, *, min_translation=0.05, min_rotation=0.05):
+    """Turn a log's odometry poses (one per scan) into filter steps.
+
+    The first scan is always used, with a zero control. A later scan is used
+    once the odometry has moved at least `min_translation` or turned at least
+    `min_rotation` since the last used scan; the skipped scans' motion is
+    merged into the next step's control, so no odometry is lost.
+
+    Parameters
+    ----------
+    odom_poses : ndarray, shape (L, 3)
+        Odometry pose of the robot at every scan (the log's own frame).
+    min_translation : float
+        Minimum distance [m] between updates.
+    min_rotation : float
+        Minimum absolute turn [rad] between updates.
+
+    Returns
+    -------
+    index : ndarray of int, shape (S,)
+        Indices of the scans to filter, increasing, starting with 0.
+    u : ndarray, shape (S, 3)
+        Odometry control ``[rot1, trans, rot2]`` from the previous used scan
+        to each used scan (zeros for the first).
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Sec. 5.4 (odometry as a control) and
+    Table 5.5 lines 2-4 (the increments).
+    """
+    odom = as_array(odom_poses, "odom_poses", (None, 3))
+    if odom.shape[0] == 0:
+        raise ValueError("odom_poses must hold at least one pose")
+    d_min = as_scalar(min_translation, "min_translation", nonnegative=True)
+    a_min = as_scalar(min_rotation, "min_rotation", nonnegative=True)
+    index = [0]
+    last = odom[0]
+    for i in range(1, odom.shape[0]):  # a loop over scans, not over particles
+        moved = np.hypot(odom[i, 0] - last[0], odom[i, 1] - last[1])
+        turned = abs(wrap_angle(odom[i, 2] - last[2]))
+        if moved >= d_min and moved > 0 or turned >= a_min and turned > 0:
+            index.append(i)
+            last = odom[i]
+    index = np.asarray(index, dtype=np.intp)
+    u = np.zeros((index.size, 3))
+    if index.size > 1:
+        u[1:] = odometry_from_poses(odom[index[:-1]], odom[index[1:]])
+    return index, u
+
+
+def splice_log(odom_poses, ranges, times, stop, resume):
+    """Cut a log to kidnap the robot: scans ``[0, stop)`` then ``[resume, L)``.
+
+    The odometry of the second part is re-expressed so that it continues
+    smoothly from the last kept pose: the robot's own odometry says it did not
+    move across the cut, while the scans come from somewhere else. Times are
+    shifted to stay increasing.
+
+    Parameters
+    ----------
+    odom_poses : ndarray, shape (L, 3)
+        Odometry pose at every scan.
+    ranges : ndarray, shape (L, K)
+        Range scans.
+    times : ndarray, shape (L,)
+        Time stamps of the scans [s].
+    stop : int
+        First scan left out, ``1 <= stop <= resume``.
+    resume : int
+        Scan the log resumes at, ``resume < L``.
+
+    Returns
+    -------
+    odom : ndarray, shape (stop + L - resume, 3)
+    ranges : ndarray, shape (stop + L - resume, K)
+    times : ndarray, shape (stop + L - resume,)
+        The spliced log.
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Sec. 8.3.5 (the kidnapped robot problem).
+    """
+    odom = as_array(odom_poses, "odom_poses", (None, 3))
+    L = odom.shape[0]
+    z = as_array(ranges, "ranges", (L, None))
+    t = as_array(times, "times", (L,))
+    stop = as_index(stop, "stop", L, lower=1)
+    resume = as_index(resume, "resume", L, lower=stop)
+    # same relative motion, applied from the last kept pose (Table 5.6 lines 5-7)
+    rel = odometry_from_poses(odom[resume], odom[resume:])
+    tail = odometry_motion(odom[stop - 1], rel)
+    dt = np.median(np.diff(t)) if L > 1 else 0.0
+    t_tail = t[resume:] - t[resume] + t[stop - 1] + dt
+    return (np.concatenate([odom[:stop], tail]), np.concatenate([z[:stop], z[resume:]]),
+            np.concatenate([t[:stop], t_tail]))
+
+
+def mcl_initialize(model, n=None, *, rng, poses=None):
+    """A particle set spread uniformly over the map's free space (global localization).
+
+    Parameters
+    ----------
+    model : MCLModel
+        Map and parameters.
+    n : int, optional
+        Number of particles; ``model.params.n_particles`` if omitted.
+    rng : numpy.random.Generator
+        Source of randomness (used by ``sample_free_poses``).
+    poses : ndarray, shape (M, 3), optional
+        Start from these particles instead (position tracking).
+
+    Returns
+    -------
+    MCLState
+        Equal weights, ``w_slow = w_fast = 0``.
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Sec. 8.3 (global localization starts from a
+    uniform prior).
+    """
+    model = _check_model(model)
+    check_rng(rng)
+    if poses is None:
+        n = model.params.n_particles if n is None else as_index(n, "n", lower=1)
+        poses = maps.sample_free_poses(model.grid, n, rng=rng, threshold=model.params.free_threshold)
+    else:
+        poses = as_array(poses, "poses", (None, 3))
+        if poses.shape[0] == 0:
+            raise ValueError("poses must hold at least one particle")
+        poses[:, 2] = wrap_angle(poses[:, 2])
+    m = poses.shape[0]
+    return MCLState(poses=poses, log_weights=np.full(m, -np.log(m)))
+
+
+# --------------------------------------------------------------------------- measurement
+def _subsample(ranges, angles, params):
+    z = np.minimum(ranges[:: params.beam_step], params.z_max)
+    return z, angles[:: params.beam_step]
+
+
+def _scan_loglik(model, poses, z, a):
+    """Summed log-likelihood over beams (M,) and the number of beams it sums."""
+    p = model.params
+    if p.model == "likelihood_field":
+        ll = sensors.likelihood_field_log_likelihood(model.field, poses, z, a, z_max=p.z_max, sigma_hit=p.sigma_hit,
+                                             w_hit=p.w_hit, w_rand=p.w_rand, sensor_offset=p.sensor_offset)
+        n_used = int(np.count_nonzero(z < p.z_max))  # Table 6.3 skips max-range readings
+    else:
+        z_star = sensors.ray_cast(model.grid, poses, a, p.z_max, sensor_offset=p.sensor_offset,
+                                threshold=p.occupied_threshold)
+        ll = sensors.beam_range_finder_log_likelihood(z, z_star, z_max=p.z_max, sigma_hit=p.sigma_hit,
+                                              lambda_short=p.lambda_short, w_hit=p.w_hit, w_short=p.w_short,
+                                              w_max=p.w_max, w_rand=p.w_rand)
+        ll = np.sum(ll, axis=-1) if np.ndim(ll) == 2 else ll
+        n_used = z.size
+    if p.reject_unknown:
+        ll = np.where(model.grid.is_free(poses[:, :2], p.free_threshold), ll, -np.inf)
+    return ll, max(n_used, 1)
+
+
+def scan_log_likelihood(model, poses, ranges, angles):
+    """Log-likelihood ``log p(z | x, m)`` of one laser scan for every particle.
+
+    Parameters
+    ----------
+    model : MCLModel
+        Map, likelihood field and parameters (``model``, ``beam_step``,
+        ``z_max``, mixture weights).
+    poses : ndarray, shape (M, 3)
+        Particles.
+    ranges : ndarray, shape (K,)
+        The full scan [m]; every ``beam_step``-th beam is used and ranges are
+        clipped at ``z_max``.
+    angles : ndarray, shape (K,)
+        Beam angles in the laser frame [rad].
+
+    Returns
+    -------
+    ndarray, shape (M,)
+        Sum over the used beams of the per-beam log-likelihood (beams treated
+        as independent, Eq. 6.2); ``-inf`` for particles outside free space when
+        ``reject_unknown``.
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Eq. 6.2, Table 6.1 (beam model), Table 6.3
+    (likelihood field).
+    """
+    model = _check_model(model)
+    poses = as_array(poses, "poses", (None, 3))
+    ranges, angles = _check_scan(ranges, angles)
+    z, a = _subsample(ranges, angles, model.params)
+    return _scan_loglik(model, poses, z, a)[0]
+
+
+# --------------------------------------------------------------------------- filter steps
+def _safe_normalize(log_w):
+    """Normalised log-weights; uniform when every particle has zero weight."""
+    if not np.any(np.isfinite(log_w)):
+        return np.full(log_w.shape, -np.log(log_w.size))
+    return log_w - logsumexp(log_w)
+
+
+def _predict_and_weight(state, u, ranges, angles, model, rng):
+    p = model.params
+    # x_t^[m] ~ p(x_t | u_t, x_{t-1}^[m])  (Table 8.2 line 4)
+    poses = sample_motion_model_odometry(state.poses, u, p.alpha, rng=rng)
+    z, a = _subsample(ranges, angles, p)
+    ll, n_used = _scan_loglik(model, poses, z, a)
+    return poses, ll, n_used
+
+
+def _update(state, poses, ll, n_used, model):
+    """Weights after the measurement, and log of the weighted per-beam average likelihood."""
+    p = model.params
+    # w_t^[m] = p(z_t | x_t^[m], m)^tau  (Table 8.2 line 5, tempered)
+    log_w = _safe_normalize(state.log_weights + p.likelihood_exponent * ll)
+    # average likelihood, per beam: sum_m w_{t-1}^[m] exp(ll^[m] / K)  (Table 8.3 line 8)
+    finite = np.isfinite(ll)
+    if np.any(finite):
+        log_w_avg = float(logsumexp(state.log_weights[finite] + ll[finite] / n_used))
+    else:
+        log_w_avg = -np.inf
+    return log_w, log_w_avg
+
+
+def _resample_mask(log_w, threshold):
+    w = np.exp(log_w)
+    ess = float(particle.effective_sample_size(w))
+    return w, ess, ess < threshold * w.size
+
+
+def _check_step_args(state, u, ranges, angles, model, rng):
+    state = _check_state(state)
+    model = _check_model(model)
+    u = as_array(u, "u", (3,))
+    ranges, angles = _check_scan(ranges, angles)
+    check_rng(rng)
+    return state, u, ranges, angles, model
+
+
+def mcl_step(state, u, ranges, angles, model, *, rng):
+    """One step of Monte Carlo localization (Table 8.2).
+
+    Parameters
+    ----------
+    state : MCLState
+        Particles and log-weights at ``t - 1``.
+    u : ndarray, shape (3,)
+        Odometry control ``[rot1, trans, rot2]`` since the previous step.
+    ranges : ndarray, shape (K,)
+        Laser scan at ``t`` [m].
+    angles : ndarray, shape (K,)
+        Beam angles in the laser frame [rad].
+    model : MCLModel
+        Map, likelihood field and parameters.
+    rng : numpy.random.Generator
+        Source of randomness: the motion samples, then (if the step resamples)
+        the one uniform draw of low-variance resampling.
+
+    Returns
+    -------
+    state : MCLState
+        Particles at ``t``: equally weighted if the step resampled, else
+        weighted. ``w_slow`` and ``w_fast`` are carried over unchanged.
+    info : MCLStepInfo
+        ESS, particle count, whether it resampled.
+
+    Notes
+    -----
+    Table 8.2 resamples at every step (``resample_threshold = 1``); resampling
+    only when the effective sample size is low keeps more diversity
+    (Sec. 4.3.4).
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Table 8.2; low-variance resampling Table 4.4.
+    """
+    state, u, ranges, angles, model = _check_step_args(state, u, ranges, angles, model, rng)
+    poses, ll, n_used = _predict_and_weight(state, u, ranges, angles, model, rng)
+    log_w, log_w_avg = _update(state, poses, ll, n_used, model)
+    w, ess, do = _resample_mask(log_w, model.params.resample_threshold)
+    if do:
+        # draw i with probability proportional to w_t^[i]  (Table 8.2 lines 8-11)
+        idx = particle.low_variance_resample(w, rng=rng)
+        poses, log_w = poses[idx], np.full(idx.size, -np.log(idx.size))
+    new = MCLState(poses=poses, log_weights=log_w, w_slow=state.w_slow, w_fast=state.w_fast)
+    return new, MCLStepInfo(ess, poses.shape[0], bool(do), 0, float(np.exp(log_w_avg)))
+
+
+def augmented_mcl_step(state, u, ranges, angles, model, *, rng):
+    """One step of Augmented MCL: MCL plus random particles after failures (Table 8.3).
+
+    The short- and long-term averages ``w_fast`` and ``w_slow`` follow the
+    average measurement likelihood ``w_avg``; when the short-term average falls
+    below the long-term one, each new particle is, with probability
+    ``max(0, 1 - w_fast / w_slow)``, drawn uniformly over free space instead of
+    being resampled.
+
+    The likelihood of a whole scan is a product of ``K`` per-beam densities and
+    underflows (18 beams give ``exp(-100)`` and smaller); its average over
+    particles would be dominated by round-off. ``w_avg`` is therefore the
+    weighted average of the per-beam *geometric-mean* likelihood
+    ``exp(log p(z | x) / K)``, a number of order one whose ratio between
+    two moments still drops when the scans stop matching the map. Only the
+    ratio ``w_fast / w_slow`` matters, so this changes the scale of the test,
+    not its logic.
+
+    Parameters
+    ----------
+    state : MCLState
+        Particles, log-weights and ``w_slow``, ``w_fast`` at ``t - 1``.
+    u : ndarray, shape (3,)
+        Odometry control since the previous step.
+    ranges : ndarray, shape (K,)
+        Laser scan at ``t`` [m].
+    angles : ndarray, shape (K,)
+        Beam angles [rad].
+    model : MCLModel
+        Map, likelihood field and parameters (``params.augmented`` holds
+        ``alpha_slow``, ``alpha_fast``).
+    rng : numpy.random.Generator
+        Source of randomness: motion samples, then (when resampling) one
+        uniform per particle for the injection test, the low-variance draw and
+        the random poses.
+
+    Returns
+    -------
+    state : MCLState
+        Particles at ``t`` with updated ``w_slow``, ``w_fast``.
+    info : MCLStepInfo
+        ESS, count, whether it resampled, number of random particles, ``w_avg``.
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Table 8.3.
+    """
+    state, u, ranges, angles, model = _check_step_args(state, u, ranges, angles, model, rng)
+    aug = model.params.augmented
+    poses, ll, n_used = _predict_and_weight(state, u, ranges, angles, model, rng)
+    log_w, log_w_avg = _update(state, poses, ll, n_used, model)
+    w_avg = float(np.exp(log_w_avg))
+    # w_slow += alpha_slow (w_avg - w_slow); w_fast += alpha_fast (w_avg - w_fast)  (Table 8.3 lines 10-11)
+    w_slow = state.w_slow + aug.alpha_slow * (w_avg - state.w_slow)
+    w_fast = state.w_fast + aug.alpha_fast * (w_avg - state.w_fast)
+    p_inject = max(0.0, 1.0 - w_fast / w_slow) if w_slow > 0 else 0.0  # (Table 8.3 line 13)
+    w, ess, do = _resample_mask(log_w, model.params.resample_threshold)
+    n_inj = 0
+    if do or p_inject > 0:
+        m = poses.shape[0]
+        inject = rng.uniform(size=m) < p_inject
+        idx = particle.low_variance_resample(w, rng=rng)
+        poses = poses[idx]
+        n_inj = int(np.count_nonzero(inject))
+        if n_inj:
+            poses[inject] = maps.sample_free_poses(model.grid, n_inj, rng=rng, threshold=model.params.free_threshold)  # (Table 8.3 line 14)
+        log_w = np.full(m, -np.log(m))
+        do = True
+    new = MCLState(poses=poses, log_weights=log_w, w_slow=w_slow, w_fast=w_fast)
+    return new, MCLStepInfo(ess, poses.shape[0], bool(do), n_inj, w_avg)
+
+
+def kld_sample_size(k, epsilon, delta):
+    """Number of particles KLD-sampling requires for ``k`` occupied bins.
+
+    Parameters
+    ----------
+    k : int or ndarray of int, shape (N,)
+        Number of non-empty histogram bins.
+    epsilon : float
+        KL-divergence bound.
+    delta : float
+        The bound holds with probability ``1 - delta``.
+
+    Returns
+    -------
+    float or ndarray, shape (N,)
+        ``(k - 1) / (2 epsilon) * (1 - 2 / (9 (k - 1)) + sqrt(2 / (9 (k - 1)))
+        z_{1-delta})^3`` (the Wilson-Hilferty approximation of the chi-square
+        quantile), and 0 for ``k <= 1``.
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Table 8.4 line 17; Fox (2001), Eq. 9.
+    """
+    kk = as_array(k, "k", ndim=(0, 1))
+    if np.any(kk < 0):
+        raise ValueError("k must be non-negative")
+    eps = as_scalar(epsilon, "epsilon", positive=True)
+    dlt = as_scalar(delta, "delta", positive=True)
+    if dlt >= 1.0:
+        raise ValueError(f"delta must be in (0, 1), got {dlt}")
+    out = _kld_bound(kk, eps, float(norm.ppf(1.0 - dlt)))
+    return float(out) if out.ndim == 0 else out
+
+
+def _kld_bound(k, eps, z):
+    km1 = np.maximum(np.asarray(k, dtype=np.float64) - 1.0, 1.0)
+    a = 2.0 / (9.0 * km1)
+    # M_chi = (k-1)/(2 eps) (1 - 2/(9(k-1)) + sqrt(2/(9(k-1))) z_{1-delta})^3  (Table 8.4 line 17)
+    m = km1 / (2.0 * eps) * (1.0 - a + np.sqrt(a) * z) ** 3
+    return np.where(np.asarray(k) > 1, m, 0.0)
+
+
+def _bin_keys(poses, size):
+    ij = np.floor(poses / size).astype(np.int64) + (1 << 20)  # non-negative for |x| < 2^20 bins
+    return (ij[:, 0] << 42) | (ij[:, 1] << 21) | ij[:, 2]
+
+
+def kld_mcl_step(state, u, ranges, angles, model, *, rng):
+    """One step of KLD-sampling MCL: the particle count adapts (Table 8.4).
+
+    Particles are drawn from the previous set with probability proportional to
+    their weights, moved, and dropped into a histogram over ``(x, y, theta)``;
+    sampling stops once the count ``M`` reaches both ``n_min`` and the
+    chi-square bound :func:`kld_sample_size` for the current number of
+    occupied bins ``k`` (or ``n_max``). A spread-out cloud occupies many bins
+    and keeps many particles; a converged one needs few.
+
+    Draws happen ``chunk`` at a time for speed, and the count is cut exactly
+    where the one-at-a-time loop of Table 8.4 would have stopped.
+
+    Parameters
+    ----------
+    state : MCLState
+        Particles and log-weights at ``t - 1``.
+    u : ndarray, shape (3,)
+        Odometry control since the previous step.
+    ranges : ndarray, shape (K,)
+        Laser scan at ``t`` [m].
+    angles : ndarray, shape (K,)
+        Beam angles [rad].
+    model : MCLModel
+        Map, likelihood field and parameters (``params.kld``).
+    rng : numpy.random.Generator
+        Source of randomness: per chunk, the indices
+        (``rng.choice`` with the weights) then the motion samples.
+
+    Returns
+    -------
+    state : MCLState
+        ``M`` new particles weighted by the measurement (KLD-sampling always
+        resamples before moving, so the new weights are the likelihoods alone).
+    info : MCLStepInfo
+        ESS and the new count ``M``.
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Table 8.4; Fox (2001).
+    """
+    state, u, ranges, angles, model = _check_step_args(state, u, ranges, angles, model, rng)
+    p = model.params
+    kp = p.kld
+    z_quant = float(norm.ppf(1.0 - kp.delta))
+    size = np.asarray(kp.bin_size, dtype=np.float64)
+    w_prev = np.exp(state.log_weights)
+    w_prev = w_prev / w_prev.sum()
+    seen = np.empty(0, dtype=np.int64)
+    k = 0
+    chunks = []
+    n = 0
+    while True:
+        c = min(kp.chunk, kp.n_max - n)
+        # draw i with probability w_{t-1}^[i]; x_t ~ p(x_t | u_t, x_{t-1}^[i])  (Table 8.4 lines 6-7)
+        idx = rng.choice(w_prev.size, size=c, p=w_prev)
+        x = sample_motion_model_odometry(state.poses[idx], u, p.alpha, rng=rng)
+        keys = _bin_keys(x, size)
+        # does x fall into an empty bin? (Table 8.4 line 14)
+        uniq, first = np.unique(keys, return_index=True)
+        new_bin = np.zeros(c, dtype=bool)
+        new_bin[first[~np.isin(uniq, seen)]] = True
+        k_after = k + np.cumsum(new_bin)  # k after each draw (line 15)
+        count = n + np.arange(1, c + 1)  # M after each draw (line 21)
+        # loop ends when M >= M_chi and M >= M_min  (line 22)
+        done = (count >= _kld_bound(k_after, kp.epsilon, z_quant)) & (count >= kp.n_min)
+        stop = int(np.argmax(done)) + 1 if np.any(done) else c
+        chunks.append(x[:stop])
+        n += stop
+        k = int(k_after[stop - 1])
+        seen = np.union1d(seen, keys[:stop])
+        if stop < c or np.any(done) or n >= kp.n_max:
+            break
+    poses = np.concatenate(chunks)
+    z, a = _subsample(ranges, angles, p)
+    ll, n_used = _scan_loglik(model, poses, z, a)
+    log_w = _safe_normalize(p.likelihood_exponent * ll)  # w = p(z_t | x_t)  (Table 8.4 line 8)
+    finite = np.isfinite(ll)
+    w_avg = float(np.exp(logsumexp(ll[finite] / n_used) - np.log(ll.size))) if np.any(finite) else 0.0
+    ess = float(particle.effective_sample_size(np.exp(log_w)))
+    new = MCLState(poses=poses, log_weights=log_w, w_slow=state.w_slow, w_fast=state.w_fast)
+    return new, MCLStepInfo(ess, poses.shape[0], True, 0, w_avg)
+
+
+# --------------------------------------------------------------------------- summaries
+def particle_summary(poses, log_weights=None):
+    """Weighted mean pose and spread of a particle set.
+
+    Parameters
+    ----------
+    poses : ndarray, shape (M, 3)
+        Particles.
+    log_weights : ndarray, shape (M,), optional
+        Log-weights (normalised or not); equal weights if omitted.
+
+    Returns
+    -------
+    mean : ndarray, shape (3,)
+        Weighted mean position and circular mean heading.
+    spread : float
+        Weighted RMS distance of the positions from the mean [m].
+    heading_spread : float
+        Circular standard deviation ``sqrt(-2 log R)`` of the headings [rad].
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Sec. 4.3 (particle representation of the
+    belief).
+    """
+    poses = as_array(poses, "poses", (None, 3))
+    if poses.shape[0] == 0:
+        raise ValueError("poses must hold at least one particle")
+    if log_weights is None:
+        w = np.full(poses.shape[0], 1.0 / poses.shape[0])
+    else:
+        lw = as_array(log_weights, "log_weights", (poses.shape[0],), finite=False)
+        if np.any(np.isnan(lw)) or np.any(lw == np.inf):
+            raise ValueError("log_weights must not hold NaN or +inf")
+        w = np.exp(_safe_normalize(lw))
+    xy = w @ poses[:, :2]
+    th = circular_mean(poses[:, 2], w)
+    spread = float(np.sqrt(w @ np.sum((poses[:, :2] - xy) ** 2, axis=1)))
+    r = np.hypot(w @ np.cos(poses[:, 2]), w @ np.sin(poses[:, 2]))
+    heading_spread = float(np.sqrt(-2.0 * np.log(np.clip(r, 1e-300, 1.0))))
+    return np.array([xy[0], xy[1], th]), spread, heading_spread
+
+
+def scan_endpoints(pose, ranges, angles, *, z_max=np.inf, sensor_offset=0.25):
+    """World coordinates of the end points of a scan taken from one pose.
+
+    Parameters
+    ----------
+    pose : ndarray, shape (3,)
+        Robot pose ``[x, y, theta]``.
+    ranges : ndarray, shape (K,)
+        Ranges [m].
+    angles : ndarray, shape (K,)
+        Beam angles in the laser frame [rad].
+    z_max : float
+        Readings at or beyond `z_max` are dropped (they hit nothing).
+    sensor_offset : float
+        Forward offset of the laser from the robot's centre [m].
+
+    Returns
+    -------
+    ndarray, shape (K', 2)
+        End points of the readings shorter than `z_max`.
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Table 6.3 lines 4-5.
+    """
+    pose = as_array(pose, "pose", (3,))
+    ranges, angles = _check_scan(ranges, angles)
+    z_max = as_scalar(z_max, "z_max", positive=True, finite=False)
+    off = as_scalar(sensor_offset, "sensor_offset")
+    keep = ranges < z_max
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    sx, sy = pose[0] + off * c, pose[1] + off * s
+    # x_z = x + x_sens cos(theta) + z cos(theta + theta_sens)  (Table 6.3 lines 4-5)
+    ang = pose[2] + angles[keep]
+    return np.column_stack([sx + ranges[keep] * np.cos(ang), sy + ranges[keep] * np.sin(ang)])
+
+
+def endpoint_distances(model, pose, ranges, angles):
+    """Distance from each scan end point to the nearest obstacle of the map.
+
+    A consistency check when there is no ground truth: if the pose is right,
+    the end points lie on walls and these distances are a few centimetres.
+
+    Parameters
+    ----------
+    model : MCLModel
+        Map and its likelihood field (``params.z_max``, ``params.sensor_offset``
+        and ``params.beam_step`` are used).
+    pose : ndarray, shape (3,)
+        Robot pose.
+    ranges : ndarray, shape (K,)
+        The full scan [m].
+    angles : ndarray, shape (K,)
+        Beam angles [rad].
+
+    Returns
+    -------
+    ndarray, shape (K',)
+        Distances [m] (clipped at ``params.max_dist``) of the used beams shorter
+        than ``z_max``.
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Table 6.3 line 6 (``dist``).
+    """
+    model = _check_model(model)
+    p = model.params
+    ranges, angles = _check_scan(ranges, angles)
+    z, a = ranges[:: p.beam_step], angles[:: p.beam_step]
+    pts = scan_endpoints(pose, z, a, z_max=p.z_max, sensor_offset=p.sensor_offset)
+    return model.field.distance_at(pts)
+
+
+# --------------------------------------------------------------------------- runs
+_STEP = {"mcl": mcl_step, "augmented": augmented_mcl_step, "kld": kld_mcl_step}
+
+
+def run_mcl(model, odom_poses, ranges, angles, *, rng, variant="mcl", init=None, times=None, snapshots=0,
+            max_steps=None):
+    """Run a Monte Carlo localization filter over a log.
+
+    Parameters
+    ----------
+    model : MCLModel
+        Map, likelihood field and parameters (from :func:`prepare_mcl`).
+    odom_poses : ndarray, shape (L, 3)
+        Odometry pose at every scan.
+    ranges : ndarray, shape (L, K)
+        Laser scans [m].
+    angles : ndarray, shape (K,)
+        Beam angles in the laser frame [rad].
+    rng : numpy.random.Generator
+        Source of randomness.
+    variant : {"mcl", "augmented", "kld"}
+        :func:`mcl_step` (Table 8.2), :func:`augmented_mcl_step` (Table 8.3) or
+        :func:`kld_mcl_step` (Table 8.4).
+    init : MCLState or ndarray, shape (M, 3), optional
+        Initial particles; uniform over free space (global localization) if
+        omitted.
+    times : ndarray, shape (L,), optional
+        Time stamps of the scans [s].
+    snapshots : int or sequence of int
+        Store the particles after this many evenly spaced steps (an int,
+        including the first and last), or after the listed steps.
+    max_steps : int, optional
+        Stop after this many filter steps.
+
+    Returns
+    -------
+    MCLResult
+        Per-step mean, spread, ESS, particle count, injected particles,
+        ``w_slow`` / ``w_fast``, the stored snapshots and the final state.
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Tables 8.2, 8.3 and 8.4.
+    """
+    model = _check_model(model)
+    check_rng(rng)
+    p = model.params
+    odom = as_array(odom_poses, "odom_poses", (None, 3))
+    L = odom.shape[0]
+    z_all = as_array(ranges, "ranges", (L, None))
+    ang = as_array(angles, "angles", (z_all.shape[1],))
+    t_all = np.arange(L, dtype=np.float64) if times is None else as_array(times, "times", (L,))
+    if variant not in _STEP:
+        raise ValueError(f"variant must be one of {_VARIANTS}, got {variant!r}")
+    step = _STEP[variant]
+    index, u = odometry_steps(odom, min_translation=p.min_translation, min_rotation=p.min_rotation)
+    if max_steps is not None:
+        n_max = as_index(max_steps, "max_steps", lower=1)
+        index, u = index[:n_max], u[:n_max]
+    S = index.size
+    if isinstance(snapshots, (int, np.integer)) and not isinstance(snapshots, bool):
+        n_snap = as_index(snapshots, "snapshots")
+        snap = np.unique(np.round(np.linspace(0, S - 1, n_snap)).astype(np.intp)) if n_snap else np.empty(0, np.intp)
+    else:
+        snap = np.unique(np.asarray([as_index(s, "snapshots", S) for s in snapshots], dtype=np.intp))
+    if init is None:
+        state = mcl_initialize(model, rng=rng)
+    elif isinstance(init, MCLState):
+        state = init
+    else:
+        state = mcl_initialize(model, rng=rng, poses=init)
+
+    mean = np.empty((S, 3))
+    spread = np.empty(S)
+    hspread = np.empty(S)
+    ess = np.empty(S)
+    count = np.empty(S, dtype=np.intp)
+    injected = np.zeros(S, dtype=np.intp)
+    w_slow = np.empty(S)
+    w_fast = np.empty(S)
+    shots = []
+    snap_set = set(snap.tolist())
+    t0 = time.perf_counter()
+    for s in range(S):  # a loop over time steps; every step is vectorised over particles
+        state, info = step(state, u[s], z_all[index[s]], ang, model, rng=rng)
+        mean[s], spread[s], hspread[s] = particle_summary(state.poses, state.log_weights)
+        ess[s], count[s], injected[s] = info.ess, info.n_particles, info.n_injected
+        w_slow[s], w_fast[s] = state.w_slow, state.w_fast
+        if s in snap_set:
+            shots.append(state.poses.copy())
+    runtime = time.perf_counter() - t0
+    return MCLResult(scan_index=index, t=t_all[index], mean=mean, spread=spread, heading_spread=hspread, ess=ess,
+                     n_particles=count, n_injected=injected, w_slow=w_slow, w_fast=w_fast, snapshot_steps=snap,
+                     snapshots=shots, final=state, runtime=runtime)

@@ -1,3 +1,676 @@
-"""Placeholder: filled in by its owner."""
+"""Particle filters: importance weights, resampling and a vectorised filter step.
 
-__all__: list[str] = []
+* Weights live in log space: :func:`normalize_log_weights` (``logsumexp``),
+  :func:`effective_sample_size`.
+* Resamplers, all ``(w, *, rng) -> indices (M,)`` of an integer dtype:
+  :func:`multinomial_resample`, :func:`stratified_resample`,
+  :func:`systematic_resample` (the same as :func:`low_variance_resample`,
+  Table 4.4) and :func:`residual_resample`.
+* :func:`landmark_likelihood` -- the range-bearing measurement likelihood of
+  every particle.
+* :func:`bootstrap_filter_step` -- the generic particle filter (Table 4.3) for
+  any state, given a sampler of the motion model and a log-likelihood;
+  :func:`particle_filter_step` -- the same for poses with the velocity motion
+  model and landmark measurements; :func:`particle_gaussian` -- the weighted
+  mean and covariance of a particle set.
+
+Nothing loops over particles in Python: every operation is a NumPy array
+operation over all ``M`` particles at once.
+
+References
+----------
+Thrun, Burgard & Fox, *Probabilistic Robotics* (2005), Sec. 4.3 (Table 4.3,
+the particle filter; Table 4.4, the low-variance sampler; Sec. 4.3.4,
+resampling and the effective sample size).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from scipy.special import logsumexp
+
+from ._checks import as_array, as_scalar, check_rng
+from .angles import circular_mean, wrap_angle
+from .gaussian import Gaussian
+from .motion import velocity_motion
+
+__all__ = [
+    "ParticleSet",
+    "PFStepInfo",
+    "normalize_log_weights",
+    "effective_sample_size",
+    "low_variance_resample",
+    "systematic_resample",
+    "stratified_resample",
+    "multinomial_resample",
+    "residual_resample",
+    "RESAMPLERS",
+    "landmark_likelihood",
+    "bootstrap_filter_step",
+    "particle_filter_step",
+    "particle_gaussian",
+]
+
+_LOG_2PI = float(np.log(2.0 * np.pi))
+
+
+class ParticleSet(NamedTuple):
+    """A weighted particle set; unpacks as ``poses, log_weights = ps``.
+
+    Attributes
+    ----------
+    poses : ndarray, shape (M, d)
+        The particles (``d = 3`` for poses ``[x, y, theta]``).
+    log_weights : ndarray, shape (M,)
+        Normalised log-weights (``logsumexp(log_weights) == 0``).
+    """
+
+    poses: np.ndarray
+    log_weights: np.ndarray
+
+
+class PFStepInfo(NamedTuple):
+    """Diagnostics of one particle-filter step.
+
+    Attributes
+    ----------
+    ess : float
+        Effective sample size of the weights *before* any resampling.
+    resampled : bool
+        Whether the step resampled.
+    """
+
+    ess: float
+    resampled: bool
+
+
+# --------------------------------------------------------------------------- weights
+def normalize_log_weights(log_w, *, log=False):
+    """Normalise log-weights without overflow.
+
+    Parameters
+    ----------
+    log_w : ndarray, shape (M,)
+        Unnormalised log-weights; ``-inf`` (weight zero) is allowed for some
+        but not all entries.
+    log : bool, keyword-only
+        Return the normalised log-weights ``log_w - logsumexp(log_w)`` instead.
+
+    Returns
+    -------
+    ndarray, shape (M,)
+        ``w = exp(log_w - logsumexp(log_w))``: non-negative, summing to 1
+        (or their logarithms when `log`).
+
+    Raises
+    ------
+    ValueError
+        If `log_w` is empty, holds NaN or ``+inf``, or every entry is ``-inf``
+        (every particle has weight zero, so there is nothing to normalise).
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Table 4.3 line 5 (importance weights) and
+    the normaliser ``eta`` of Table 4.4; ``logsumexp`` keeps it in log space.
+    """
+    lw = as_array(log_w, "log_w", ndim=1, finite=False)
+    _check_log_weights(lw)
+    # w = exp(log_w - log sum exp(log_w))  (normalisation of Table 4.3's weights)
+    out = lw - logsumexp(lw)
+    return out if log else np.exp(out)
+
+
+def _check_log_weights(lw, name="log_w"):
+    if lw.size == 0:
+        raise ValueError(f"{name} must hold at least one log-weight")
+    if np.any(np.isnan(lw)):
+        raise ValueError(f"{name} contains NaN")
+    if np.any(lw == np.inf):
+        raise ValueError(f"{name} contains +inf (an infinite weight cannot be normalised)")
+    if not np.any(np.isfinite(lw)):
+        raise ValueError(f"{name}: every log-weight is -inf (all particles have zero weight), nothing to normalise")
+
+
+def _as_weights(w, name="w"):
+    """Validated, normalised copy of non-negative weights."""
+    w = as_array(w, name, ndim=1)
+    if w.size == 0:
+        raise ValueError(f"{name} must hold at least one weight")
+    if np.any(w < 0):
+        raise ValueError(f"{name} must be non-negative, got minimum {w.min():.3g}")
+    total = w.sum()
+    if not total > 0:
+        raise ValueError(f"{name} must have a positive sum (all weights are zero)")
+    if not np.isfinite(total):
+        raise ValueError(f"{name} sums to infinity; rescale the weights (or use log-weights)")
+    return w / total
+
+
+def effective_sample_size(w):
+    """Effective sample size of importance weights.
+
+    Parameters
+    ----------
+    w : ndarray, shape (M,)
+        Non-negative weights, normalised or not (not all zero).
+
+    Returns
+    -------
+    float
+        ``(sum w)^2 / sum(w^2)``: ``M`` for equal weights, 1 when a single
+        particle carries all the weight.
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Sec. 4.3.4 (variance reduction: resample only
+    when the weights' variance is high); Kong, Liu & Wong (1994).
+    """
+    w = as_array(w, "w", ndim=1)
+    if w.size == 0:
+        raise ValueError("w must hold at least one weight")
+    if np.any(w < 0):
+        raise ValueError(f"w must be non-negative, got minimum {w.min():.3g}")
+    top = w.max()
+    if not top > 0:
+        raise ValueError("w must have a positive sum (all weights are zero)")
+    s = w / top  # scale-free, so huge or tiny weights neither overflow nor underflow
+    # ESS = (sum w)^2 / sum w^2
+    return float(s.sum() ** 2 / np.dot(s, s))
+
+
+# --------------------------------------------------------------------------- resamplers
+def _indices_from_counts(c, pos, k, x):
+    """Resampled indices ``searchsorted(c, pos, "left")`` (clipped), in O(M).
+
+    For sorted positions ``pos`` the index of ``pos[m]`` is the first ``i``
+    with ``c[i] >= pos[m]``, so particle ``i`` receives ``k[i] - k[i-1]``
+    positions, ``k[i] = #{m : pos[m] <= c[i]}``. The caller computes ``k`` in
+    closed form from ``x``, a real number for which the count is exact unless
+    ``x`` lies within round-off of an integer; those few entries are recounted
+    against the positions themselves, so the result is exact in floating point.
+    """
+    M = c.size
+    near = np.abs(x - np.rint(x)) < 1e-7
+    if near.any():
+        k[near] = np.searchsorted(pos, c[near], side="right")  # exact count of pos <= c
+    np.clip(k, 0, pos.size, out=k)
+    k[-1] = pos.size  # positions beyond cumsum(w)[-1] (round-off) go to the last particle
+    return np.repeat(np.arange(M), np.diff(k, prepend=0))
+
+
+def low_variance_resample(w, *, rng):
+    """Low-variance (systematic) resampling.
+
+    Parameters
+    ----------
+    w : ndarray, shape (M,)
+        Non-negative weights, normalised or not (not all zero).
+    rng : numpy.random.Generator, keyword-only
+        Source of the single draw ``r = rng.uniform(0.0, 1.0 / M)``.
+
+    Returns
+    -------
+    ndarray of int, shape (M,)
+        Indices of the drawn particles, in increasing order: index ``m`` is the
+        first ``i`` with ``cumsum(w)[i] >= r + m / M`` (``w`` normalised),
+        clipped to ``M - 1``. Particle ``i`` is drawn ``floor(M w_i)`` or
+        ``ceil(M w_i)`` times.
+
+    Notes
+    -----
+    Computed in O(M) without a loop over particles: the number of positions
+    ``r + m / M`` at or below each ``c_i = cumsum(w)[i]`` is
+    ``floor((c_i - r) M) + 1``; the rare ``c_i`` within round-off of a position
+    are recounted against the positions themselves, so the result equals
+    Table 4.4's loop bit for bit.
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Table 4.4.
+    """
+    w = _as_weights(w)
+    check_rng(rng)
+    M = w.size
+    r = rng.uniform(0.0, 1.0 / M)  # r = rand(0; M^-1)  (Table 4.4 line 3)
+    c = np.cumsum(w)  # c = w^[1] + ... + w^[i]  (Table 4.4 lines 4, 10)
+    pos = r + np.arange(M) / M  # U = r + (m - 1) M^-1  (Table 4.4 line 7)
+    # i = first index with c_i >= U  (Table 4.4 lines 8-11): positions r + m/M <= c_i
+    # number floor((c_i - r) M) + 1
+    x = (c - r) * M
+    return _indices_from_counts(c, pos, np.floor(x).astype(np.intp) + 1, x)
+
+
+def systematic_resample(w, *, rng):
+    """Systematic resampling: the same as :func:`low_variance_resample`.
+
+    Parameters
+    ----------
+    w : ndarray, shape (M,)
+        Non-negative weights, normalised or not.
+    rng : numpy.random.Generator, keyword-only
+        Source of the single draw ``rng.uniform(0.0, 1.0 / M)``.
+
+    Returns
+    -------
+    ndarray of int, shape (M,)
+        Indices of the drawn particles (see :func:`low_variance_resample`).
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Table 4.4.
+    """
+    return low_variance_resample(w, rng=rng)
+
+
+def stratified_resample(w, *, rng):
+    """Stratified resampling: one uniform draw in each stratum ``[m/M, (m+1)/M)``.
+
+    Parameters
+    ----------
+    w : ndarray, shape (M,)
+        Non-negative weights, normalised or not (not all zero).
+    rng : numpy.random.Generator, keyword-only
+        Source of the draws ``rng.uniform(size=M)``.
+
+    Returns
+    -------
+    ndarray of int, shape (M,)
+        Index ``m`` is the first ``i`` with ``cumsum(w)[i] >= (m + U_m) / M``,
+        clipped to ``M - 1``; increasing order. O(M).
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Sec. 4.3.4 (stratified sampling); Douc,
+    Cappe & Moulines (2005).
+    """
+    w = _as_weights(w)
+    check_rng(rng)
+    M = w.size
+    c = np.cumsum(w)
+    pos = (np.arange(M) + rng.uniform(size=M)) / M  # one position per stratum
+    # every stratum below f = floor(c M) lies at or below c; stratum f may hold one more
+    x = c * M
+    f = np.floor(x).astype(np.intp)
+    k = f + ((f < M) & (pos[np.minimum(f, M - 1)] <= c))
+    return _indices_from_counts(c, pos, k, x)
+
+
+def multinomial_resample(w, *, rng):
+    """Multinomial resampling: ``M`` independent draws from the weights.
+
+    Parameters
+    ----------
+    w : ndarray, shape (M,)
+        Non-negative weights, normalised or not (not all zero).
+    rng : numpy.random.Generator, keyword-only
+        Source of the draws ``rng.uniform(size=M)``.
+
+    Returns
+    -------
+    ndarray of int, shape (M,)
+        Index ``m`` is the first ``i`` with ``cumsum(w)[i] >= U_m``, clipped to
+        ``M - 1`` (inverse-CDF sampling); the order follows the draws. Each
+        lookup is a binary search, so the cost is O(M log M).
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Sec. 4.3.2 (drawing with replacement,
+    Table 4.3 line 8); Douc, Cappe & Moulines (2005).
+    """
+    w = _as_weights(w)
+    check_rng(rng)
+    M = w.size
+    c = np.cumsum(w)
+    idx = np.searchsorted(c, rng.uniform(size=M), side="left")  # draw i with probability w_i
+    return np.minimum(idx, M - 1)
+
+
+def residual_resample(w, *, rng):
+    """Residual resampling: ``floor(M w_i)`` copies, the rest drawn multinomially.
+
+    Parameters
+    ----------
+    w : ndarray, shape (M,)
+        Non-negative weights, normalised or not (not all zero).
+    rng : numpy.random.Generator, keyword-only
+        Source of the draws ``rng.uniform(size=R)``, ``R = M - sum floor(M w)``.
+
+    Returns
+    -------
+    ndarray of int, shape (M,)
+        The deterministic copies in increasing order, then ``R`` indices drawn
+        from the residual weights ``M w_i - floor(M w_i)``.
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Sec. 4.3.4 (variance reduction); Douc, Cappe
+    & Moulines (2005).
+    """
+    w = _as_weights(w)
+    check_rng(rng)
+    M = w.size
+    mw = M * w
+    copies = np.floor(mw).astype(np.intp)  # deterministic part
+    surplus = int(copies.sum()) - M
+    if surplus > 0:  # round-off made sum(M w) exceed M: trim the largest
+        copies[np.argsort(-copies, kind="stable")[:surplus]] -= 1
+    fixed = np.repeat(np.arange(M), copies)
+    R = M - fixed.size
+    if R == 0:
+        return fixed
+    resid = np.maximum(mw - copies, 0.0)
+    c = np.cumsum(resid)
+    c = c / c[-1]
+    extra = np.minimum(np.searchsorted(c, rng.uniform(size=R), side="left"), M - 1)
+    return np.concatenate([fixed, extra])
+
+
+#: Resamplers by name, for the ``resample`` option of the filter steps.
+RESAMPLERS = {
+    "systematic": systematic_resample,
+    "low_variance": low_variance_resample,
+    "stratified": stratified_resample,
+    "multinomial": multinomial_resample,
+    "residual": residual_resample,
+}
+
+
+# --------------------------------------------------------------------------- measurement likelihood
+def _as_pd(Q, name="Q"):
+    Q = as_array(Q, name, (2, 2))
+    if not np.allclose(Q, Q.T, rtol=1e-9, atol=1e-12 * max(1.0, float(np.abs(Q).max()))):
+        raise ValueError(f"{name} must be symmetric")
+    if np.linalg.eigvalsh(Q).min() <= 0:
+        raise ValueError(f"{name} must be positive definite")
+    return Q
+
+
+def _log_landmark_likelihood(poses, z, m, Q):
+    """``sum_k log N(wrap(z_k - h(x, m_k)); 0, Q)`` per particle; ``z, m (K, 2)``.
+
+    ``h`` is the range-bearing model of
+    :func:`~slamlib.sensors.landmark_measurement` (Eq. 6.40), evaluated here
+    without its Jacobians, which the likelihood does not need (half the cost
+    for many particles; the tests check both agree).
+    """
+    dx = m[:, 0] - poses[..., 0, None]  # (..., K)
+    dy = m[:, 1] - poses[..., 1, None]
+    # z - z_hat, z_hat = [sqrt(q), atan2(dy, dx) - theta]  (Eq. 6.40), bearing wrapped
+    nr = z[:, 0] - np.sqrt(dx * dx + dy * dy)
+    nb = wrap_angle(z[:, 1] - (np.arctan2(dy, dx) - poses[..., 2, None]))
+    Qi = np.linalg.inv(Q)
+    quad = Qi[0, 0] * nr * nr + (2.0 * Qi[0, 1]) * nr * nb + Qi[1, 1] * nb * nb
+    # log N(nu; 0, Q) = -(log det(2 pi Q) + nu^T Q^-1 nu) / 2  (Eq. 3.1 / Table 6.4 line 9)
+    log_norm = _LOG_2PI + 0.5 * np.log(np.linalg.det(Q))
+    return -0.5 * quad.sum(axis=-1) - z.shape[0] * log_norm
+
+
+def _as_poses(particles, name="particles"):
+    p = as_array(particles, name, ndim=range(1, 33))
+    if p.shape[-1] != 3:
+        raise ValueError(f"{name} must have shape (M, 3), got {p.shape}")
+    return p
+
+
+def landmark_likelihood(particles, z, m, Q, *, log=False):
+    """Likelihood of one range-bearing measurement for every particle.
+
+    Parameters
+    ----------
+    particles : ndarray, shape (M, 3)
+        Poses ``[x, y, theta]`` (any leading axes).
+    z : ndarray, shape (2,)
+        Measurement ``[r, phi]``.
+    m : ndarray, shape (2,)
+        Position of the measured landmark.
+    Q : ndarray, shape (2, 2)
+        Measurement-noise covariance, positive definite.
+    log : bool, keyword-only
+        Return the log-density (finite however unlikely the measurement).
+
+    Returns
+    -------
+    ndarray, shape (M,)
+        The normalised density ``N(wrap(z - z_hat_k); 0, Q)`` for each
+        particle ``k``, ``z_hat_k = h(particles[k], m)``; the bearing
+        difference is wrapped to ``[-pi, pi)``.
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Table 6.4 (landmark model with known
+    correspondence, with a joint Gaussian of covariance ``Q``), Eq. 6.40.
+    """
+    particles = _as_poses(particles)
+    z = as_array(z, "z", (2,))
+    m = as_array(m, "m", (2,))
+    Q = _as_pd(Q)
+    ll = _log_landmark_likelihood(particles, z[None], m[None], Q)
+    return ll if log else np.exp(ll)
+
+
+# --------------------------------------------------------------------------- the filter
+def _resampler(resample):
+    if resample is None or callable(resample):
+        return resample
+    if isinstance(resample, str) and resample in RESAMPLERS:
+        return RESAMPLERS[resample]
+    raise ValueError(f"resample must be one of {sorted(RESAMPLERS)}, a callable (w, *, rng) -> indices, or None; got {resample!r}")
+
+
+def _weigh_and_resample(particles, log_w, rng, resample, ess_threshold):
+    log_w = log_w - logsumexp(log_w)
+    w = np.exp(log_w)
+    ess = float(np.sum(w) ** 2 / np.dot(w, w))
+    if resample is not None and (ess_threshold >= 1.0 or ess < ess_threshold * w.size):
+        # draw M particles with probability w  (Table 4.3 lines 8-11)
+        idx = np.asarray(resample(w, rng=rng))
+        if idx.shape != (w.size,) or idx.dtype.kind not in "iu":
+            raise ValueError(f"resample must return {w.size} integer indices, got shape {idx.shape} dtype {idx.dtype}")
+        return ParticleSet(particles[idx], np.full(w.size, -np.log(w.size))), PFStepInfo(ess, True)
+    return ParticleSet(particles, log_w), PFStepInfo(ess, False)
+
+
+def _step_options(rng, resample, ess_threshold):
+    check_rng(rng)
+    resample = _resampler(resample)
+    ess_threshold = as_scalar(ess_threshold, "ess_threshold", nonnegative=True)
+    if ess_threshold > 1:
+        raise ValueError(f"ess_threshold must be in [0, 1] (a fraction of M), got {ess_threshold}")
+    return resample, ess_threshold
+
+
+def _as_log_w(log_w, n):
+    lw = as_array(log_w, "log_w", (n,), finite=False)
+    _check_log_weights(lw)
+    return lw
+
+
+def bootstrap_filter_step(particles, log_w, propagate, log_likelihood, *, rng, resample="systematic", ess_threshold=0.5):
+    """One step of the generic (bootstrap) particle filter.
+
+    Parameters
+    ----------
+    particles : ndarray, shape (M, d)
+        Particles of the belief at ``t-1``.
+    log_w : ndarray, shape (M,)
+        Their log-weights (normalised or not).
+    propagate : callable
+        ``propagate(particles, rng) -> (M, d)``: a sample of the motion model
+        ``p(x_t | u_t, x_{t-1})`` for every particle.
+    log_likelihood : callable
+        ``log_likelihood(particles) -> (M,)``: ``log p(z_t | x_t)`` for the
+        propagated particles.
+    rng : numpy.random.Generator, keyword-only
+        Passed to `propagate` and to the resampler.
+    resample : str, callable or None, keyword-only
+        ``"systematic"`` (default), ``"low_variance"``, ``"stratified"``,
+        ``"multinomial"``, ``"residual"``, a callable ``(w, *, rng) ->
+        indices``, or ``None`` (never resample).
+    ess_threshold : float, keyword-only
+        Resample when the effective sample size falls below
+        ``ess_threshold * M``; ``1`` resamples at every step, ``0`` never.
+
+    Returns
+    -------
+    particles : ParticleSet
+        ``(poses (M, d), log_weights (M,))``, log-weights normalised
+        (``-log M`` each after resampling).
+    info : PFStepInfo
+        Effective sample size before resampling, and whether it resampled.
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Table 4.3 (with resampling on low effective
+    sample size, Sec. 4.3.4).
+    """
+    particles = as_array(particles, "particles", ndim=2)
+    lw = _as_log_w(log_w, particles.shape[0])
+    resample, ess_threshold = _step_options(rng, resample, ess_threshold)
+    if not callable(propagate):
+        raise TypeError("propagate must be a callable (particles, rng) -> particles")
+    if not callable(log_likelihood):
+        raise TypeError("log_likelihood must be a callable (particles) -> log-likelihoods")
+    # sample x_t^[m] ~ p(x_t | u_t, x_{t-1}^[m])  (Table 4.3 line 4)
+    moved = np.asarray(propagate(particles, rng), dtype=float)
+    if moved.shape != particles.shape:
+        raise ValueError(f"propagate must return shape {particles.shape}, got {moved.shape}")
+    # w_t^[m] = p(z_t | x_t^[m]), times the weight carried over  (Table 4.3 line 5)
+    ll = np.asarray(log_likelihood(moved), dtype=float)
+    if ll.shape != lw.shape:
+        raise ValueError(f"log_likelihood must return shape {lw.shape}, got {ll.shape}")
+    new_lw = lw + ll
+    _check_log_weights(new_lw, "log_w + log_likelihood")
+    return _weigh_and_resample(moved, new_lw, rng, resample, ess_threshold)
+
+
+def _control_sqrt(M):
+    """A square root ``L`` of the PSD control covariance, ``L L^T = M``."""
+    lam, vec = np.linalg.eigh(M)
+    return vec * np.sqrt(np.maximum(lam, 0.0))
+
+
+def particle_filter_step(particles, log_w, u, z, m, dt, M, Q, *, rng, resample="systematic", ess_threshold=0.5):
+    """One particle-filter step for poses with landmark measurements.
+
+    Parameters
+    ----------
+    particles : ndarray, shape (n, 3)
+        Poses ``[x, y, theta]`` of the ``n`` particles at ``t-1``.
+    log_w : ndarray, shape (n,)
+        Their log-weights (normalised or not).
+    u : ndarray, shape (2,)
+        Commanded control ``[v, omega]``.
+    z : ndarray, shape (K, 2)
+        The step's measurements ``[r, phi]`` (``K`` may be 0).
+    m : ndarray, shape (K, 2)
+        Position of the landmark of each measurement (known correspondences,
+        e.g. ``landmarks[ids]``).
+    dt : float
+        Duration of the control, non-negative seconds.
+    M : ndarray, shape (2, 2)
+        Control-noise covariance: each particle moves with its own
+        ``u + N(0, M)`` along the exact arc.
+    Q : ndarray, shape (2, 2)
+        Measurement-noise covariance, positive definite.
+    rng : numpy.random.Generator, keyword-only
+        Draws ``standard_normal((n, 2))`` for the motion, then the resampler's
+        draws.
+    resample : str, callable or None, keyword-only
+        As in :func:`bootstrap_filter_step`.
+    ess_threshold : float, keyword-only
+        As in :func:`bootstrap_filter_step`.
+
+    Returns
+    -------
+    particles : ParticleSet
+        ``(poses (n, 3), log_weights (n,))``, headings wrapped, log-weights
+        normalised.
+    info : PFStepInfo
+        Effective sample size before resampling, and whether it resampled.
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Table 4.3 with the velocity motion model
+    (Sec. 5.3, control noise as in Table 7.2) and the landmark measurement
+    model (Table 6.4).
+    """
+    particles = _as_poses(particles)
+    if particles.ndim != 2:
+        raise ValueError(f"particles must have shape (n, 3), got {particles.shape}")
+    n = particles.shape[0]
+    lw = _as_log_w(log_w, n)
+    u = as_array(u, "u", (2,))
+    z = as_array(z, "z", ndim=(1, 2))
+    if z.size == 0:
+        z = z.reshape(0, 2)
+    if z.ndim != 2 or z.shape[1] != 2:
+        raise ValueError(f"z must have shape (K, 2), got {z.shape}")
+    m = as_array(m, "m", ndim=(1, 2))
+    if m.size == 0:
+        m = m.reshape(0, 2)
+    if m.shape != z.shape:
+        raise ValueError(f"m must have shape {z.shape} (one landmark per measurement in z), got {m.shape}")
+    dt = as_scalar(dt, "dt", nonnegative=True)
+    M = as_array(M, "M", (2, 2))
+    if not np.allclose(M, M.T) or np.linalg.eigvalsh(M).min() < -1e-12 * max(1.0, np.abs(M).max()):
+        raise ValueError("M must be symmetric positive semi-definite")
+    Q = _as_pd(Q)
+    resample, ess_threshold = _step_options(rng, resample, ess_threshold)
+    # u_hat^[m] = u + N(0, M); x_t^[m] = g(u_hat^[m], x_{t-1}^[m])  (Table 4.3 line 4, Table 5.3)
+    u_hat = u + rng.standard_normal((n, 2)) @ _control_sqrt(M).T
+    moved, _, _ = velocity_motion(particles, u_hat, dt)
+    if z.shape[0]:
+        # w^[m] = prod_k p(z_k | x_t^[m], m_k), summed in log space  (Table 4.3 line 5, Table 6.4)
+        new_lw = lw + _log_landmark_likelihood(moved, z, m, Q)
+    else:
+        new_lw = lw
+    return _weigh_and_resample(moved, new_lw, rng, resample, ess_threshold)
+
+
+def particle_gaussian(particles, log_weights=None, *, angles=()):
+    """Weighted mean and covariance of a particle set.
+
+    Parameters
+    ----------
+    particles : ndarray, shape (M, d)
+        The particles.
+    log_weights : ndarray, shape (M,), optional
+        Log-weights (normalised or not); equal weights if omitted.
+    angles : sequence of int, keyword-only
+        Columns holding angles (e.g. ``(2,)`` for poses): their mean is the
+        weighted circular mean and their deviations are wrapped.
+
+    Returns
+    -------
+    Gaussian
+        ``(mean (d,), cov (d, d))`` with ``cov = sum_m w_m e_m e_m^T``,
+        ``e_m = particles[m] - mean`` (angles wrapped).
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Sec. 4.3.1 (particles as a sample of the
+    belief; moments from the weighted sample).
+    """
+    p = as_array(particles, "particles", ndim=2)
+    n, d = p.shape
+    if n == 0:
+        raise ValueError("particles must hold at least one particle")
+    if log_weights is None:
+        w = np.full(n, 1.0 / n)
+    else:
+        w = normalize_log_weights(as_array(log_weights, "log_weights", (n,), finite=False))
+    cols = []
+    for a in angles:
+        if isinstance(a, bool) or not isinstance(a, (int, np.integer)) or not 0 <= a < d:
+            raise ValueError(f"angles must hold column indices in [0, {d}), got {a!r}")
+        cols.append(int(a))
+    mean = w @ p
+    for a in cols:
+        mean[a] = circular_mean(p[:, a], w)
+    e = p - mean
+    for a in cols:
+        e[:, a] = wrap_angle(e[:, a])
+    cov = (w[:, None] * e).T @ e
+    return Gaussian(mean, 0.5 * (cov + cov.T))

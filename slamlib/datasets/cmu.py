@@ -1,3 +1,242 @@
-"""Placeholder: filled in by its owner."""
+"""CMU Wean Hall: occupancy map and a real laser/odometry log.
 
-__all__: list[str] = []
+The data of the particle-filter localization assignment of CMU 16-831
+(Statistical Techniques in Robotics), shipped in ``slamlib/data/cmu_wean``
+(see its ``ATTRIBUTION.md``):
+
+* ``wean.npz``: the 800 x 800 map of 10 cm cells, re-encoded losslessly from
+  ``wean.dat`` (``free_permille`` uint16: the file's values times 1000, 65535
+  for its ``-1`` "unknown").
+* ``robotdata1.log.gz``: 2218 lines, ``O x y theta ts`` odometry and
+  ``L x y theta xl yl thetal r1 .. r180 ts`` laser scans, in centimetres.
+
+Map values. The assignment's notes call the values occupancy probabilities,
+but in the file open corridors hold values near 1 and walls values near 0, so
+they are the probability of being **free**; :func:`load_cmu_map` returns
+``occupancy = 1 - value``.
+
+Orientation. The file's first index ``i`` (line of the map block) is world
+``x = (i + 1/2) 0.1 m`` and the second index ``j`` is ``y = (j + 1/2) 0.1 m``
+(the ``map[x][y]`` layout of the assignment's reader). In slamlib's grid
+convention (row = y, column = x) the occupancy is therefore the transposed
+array. Drawn with ``origin="lower"`` this reproduces the assignment's
+``wean.gif`` (long corridor along the bottom, the two square rooms top right),
+and the log's laser scans, which run counter-clockwise from the robot's right,
+line up with the walls in this frame but not in its mirror image (checked in
+``tests/test_cmu.py``).
+
+References
+----------
+Thrun, Burgard & Fox, *Probabilistic Robotics* (2005), Ch. 8 (Monte Carlo
+localization, Table 8.2) on this kind of data; Sec. 5.4 (odometry, Table 5.5).
+"""
+
+from __future__ import annotations
+
+import gzip
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .._checks import as_index
+from ..maps import OccupancyGrid
+from ..angles import wrap_angle
+from ..motion import odometry_from_poses
+
+__all__ = ["CmuLog", "load_cmu_map", "load_cmu_log", "CMU_SENSOR_OFFSET", "CMU_MAX_RANGE"]
+
+#: The laser sits 25 cm ahead of the robot centre (metres).
+CMU_SENSOR_OFFSET = 0.25
+#: Largest reading of the log's laser (8183 cm), its "no return" value (metres).
+CMU_MAX_RANGE = 81.83
+_RESOLUTION = 0.1
+_N_BEAMS = 180
+
+
+def _data_file(name):
+    from . import data_path  # the package's resolver of shipped data
+
+    return data_path("cmu_wean", name)
+
+
+def load_cmu_map():
+    """The Wean Hall occupancy grid in metres.
+
+    Returns
+    -------
+    OccupancyGrid
+        ``occupancy`` of shape (800, 800): probability of being occupied,
+        ``1 - value`` of the file, NaN where the file says ``-1`` (unknown);
+        ``resolution`` 0.1 m; ``origin`` (0, 0). Rows are y, columns x (see
+        the module docstring for the orientation).
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Sec. 9.1 (occupancy grid maps); map of the
+    CMU 16-831 assignment (``cmu16831wean``).
+    """
+    with np.load(_data_file("wean.npz")) as f:
+        raw = f["free_permille"]
+    free = np.where(raw == 65535, np.nan, raw / 1000.0)
+    # file index [i, j] is (x, y); the grid wants [row = y, col = x]
+    return OccupancyGrid(occupancy=1.0 - free.T, resolution=_RESOLUTION, origin=np.zeros(2))
+
+
+@dataclass(frozen=True, eq=False)
+class CmuLog:
+    """The Wean Hall robot log, in metres, radians and seconds.
+
+    Attributes
+    ----------
+    odom_t : ndarray, shape (T,)
+        Time stamps of the odometry (``O``) lines.
+    odom : ndarray, shape (T, 3)
+        Odometry poses ``[x, y, theta]`` (odometry frame, not the map frame).
+    laser_t : ndarray, shape (L,)
+        Time stamps of the scans (``L`` lines).
+    laser_pose : ndarray, shape (L, 3)
+        Odometry pose of the robot centre at each scan (interpolated by the
+        recorder).
+    laser_sensor_pose : ndarray, shape (L, 3)
+        Odometry pose of the laser at each scan (25 cm ahead of the centre).
+    ranges : ndarray, shape (L, 180)
+        Ranges in metres; ``CMU_MAX_RANGE`` (81.83 m) means no return.
+    angles : ndarray, shape (180,)
+        Beam angles relative to the heading, ``-pi/2 + k pi/180``: from the
+        robot's right, counter-clockwise (right to left).
+    sensor_offset : float
+        0.25 m, the laser's distance ahead of the centre.
+    max_range : float
+        81.83 m.
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Sec. 5.4 (odometry as controls, Table 5.5),
+    Sec. 6.3 (range scans).
+    """
+
+    odom_t: np.ndarray
+    odom: np.ndarray
+    laser_t: np.ndarray
+    laser_pose: np.ndarray
+    laser_sensor_pose: np.ndarray
+    ranges: np.ndarray
+    angles: np.ndarray
+    sensor_offset: float = CMU_SENSOR_OFFSET
+    max_range: float = CMU_MAX_RANGE
+
+    @property
+    def n_scans(self):
+        """Number of laser scans ``L``."""
+        return self.ranges.shape[0]
+
+    def controls(self):
+        """Odometry controls between consecutive scans.
+
+        Returns
+        -------
+        ndarray, shape (L, 3)
+            Row ``k`` is ``[rot1, trans, rot2]`` taking ``laser_pose[k-1]`` to
+            ``laser_pose[k]`` (:func:`~slamlib.motion.odometry_from_poses`);
+            row 0 is zero (no motion before the first scan).
+
+        References
+        ----------
+        Thrun, Burgard & Fox (2005), Table 5.5 lines 2-4.
+        """
+        u = np.zeros((self.n_scans, 3))
+        if self.n_scans > 1:
+            u[1:] = odometry_from_poses(self.laser_pose[:-1], self.laser_pose[1:])
+        return u
+
+    def steps(self, start=0, stop=None):
+        """Iterate over scans as ``(t, u, ranges)``.
+
+        Parameters
+        ----------
+        start, stop : int
+            Range of scan indices (``stop`` exclusive, default all).
+
+        Yields
+        ------
+        t : float
+            Time of scan ``k``.
+        u : ndarray, shape (3,)
+            Odometry control ``[rot1, trans, rot2]`` since scan ``k - 1``
+            (zero for ``k = 0``), see :meth:`controls`.
+        ranges : ndarray, shape (180,)
+            The scan, in metres.
+
+        References
+        ----------
+        Thrun, Burgard & Fox (2005), Table 8.2 (MCL consumes ``u_t``, ``z_t`` pairs).
+        """
+        L = self.n_scans
+        start = as_index(start, "start", L + 1)
+        stop = L if stop is None else as_index(stop, "stop", L + 1)
+        u = self.controls()
+        for k in range(start, stop):
+            yield float(self.laser_t[k]), u[k], self.ranges[k]
+
+
+def _readonly(a):
+    a = np.ascontiguousarray(a, dtype=float)
+    a.setflags(write=False)
+    return a
+
+
+def load_cmu_log(path=None):
+    """Parse a CMU 16-831 robot log into metres, radians and seconds.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path, optional
+        A log file (plain text or ``.gz``); default the shipped
+        ``robotdata1.log.gz`` (2218 lines: 1505 odometry, 713 scans).
+
+    Returns
+    -------
+    CmuLog
+        Odometry and scans, read-only arrays.
+
+    Raises
+    ------
+    ValueError
+        On a line that is neither a 5-field ``O`` line nor a 188-field ``L``
+        line (the message gives the line number).
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Sec. 5.4 (odometry), Sec. 6.3 (range
+    finders); log of the CMU 16-831 assignment (``cmu16831wean``).
+    """
+    path = _data_file("robotdata1.log.gz") if path is None else Path(path)
+    opener = gzip.open if str(path).endswith(".gz") else open
+    with opener(path, "rt") as f:
+        lines = f.read().splitlines()
+    odo, las = [], []
+    for n, line in enumerate(lines, start=1):
+        parts = line.split()
+        if not parts:
+            continue
+        if parts[0] == "O" and len(parts) == 5:
+            odo.append(parts[1:])
+        elif parts[0] == "L" and len(parts) == 8 + _N_BEAMS:
+            las.append(parts[1:])
+        else:
+            raise ValueError(f"path {path}: line {n} is not an 'O' (5 fields) or 'L' ({8 + _N_BEAMS} fields) record")
+    odo = np.array(odo, dtype=float).reshape(-1, 4)
+    las = np.array(las, dtype=float).reshape(-1, 7 + _N_BEAMS)
+    cm = 0.01
+    odom = odo[:, :3] * [cm, cm, 1.0]
+    laser_pose = las[:, 0:3] * [cm, cm, 1.0]
+    sensor_pose = las[:, 3:6] * [cm, cm, 1.0]
+    for pose in (odom, laser_pose, sensor_pose):
+        pose[:, 2] = wrap_angle(pose[:, 2])
+    angles = -np.pi / 2 + np.arange(_N_BEAMS) * (np.pi / _N_BEAMS)
+    return CmuLog(
+        odom_t=_readonly(odo[:, 3]), odom=_readonly(odom), laser_t=_readonly(las[:, -1]),
+        laser_pose=_readonly(laser_pose), laser_sensor_pose=_readonly(sensor_pose),
+        ranges=_readonly(las[:, 6:6 + _N_BEAMS] * cm), angles=_readonly(angles),
+    )

@@ -1,0 +1,374 @@
+"""Kalman filter and EKF localization (slamlib.gaussian) against theory."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import slamlib as sl
+from slamlib.gaussian import DEFAULT_GATE
+
+DT = 0.5
+M_NOISE = np.diag([0.05**2, np.deg2rad(1.0) ** 2])
+Q_NOISE = np.diag([0.1**2, np.deg2rad(2.0) ** 2])
+SIGMA0 = np.diag([0.01, 0.01, np.deg2rad(2.0) ** 2])
+
+
+def _world():
+    return sl.make_landmark_world(15, extent=16.0, min_separation=2.0, rng=np.random.default_rng(7))
+
+
+def _run(seed, n_steps=80, landmarks=None):
+    rng = np.random.default_rng(seed)
+    landmarks = _world() if landmarks is None else landmarks
+    u = sl.loop_controls(n_steps, v=1.0, omega=0.2)
+    x0 = np.array([0.0, -5.0, 0.0])
+    run = sl.simulate_landmark_run(landmarks, u, DT, x0=x0, M=M_NOISE, Q=Q_NOISE, max_range=8.0,
+                                   fov=np.pi, rng=rng)
+    mu0 = x0 + rng.multivariate_normal(np.zeros(3), SIGMA0)
+    return run, mu0
+
+
+def _random_belief(rng, n=3):
+    A = rng.normal(size=(n, n))
+    return rng.normal(size=n), A @ A.T / n + 0.1 * np.eye(n)
+
+
+def _frozen(*arrays):
+    out = []
+    for a in arrays:
+        a = np.array(a, dtype=float)
+        a.setflags(write=False)
+        out.append(a)
+    return out
+
+
+def _assert_sym_psd(S):
+    np.testing.assert_array_equal(S, np.swapaxes(S, -1, -2))
+    assert np.linalg.eigvalsh(S).min() > -1e-12
+
+
+# --------------------------------------------------------------------------- linear Kalman filter
+def test_kf_scalar_closed_form():
+    # scalar: K = P / (P + R), x = x + K (z - x), P = P R / (P + R)
+    x, P = sl.kf_update([1.0], [[4.0]], [3.0], [[1.0]], [[1.0]])
+    np.testing.assert_allclose(x, [1.0 + 0.8 * 2.0], rtol=1e-14)
+    np.testing.assert_allclose(P, [[0.8]], rtol=1e-14)
+    x, P = sl.kf_predict([1.0], [[0.8]], [[2.0]], [[0.5]], B=[[1.0]], u=[0.25])
+    np.testing.assert_allclose(x, [2.25], rtol=1e-14)
+    np.testing.assert_allclose(P, [[4 * 0.8 + 0.5]], rtol=1e-14)
+
+
+def test_kf_equals_batch_bayesian_posterior():
+    # a static state measured n times: the KF posterior is the Gaussian conjugate posterior
+    # Sigma = (P0^-1 + sum H^T R^-1 H)^-1, mu = Sigma (P0^-1 x0 + sum H^T R^-1 z)
+    rng = np.random.default_rng(3)
+    x0, P0 = _random_belief(rng, 4)
+    info, vec = np.linalg.inv(P0), np.linalg.solve(P0, x0)
+    x, P = x0, P0
+    for _ in range(6):
+        H = rng.normal(size=(2, 4))
+        R = np.diag(rng.uniform(0.1, 1.0, size=2))
+        z = rng.normal(size=2)
+        x, P = sl.kf_update(x, P, z, H, R)
+        info += H.T @ np.linalg.solve(R, H)
+        vec += H.T @ np.linalg.solve(R, z)
+    P_ref = np.linalg.inv(info)
+    np.testing.assert_allclose(P, P_ref, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(x, P_ref @ vec, rtol=1e-9, atol=1e-12)
+    _assert_sym_psd(P)
+
+
+def test_kf_random_walk_reaches_riccati_steady_state():
+    q, r = 0.3, 2.0
+    # steady-state prior variance p solves p^2 - q p - q r = 0; posterior p r / (p + r)
+    p_bar = 0.5 * (q + np.sqrt(q * q + 4 * q * r))
+    x, P = np.zeros(1), np.eye(1) * 10.0
+    for z in np.random.default_rng(0).normal(size=200):
+        x, P = sl.kf_predict(x, P, np.eye(1), q * np.eye(1))
+        x, P = sl.kf_update(x, P, [z], np.eye(1), r * np.eye(1))
+    np.testing.assert_allclose(P[0, 0], p_bar * r / (p_bar + r), rtol=1e-10)
+
+
+def test_kf_batched_equals_looped():
+    rng = np.random.default_rng(5)
+    xs, Ps = zip(*(_random_belief(rng) for _ in range(4)))
+    xs, Ps = np.array(xs), np.array(Ps)
+    F = rng.normal(size=(4, 3, 3))
+    Qp = np.eye(3) * 0.2
+    H = rng.normal(size=(2, 3))
+    z = rng.normal(size=(4, 2))
+    R = np.diag([0.3, 0.5])
+    xb, Pb = sl.kf_update(*sl.kf_predict(xs, Ps, F, Qp), z, H, R)
+    for i in range(4):
+        xi, Pi = sl.kf_update(*sl.kf_predict(xs[i], Ps[i], F[i], Qp), z[i], H, R)
+        np.testing.assert_allclose(xb[i], xi, rtol=1e-12, atol=1e-14)
+        np.testing.assert_allclose(Pb[i], Pi, rtol=1e-12, atol=1e-14)
+
+
+# --------------------------------------------------------------------------- EKF = KF on the linearised model
+def test_ekf_predict_is_kf_on_linearised_motion():
+    rng = np.random.default_rng(11)
+    for _ in range(5):
+        mu, Sigma = _random_belief(rng)
+        u = np.array([rng.uniform(0.2, 2.0), rng.uniform(-1.0, 1.0)])
+        g, G, V = sl.velocity_motion(mu, u, DT)
+        mu_bar, Sigma_bar = sl.ekf_predict(mu, Sigma, u, DT, M_NOISE)
+        # affine model x' = G x + (g - G mu) with process noise V M V^T
+        x_kf, P_kf = sl.kf_predict(mu, Sigma, G, V @ M_NOISE @ V.T, B=np.eye(3), u=g - G @ mu)
+        np.testing.assert_allclose(mu_bar[:2], x_kf[:2], rtol=1e-12, atol=1e-12)
+        assert abs(sl.angle_diff(mu_bar[2], x_kf[2])) < 1e-12
+        np.testing.assert_allclose(Sigma_bar, P_kf, rtol=1e-12, atol=1e-14)
+
+
+def test_ekf_update_is_kf_on_linearised_measurement():
+    rng = np.random.default_rng(12)
+    m = np.array([3.0, 4.0])
+    for _ in range(5):
+        mu_bar, Sigma_bar = _random_belief(rng)
+        mu_bar[2] = sl.wrap_angle(mu_bar[2])
+        z_hat, H, _ = sl.landmark_measurement(mu_bar, m)
+        z = z_hat + rng.normal(size=2) * [0.1, 0.05]
+        mu, Sigma = sl.ekf_update(mu_bar, Sigma_bar, z, m, Q_NOISE)
+        # pseudo-measurement z - h(mu_bar) + H mu_bar of the linear model H x
+        nu = z - z_hat
+        nu[1] = sl.wrap_angle(nu[1])
+        x_kf, P_kf = sl.kf_update(mu_bar, Sigma_bar, nu + H @ mu_bar, H, Q_NOISE)
+        np.testing.assert_allclose(mu[:2], x_kf[:2], rtol=1e-10, atol=1e-12)
+        assert abs(sl.angle_diff(mu[2], x_kf[2])) < 1e-12
+        np.testing.assert_allclose(Sigma, P_kf, rtol=1e-10, atol=1e-14)
+
+
+def test_ekf_predict_exact_when_motion_is_linear():
+    # heading known exactly and omega = 0 without noise: x' = x + v dt cos(theta) is
+    # affine in (x, y, v), so the EKF covariance is the true covariance of the samples
+    rng = np.random.default_rng(21)
+    mu = np.array([1.0, -2.0, 0.7])
+    Sigma = np.array([[0.2, 0.05, 0.0], [0.05, 0.1, 0.0], [0.0, 0.0, 0.0]])
+    M = np.diag([0.3, 0.0])
+    u = np.array([1.5, 0.0])
+    mu_bar, Sigma_bar = sl.ekf_predict(mu, Sigma, u, DT, M)
+    n = 200_000
+    x = rng.multivariate_normal(mu, Sigma, size=n, method="eigh")
+    uu = u + rng.multivariate_normal(np.zeros(2), M, size=n, method="eigh")
+    xn, _, _ = sl.velocity_motion(x, uu, DT)
+    np.testing.assert_allclose(xn.mean(axis=0), mu_bar, atol=5 * np.sqrt(Sigma_bar.diagonal().max() / n))
+    np.testing.assert_allclose(np.cov(xn.T), Sigma_bar, atol=0.01 * Sigma_bar.max())
+
+
+# --------------------------------------------------------------------------- contract details
+def test_ekf_update_wraps_bearing_innovation():
+    m = np.array([-5.0, -0.05])  # bearing from the origin just above -pi
+    mu_bar, Sigma_bar = np.zeros(3), np.diag([0.1, 0.1, 0.05])
+    z_hat, _, _ = sl.landmark_measurement(mu_bar, m)
+    assert z_hat[1] < -np.pi + 0.02
+    dphi = -0.03  # true bearing innovation: the measurement wraps to near +pi
+    z = np.array([z_hat[0], sl.wrap_angle(z_hat[1] + dphi)])
+    assert z[1] > np.pi - 0.03
+    mu, Sigma = sl.ekf_update(mu_bar, Sigma_bar, z, m, Q_NOISE)
+    # same as the unwrapped measurement z_hat + dphi (which we build by hand)
+    mu_ref, Sigma_ref = sl.ekf_update(mu_bar, Sigma_bar, [z_hat[0], z_hat[1] + dphi], m, Q_NOISE)
+    np.testing.assert_allclose(mu, mu_ref, atol=1e-12)
+    np.testing.assert_allclose(Sigma, Sigma_ref, atol=1e-14)
+    assert np.linalg.norm(mu) < 0.1
+
+
+def test_ekf_heading_wrapped():
+    mu, Sigma = sl.ekf_predict([0.0, 0.0, np.pi - 0.01], np.eye(3) * 0.01, [1.0, 1.0], DT, M_NOISE)
+    assert -np.pi <= mu[2] < np.pi
+    np.testing.assert_allclose(mu[2], np.pi - 0.01 + 0.5 - 2 * np.pi, atol=1e-12)
+
+
+def test_associate_ml_contract():
+    mu, Sigma = np.array([0.0, 0.0, 0.0]), np.diag([0.05, 0.05, 0.01])
+    L = np.array([[4.0, 0.0], [0.0, 4.0], [4.0, 0.0], [-3.0, 0.1]])
+    z, _, _ = sl.landmark_measurement(mu, L[0])
+    z = z + [0.05, 0.0]
+    d = sl.landmark_mahalanobis(mu, Sigma, z, L, Q_NOISE)
+    assert d.shape == (4,) and d[0] == d[2] > 0
+    j = sl.associate_ml(mu, Sigma, z, L, Q_NOISE, 100.0)
+    assert j == 0 and isinstance(j, int)  # tie between 0 and 2 goes to the smaller index
+    assert sl.associate_ml(mu, Sigma, z, L, Q_NOISE, d[0]) == 0  # d == gate is a match
+    assert sl.associate_ml(mu, Sigma, z, L, Q_NOISE, np.nextafter(d[0], 0.0)) == -1
+    assert sl.associate_ml(mu, Sigma, z, np.zeros((0, 2)), Q_NOISE, 100.0) == -1
+    # by hand: nu^T S^-1 nu with S = H Sigma H^T + Q
+    z_hat, H, _ = sl.landmark_measurement(mu, L[1])
+    nu = z - z_hat
+    nu[1] = sl.wrap_angle(nu[1])
+    np.testing.assert_allclose(d[1], nu @ np.linalg.solve(H @ Sigma @ H.T + Q_NOISE, nu), rtol=1e-12)
+
+
+def test_associate_ml_wraps_bearing():
+    mu, Sigma = np.zeros(3), np.diag([0.05, 0.05, 0.01])
+    L = np.array([[-5.0, -0.05], [-5.0, 3.0]])
+    z_hat, _, _ = sl.landmark_measurement(mu, L[0])
+    z = np.array([z_hat[0], sl.wrap_angle(z_hat[1] - 0.02)])  # near +pi
+    assert sl.associate_ml(mu, Sigma, z, L, Q_NOISE, DEFAULT_GATE) == 0
+    assert sl.landmark_mahalanobis(mu, Sigma, z, L, Q_NOISE)[0] < 1.0
+
+
+def test_covariances_symmetric_psd_and_inputs_untouched():
+    rng = np.random.default_rng(4)
+    run, mu0 = _run(31, n_steps=40)
+    mu, Sigma = mu0, SIGMA0
+    for t in range(run.n_steps):
+        args = _frozen(mu, Sigma, run.u[t], M_NOISE)
+        before = [a.copy() for a in args]
+        mu, Sigma = sl.ekf_predict(*args[:3], DT, args[3])
+        for a, b in zip(args, before):
+            np.testing.assert_array_equal(a, b)
+        _assert_sym_psd(Sigma)
+        for z, j in zip(run.z[t], run.ids[t]):
+            args = _frozen(mu, Sigma, z, run.landmarks[j], Q_NOISE)
+            mu, Sigma = sl.ekf_update(*args)
+            _assert_sym_psd(Sigma)
+    # a badly scaled update still returns an exactly symmetric PSD matrix
+    _, S = _random_belief(rng)
+    mu2, S2 = sl.ekf_update([0, 0, 0.3], S * 1e6, [2.0, 0.1], [1.0, 1.5], Q_NOISE * 1e-6)
+    _assert_sym_psd(S2)
+
+
+def test_filter_steps_do_not_mutate():
+    run, mu0 = _run(32, n_steps=5)
+    t = int(np.argmax([len(z) for z in run.z]))
+    args = _frozen(mu0, SIGMA0, run.u[t], run.z[t], run.landmarks, M_NOISE, Q_NOISE)
+    ids = np.array(run.ids[t])
+    ids.setflags(write=False)
+    mu, Sigma, u, z, L, M, Q = args
+    sl.ekf_localization_known(mu, Sigma, u, z, ids, L, DT, M, Q)
+    sl.ekf_localization_unknown(mu, Sigma, u, z, L, DT, M, Q)
+    sl.associate_ml(mu, Sigma, z[0], L, Q, DEFAULT_GATE)
+
+
+def test_ekf_batched_equals_looped():
+    rng = np.random.default_rng(8)
+    mus, Sigmas = map(np.array, zip(*(_random_belief(rng) for _ in range(5))))
+    us = rng.uniform([0.2, -1.0], [2.0, 1.0], size=(5, 2))
+    ms = rng.uniform(-6, 6, size=(5, 2))
+    zs = rng.uniform([1.0, -3.0], [5.0, 3.0], size=(5, 2))
+    mb, Sb = sl.ekf_predict(mus, Sigmas, us, DT, M_NOISE)
+    mu, Su = sl.ekf_update(mb, Sb, zs, ms, Q_NOISE)
+    for i in range(5):
+        a, b = sl.ekf_predict(mus[i], Sigmas[i], us[i], DT, M_NOISE)
+        np.testing.assert_allclose(mb[i], a, rtol=1e-12, atol=1e-14)
+        np.testing.assert_allclose(Sb[i], b, rtol=1e-12, atol=1e-14)
+        a, b = sl.ekf_update(a, b, zs[i], ms[i], Q_NOISE)
+        np.testing.assert_allclose(mu[i], a, rtol=1e-12, atol=1e-14)
+        np.testing.assert_allclose(Su[i], b, rtol=1e-12, atol=1e-14)
+
+
+def test_step_functions_equal_predict_then_sequential_updates():
+    run, mu0 = _run(33, n_steps=30)
+    res = sl.ekf_localization_run(run, mu0=mu0, Sigma0=SIGMA0)
+    mu, Sigma = mu0, SIGMA0
+    for t in range(run.n_steps):
+        mu, Sigma = sl.ekf_predict(mu, Sigma, run.u[t], DT, M_NOISE)
+        for z, j in zip(run.z[t], run.ids[t]):
+            mu, Sigma = sl.ekf_update(mu, Sigma, z, run.landmarks[j], Q_NOISE)
+        np.testing.assert_allclose(res.mu[t + 1], mu, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(res.Sigma[t + 1], Sigma, rtol=1e-12, atol=1e-15)
+    t = 3
+    step = sl.ekf_localization_known(res.mu[t], res.Sigma[t], run.u[t], run.z[t], run.ids[t], run.landmarks,
+                                     DT, M_NOISE, Q_NOISE)
+    np.testing.assert_allclose(step.mean, res.mu[t + 1], atol=1e-12)
+    assert np.all(np.abs(res.mu[:, 2]) <= np.pi)
+
+
+# --------------------------------------------------------------------------- consistency and association
+def test_ekf_localization_nees_inside_chi2_band():
+    n_runs = 25
+    landmarks = _world()
+    nees = []
+    for k in range(n_runs):
+        run, mu0 = _run(1000 + k, landmarks=landmarks)
+        res = sl.ekf_localization_run(run, mu0=mu0, Sigma0=SIGMA0)
+        nees.append(sl.nees(sl.pose_error(res.mu, run.x_true), res.Sigma))
+    nees = np.array(nees)
+    avg = nees.mean(axis=0)  # average over runs at each time step
+    lo, hi = sl.nees_band(3, n_runs, 0.95)
+    inside = np.mean((avg >= lo) & (avg <= hi))
+    # a consistent filter has ~95 % of the time steps inside the band; steps are correlated,
+    # so allow some slack, but a mis-scaled covariance (x2 or /2) would fail badly
+    assert inside >= 0.85, f"only {inside:.0%} of the steps inside [{lo:.2f}, {hi:.2f}]"
+    assert 2.7 < nees.mean() < 3.3
+    # an overconfident filter (noise underestimated 4x) is caught by the same test
+    run, mu0 = _run(1000, landmarks=landmarks)
+    bad = sl.ekf_localization_run(run, mu0=mu0, Sigma0=SIGMA0, M=M_NOISE / 4, Q=Q_NOISE / 4)
+    assert sl.nees(sl.pose_error(bad.mu, run.x_true), bad.Sigma).mean() > hi
+
+
+def _with_clutter(run, rng, rate=2):
+    """The run's measurements plus `rate` clutter returns per step (ids -1)."""
+    zs, ids = [], []
+    for z, j in zip(run.z, run.ids):
+        k = rng.poisson(rate)
+        clutter = np.column_stack([rng.uniform(0.5, 8.0, k), rng.uniform(-np.pi / 2, np.pi / 2, k)])
+        order = rng.permutation(len(z) + k)
+        zs.append(np.vstack([z, clutter])[order])
+        ids.append(np.concatenate([j, -np.ones(k, int)])[order])
+    return zs, ids
+
+
+def test_unknown_correspondences_pick_landmarks_and_gate_clutter():
+    run, mu0 = _run(41, n_steps=120)
+    zs, true_ids = _with_clutter(run, np.random.default_rng(42))
+    mu, Sigma = mu0, SIGMA0
+    chosen = []
+    for t in range(run.n_steps):
+        (mu, Sigma), ids = sl.ekf_localization_unknown(mu, Sigma, run.u[t], zs[t], run.landmarks, DT,
+                                                       M_NOISE, Q_NOISE, gate=DEFAULT_GATE)
+        assert ids.shape == (len(zs[t]),) and ids.dtype.kind == "i"
+        chosen.append(ids)
+    chosen, truth = np.concatenate(chosen), np.concatenate(true_ids)
+    real = truth >= 0
+    # true returns: at most ~1 % fall outside the 99 % gate; the rest go to their landmark
+    assert np.mean(chosen[real] == truth[real]) >= 0.97
+    assert np.all((chosen[real] == truth[real]) | (chosen[real] == -1))
+    # clutter: the gate rejects nearly all of it
+    assert np.mean(chosen[~real] == -1) >= 0.9
+    assert sl.ate_rmse(np.vstack([mu]), run.x_true[-1:]) < 0.3
+    # the whole run against known correspondences without clutter
+    known = sl.ekf_localization_run(run, mu0=mu0, Sigma0=SIGMA0)
+    assert np.linalg.norm(mu[:2] - known.mu[-1, :2]) < 0.1
+
+
+def test_unknown_run_without_clutter_matches_known():
+    run, mu0 = _run(43)
+    known = sl.ekf_localization_run(run, mu0=mu0, Sigma0=SIGMA0)
+    unknown = sl.ekf_localization_run(run, known=False, mu0=mu0, Sigma0=SIGMA0, gate=np.inf)
+    assert all(np.array_equal(a, b) for a, b in zip(unknown.ids, run.ids))
+    np.testing.assert_allclose(unknown.mu, known.mu, atol=1e-12)
+
+
+# --------------------------------------------------------------------------- bad input
+@pytest.mark.parametrize(
+    "call, name",
+    [
+        (lambda: sl.ekf_predict(np.zeros(2), np.eye(3), [1, 0], DT, M_NOISE), "mu"),
+        (lambda: sl.ekf_predict(np.zeros(3), np.eye(2), [1, 0], DT, M_NOISE), "Sigma"),
+        (lambda: sl.ekf_predict(np.zeros(3), [[1, 2, 0], [0, 1, 0], [0, 0, 1]], [1, 0], DT, M_NOISE), "Sigma"),
+        (lambda: sl.ekf_predict(np.zeros(3), -np.eye(3), [1, 0], DT, M_NOISE), "Sigma"),
+        (lambda: sl.ekf_predict(np.zeros(3), np.eye(3), [1, 0, 0], DT, M_NOISE), "u"),
+        (lambda: sl.ekf_predict(np.zeros(3), np.eye(3), [1, 0], -1.0, M_NOISE), "dt"),
+        (lambda: sl.ekf_predict(np.zeros(3), np.eye(3), [1, 0], DT, np.eye(3)), "M"),
+        (lambda: sl.ekf_predict([0, np.nan, 0], np.eye(3), [1, 0], DT, M_NOISE), "mu"),
+        (lambda: sl.ekf_update(np.zeros(3), np.eye(3), [1, 0], [2, 2], np.zeros((2, 2))), "Q"),
+        (lambda: sl.ekf_update(np.zeros(3), np.eye(3), [1, 0, 3], [2, 2], Q_NOISE), "z"),
+        (lambda: sl.ekf_update(np.zeros(3), np.eye(3), [1, 0], [2, 2, 2], Q_NOISE), "m"),
+        (lambda: sl.ekf_update(np.zeros(3), np.eye(3), [1, 0], [0, 0], Q_NOISE), "m"),
+        (lambda: sl.associate_ml(np.zeros(3), np.eye(3), [1, 0], np.ones(2), Q_NOISE, 9.0), "landmarks"),
+        (lambda: sl.associate_ml(np.zeros(3), np.eye(3), [1, 0], np.ones((2, 2)), Q_NOISE, -1.0), "gate"),
+        (lambda: sl.associate_ml(np.zeros(3), np.eye(3), [1, 0], np.ones((2, 2)), Q_NOISE, np.nan), "gate"),
+        (lambda: sl.ekf_localization_known(np.zeros(3), np.eye(3), [1, 0], [[1, 0]], [5], np.ones((2, 2)),
+                                           DT, M_NOISE, Q_NOISE), "ids"),
+        (lambda: sl.ekf_localization_known(np.zeros(3), np.eye(3), [1, 0], [[1, 0]], [0.0], np.ones((2, 2)),
+                                           DT, M_NOISE, Q_NOISE), "ids"),
+        (lambda: sl.kf_update([0.0], [[1.0]], [1.0], [[1.0, 0.0]], [[1.0]]), "H"),
+        (lambda: sl.kf_update([0.0], [[1.0]], [1.0], [[1.0]], [[0.0]]), "R"),
+        (lambda: sl.kf_predict([0.0], [[1.0]], [[1.0]], [[1.0]], B=[[1.0]]), "B and u"),
+        (lambda: sl.ekf_localization_run(object()), "run"),
+    ],
+)
+def test_bad_input_names_the_argument(call, name):
+    with pytest.raises((ValueError, TypeError), match=name):
+        call()
