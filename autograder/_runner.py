@@ -137,7 +137,7 @@ def encode_args(args, kwargs, np):
         if isinstance(v, (float, np.floating)):
             return {"t": "float", "v": float(v)}
         if isinstance(v, np.ndarray):
-            a = np.ascontiguousarray(v)
+            a = np.array(v, order="C", copy=True)
             if a.dtype.kind not in "iuf":
                 raise TypeError(f"cannot send dtype {a.dtype}")
             d = _array_desc(a, parts, size[0])
@@ -204,7 +204,7 @@ def _encode_item(obj, parts, size, np):
                 "dtype_kind": a.dtype.kind, "shape": [int(s) for s in a.shape], **info}
     if a.nbytes + size[0] > MAX_RESULT_BYTES:
         return {"t": "bad", "why": f"the result is too large ({a.nbytes} bytes)", **info}
-    a = np.ascontiguousarray(a)
+    a = np.array(a, order="C", copy=True)
     if a.dtype.byteorder == ">":
         a = a.astype(a.dtype.newbyteorder("<"))
     d = _array_desc(a, parts, size[0])

@@ -67,13 +67,14 @@ __all__ = [
 ]
 
 #: Default new-landmark threshold ``alpha`` on the squared Mahalanobis distance:
-#: the 99.9 % quantile of the chi-square distribution with 2 degrees of freedom,
-#: ``-2 ln(0.001)``.
-DEFAULT_ALPHA = float(-2.0 * np.log(1e-3))
+#: the 99.99 % quantile of the chi-square distribution with 2 degrees of freedom,
+#: ``-2 ln(1e-4)`` (about 18.4). A run makes hundreds of measurements, so a
+#: 99.9 % gate would already split a landmark in two now and then.
+DEFAULT_ALPHA = float(-2.0 * np.log(1e-4))
 #: Default prior variance (m^2) of a landmark before its first sighting (the
 #: finite stand-in for the infinite ``Sigma_0`` entries of Algorithm 1).
 DEFAULT_PRIOR_VAR = 1e4
-_PENDING_COLS = 32  # rank-2 terms held back before they are applied to the dense covariance
+_PENDING_COLS = 64  # columns of pending rank-2 terms (32 updates) before the dense covariance is refreshed
 
 
 # --------------------------------------------------------------------------- input checks
@@ -96,6 +97,17 @@ def _check_state(mu, Sigma, mu_name="mu", sigma_name="Sigma"):
 
 def _check_z(z, name="z"):
     return as_array(z, name, (2,))
+
+
+def _as_cov2(value, name):
+    """A ``(2, 2)`` covariance checked without an eigen-decomposition (hot path of :class:`EKFSLAM`)."""
+    A = as_array(value, name, (2, 2))
+    scale = max(1.0, abs(A[0, 0]), abs(A[1, 1]))
+    if abs(A[0, 1] - A[1, 0]) > 1e-9 * scale:
+        raise ValueError(f"{name} must be symmetric")
+    if A[0, 0] < 0 or A[1, 1] < 0 or A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0] < -1e-12 * scale * scale:
+        raise ValueError(f"{name} must be positive semi-definite")
+    return A
 
 
 def _check_alpha(alpha):
@@ -440,20 +452,26 @@ class EKFSLAM:
 
     Notes
     -----
-    Same mathematics as the contract functions, cheaper:
+    Same mathematics as the contract functions, cheaper. Write the covariance
+    as ``Sigma = S - P P^T``: a dense matrix ``S`` and an ``n x k`` matrix
+    ``P`` of pending rank-2 corrections (``k <= 64``).
 
-    * :meth:`predict` changes only the robot rows and columns:
-      ``Sigma_xx <- G_x Sigma_xx G_x^T + R`` and ``Sigma_xm <- G_x Sigma_xm``
-      (``O(N)``).
-    * :meth:`update` reads the five columns ``idx`` of ``Sigma`` where ``H``
-      is non-zero, forms ``PHt = Sigma[:, idx] h^T`` (``n x 2``) and
-      ``S = h PHt[idx] + Q``, and corrects the covariance by
-      ``K S K^T = PHt S^-1 PHt^T = W W^T`` with ``W = PHt L^-T``
-      (``S = L L^T``), a symmetric rank-2 term. The terms are collected in an
-      ``n x k`` matrix ``P`` and applied as ``Sigma -= P P^T`` before the next
-      prediction or when ``Sigma`` is read; every read in between subtracts
-      the pending terms from the columns it needs, so results equal the
-      sequential algorithm to rounding.
+    * :meth:`update` reads the five rows ``idx`` of ``Sigma`` where ``H`` is
+      non-zero (``Sigma[idx, :] = S[idx, :] - P[idx] P^T``, ``O(N)``), forms
+      ``(Sigma H^T)^T = h Sigma[idx, :]`` (``2 x n``) and
+      ``S_innov = h (Sigma H^T)[idx] + Q``, and writes the correction
+      ``K S_innov K^T = (Sigma H^T) S_innov^-1 (Sigma H^T)^T = W W^T``
+      (``W = Sigma H^T L^-T``, ``S_innov = L L^T``) as two new columns of
+      ``P``: a symmetric rank-2 update that costs ``O(N)`` now.
+    * :meth:`predict` changes only the robot rows: ``S_xx <- G_x S_xx G_x^T
+      + R``, ``S_xm <- G_x S_xm`` and ``P_x <- G_x P_x`` (``O(N)``; since
+      ``G = I + F_x^T (G_x - I) F_x``, ``G (S - P P^T) G^T = G S G^T - (G P)
+      (G P)^T``).
+    * When ``P`` is full, or when ``Sigma`` is read, ``S -= P P^T`` is
+      applied in one pass (``O(N^2)``, amortised over 32 updates). Every read
+      in between subtracts the pending terms from what it needs, so each
+      update sees the exact sequential posterior and the results equal the
+      teaching version to rounding.
     * The buffers have room for `capacity` landmarks and double when full:
       adding a landmark writes two rows and columns, it does not copy the
       covariance.
@@ -490,7 +508,7 @@ class EKFSLAM:
         Sigma : ndarray, shape (3+2N, 3+2N)
             State covariance.
         capacity : int, optional
-            Landmark capacity (at least ``N``; default ``max(16, 2N)``).
+            Landmark capacity (at least ``N``; default ``max(16, N + N // 4)``).
         prior_var : float
             Prior variance of landmarks added later.
 
@@ -505,7 +523,9 @@ class EKFSLAM:
         """
         mu, Sigma = _check_state(mu, Sigma)
         N = (mu.shape[0] - 3) // 2
-        capacity = max(16, 2 * N) if capacity is None else as_index(capacity, "capacity", lower=max(N, 1))
+        if capacity is None:
+            capacity = max(16, N + N // 4)
+        capacity = as_index(capacity, "capacity", lower=max(N, 1))
         f = cls(mu[:3], Sigma[:3, :3], capacity=capacity, prior_var=prior_var)
         f._n = mu.shape[0]
         f._mu[:f._n] = mu
@@ -519,7 +539,7 @@ class EKFSLAM:
         self._cap = capacity
         self._mu = np.zeros(size)
         self._S = np.zeros((size, size))
-        self._P = np.zeros((size, _PENDING_COLS))
+        self._Pt = np.zeros((_PENDING_COLS, size))  # P^T: pending corrections, one per row
         self._k = 0
 
     def _grow(self):
@@ -530,21 +550,13 @@ class EKFSLAM:
         self._S[:n, :n] = S[:n, :n]
 
     def _flush(self):
-        """Apply the pending rank-2 terms: ``Sigma -= P P^T``."""
-        if self._k:
-            n, k = self._n, self._k
-            P = self._P[:n, :k]
-            # Sigma -= sum_i K_i S_i K_i^T = P P^T  (Algorithm 1 line 19, symmetric form)
-            self._S[:n, :n] -= P @ P.T
-            self._k = 0
-
-    def _cols(self, idx):
-        """Current ``Sigma[:, idx]`` including the pending terms, shape ``(n, len(idx))``."""
-        n, k = self._n, self._k
-        C = self._S[:n, idx]
+        """Bring ``S`` up to date: ``S -= P P^T``."""
+        n, k, S = self._n, self._k, self._S
         if k:
-            C -= self._P[:n, :k] @ self._P[idx, :k].T
-        return C
+            Pt = self._Pt[:k, :n]
+            # Sigma -= sum_i K_i S_i K_i^T = P P^T  (Algorithm 1 line 19, symmetric form)
+            S[:n, :n] -= Pt.T @ Pt
+            self._k = 0
 
     @property
     def capacity(self):
@@ -579,20 +591,20 @@ class EKFSLAM:
     @property
     def Sigma_x(self):
         """Copy of the robot covariance, shape ``(3, 3)``."""
-        P = self._P[:3, :self._k]
-        return self._S[:3, :3] - P @ P.T
+        P3 = self._Pt[:self._k, :3]
+        return self._S[:3, :3] - P3.T @ P3
 
     def landmark_variances(self):
         """``Var(m_jx) + Var(m_jy)`` of every landmark, shape ``(N,)``."""
-        self._flush()
-        d = np.diagonal(self._S)[3:self._n]
+        n = self._n
+        d = np.diagonal(self._S)[3:n] - np.einsum("ki,ki->i", self._Pt[:self._k, 3:n], self._Pt[:self._k, 3:n])
         return d[0::2] + d[1::2]
 
     def copy(self):
         """An independent copy of the filter (buffers included)."""
         new = object.__new__(EKFSLAM)
         new.__dict__.update(self.__dict__)
-        new._mu, new._S, new._P = self._mu.copy(), self._S.copy(), self._P.copy()
+        new._mu, new._S, new._Pt = self._mu.copy(), self._S.copy(), self._Pt.copy()
         return new
 
     # ----------------------------------------------------------------- steps
@@ -620,13 +632,12 @@ class EKFSLAM:
         """
         u = as_array(u, "u", (2,))
         dt = as_scalar(dt, "dt", nonnegative=True)
-        M = as_covariance(M, "M", 2)
+        M = _as_cov2(M, "M")
         self._predict(u, dt, M)
         return self
 
     def _predict(self, u, dt, M):
-        self._flush()
-        n, S = self._n, self._S
+        n, k, S = self._n, self._k, self._S
         x_next, G, V = _velocity_motion(self._mu[:3], u, dt)
         self._mu[:3] = x_next  # mu_bar = mu + F_x^T g(u, mu)  (Algorithm 1 line 3)
         R = V @ M @ V.T  # R = V M V^T  (Table 7.2 line 5)
@@ -636,6 +647,8 @@ class EKFSLAM:
             Sxm = G @ S[:3, 3:n]  # robot-landmark block G_x Sigma_xm  (Algorithm 1 line 5)
             S[:3, 3:n] = Sxm
             S[3:n, :3] = Sxm.T
+        if k:
+            self._Pt[:k, :3] = self._Pt[:k, :3] @ G.T  # pending terms: P_x <- G_x P_x
 
     def add_landmark(self, z):
         """Append a landmark initialised from measurement `z`.
@@ -671,12 +684,12 @@ class EKFSLAM:
         # mu_j = (x + r cos(phi + theta), y + r sin(phi + theta))  (Algorithm 1 line 10)
         self._mu[a:a + 2] = landmark_from_measurement(self._mu[:3], z)
         self._S[a, a] = self._S[a + 1, a + 1] = self.prior_var
-        self._P[a:a + 2] = 0.0
+        self._Pt[:, a:a + 2] = 0.0
         self._n += 2
         return j
 
     def update(self, z, j, Q):
-        """Correction with one measurement of landmark `j` in ``O(N)`` (+ ``O(N^2)`` per step).
+        """Correction with one measurement of landmark `j`, ``O(N)`` plus the amortised ``O(N^2)`` flush.
 
         Parameters
         ----------
@@ -699,7 +712,7 @@ class EKFSLAM:
         """
         z = _check_z(z)
         j = as_index(j, "j", self.n_landmarks)
-        Q = as_covariance(Q, "Q", 2)
+        Q = _as_cov2(Q, "Q")
         self._update(z, j, Q)
         return self
 
@@ -710,15 +723,68 @@ class EKFSLAM:
         a = 3 + 2 * j
         idx = np.array([0, 1, 2, a, a + 1])
         r_hat, phi_hat, h = _range_bearing(mu, a)  # z_hat, h_t^j  (Eqs. 17.2, 17.3; Algorithm 1 lines 12-16)
-        PHt = self._cols(idx) @ h.T  # Sigma H^T from the 5 non-zero columns of H = h F_{x,j}  (Eq. 17.3)
-        S = h @ PHt[idx] + Q  # S = H Sigma_bar H^T + Q  (Algorithm 1 line 17)
-        Linv = _inv_chol2(S)  # S = L L^T, Linv = L^-1
-        W = PHt @ Linv.T  # K S K^T = PHt S^-1 PHt^T = W W^T
-        nu = np.array([z[0] - r_hat, _wrap(z[1] - phi_hat)])  # nu = z - z_hat, bearing wrapped
-        mu[:n] += W @ (Linv @ nu)  # mu = mu_bar + K nu, K = PHt S^-1 = W L^-1  (Algorithm 1 line 18)
+        R = self._S[idx, :n]  # Sigma[idx, :] = (Sigma F_{x,j}^T)^T, the 5 rows H touches
+        if k:
+            Pt = self._Pt[:k]
+            R -= Pt[:, idx].T @ Pt[:, :n]  # minus the pending terms
+        HP = h @ R  # (Sigma H^T)^T, shape (2, n)  (Eq. 17.3: H = h F_{x,j})
+        B = HP[:, idx] @ h.T
+        # S = H Sigma_bar H^T + Q  (Algorithm 1 line 17), factored S = L L^T by hand
+        s00, s01, s11 = B[0, 0] + Q[0, 0], 0.5 * (B[0, 1] + B[1, 0]) + Q[0, 1], B[1, 1] + Q[1, 1]
+        l00 = math.sqrt(s00) if s00 > 0 else _not_pd()
+        l10 = s01 / l00
+        rest = s11 - l10 * l10
+        l11 = math.sqrt(rest) if rest > 0 else _not_pd()
+        i00, i11, i10 = 1.0 / l00, 1.0 / l11, -l10 / (l00 * l11)  # L^-1
+        Wt = np.array([[i00, 0.0], [i10, i11]]) @ HP  # W^T = L^-1 (Sigma H^T)^T: W W^T = K S K^T
+        nu0, nu1 = z[0] - r_hat, _wrap(z[1] - phi_hat)  # nu = z - z_hat, bearing wrapped
+        mu[:n] += np.array([i00 * nu0, i10 * nu0 + i11 * nu1]) @ Wt  # mu += K nu, K = W L^-1  (Algorithm 1 line 18)
         mu[2] = _wrap(mu[2])
-        self._P[:n, k:k + 2] = W  # Sigma -= W W^T, applied in _flush  (Algorithm 1 line 19)
+        self._Pt[k:k + 2, :n] = Wt  # Sigma -= W W^T, applied in _flush  (Algorithm 1 line 19)
         self._k = k + 2
+
+    def step(self, u, dt, M, z, j, Q):
+        """One full step with known correspondences: :meth:`predict`, then :meth:`update` for each measurement.
+
+        Parameters
+        ----------
+        u : ndarray, shape (2,)
+            Velocity control ``[v, omega]``.
+        dt : float
+            Duration (seconds, non-negative).
+        M : ndarray, shape (2, 2)
+            Control-noise covariance.
+        z : ndarray, shape (K, 2)
+            Measurements ``[r, phi]``, processed in order.
+        j : ndarray of int, shape (K,)
+            Landmark index of each measurement, ``0 <= j < N`` (add new
+            landmarks with :meth:`add_landmark` first).
+        Q : ndarray, shape (2, 2)
+            Measurement-noise covariance.
+
+        Returns
+        -------
+        EKFSLAM
+            The filter itself (updated in place).
+
+        References
+        ----------
+        Course text, Algorithm 1; Thrun, Burgard & Fox (2005), Table 10.1.
+        """
+        u = as_array(u, "u", (2,))
+        dt = as_scalar(dt, "dt", nonnegative=True)
+        M = _as_cov2(M, "M")
+        z = as_array(z, "z", (None, 2))
+        j = np.asarray(j)
+        if j.shape != (z.shape[0],) or (j.size and j.dtype.kind not in "iu"):
+            raise ValueError(f"j must be an integer array of shape ({z.shape[0]},), got {j.dtype} {j.shape}")
+        if j.size and (j.min() < 0 or j.max() >= self.n_landmarks):
+            raise ValueError(f"j must hold indices in [0, {self.n_landmarks}), got {j.min()}..{j.max()}")
+        Q = _as_cov2(Q, "Q")
+        self._predict(u, dt, M)
+        for zi, ji in zip(z, j.tolist()):
+            self._update(zi, ji, Q)
+        return self
 
     def mahalanobis(self, z, Q):
         """Squared Mahalanobis distance of `z` to every landmark, vectorised.
@@ -740,17 +806,17 @@ class EKFSLAM:
         Course text, Algorithm 2; Thrun, Burgard & Fox (2005), Table 10.2
         lines 15-16.
         """
-        return self._mahalanobis(_check_z(z), as_covariance(Q, "Q", 2))
+        return self._mahalanobis(_check_z(z), _as_cov2(Q, "Q"))
 
     def _mahalanobis(self, z, Q):
         N, n, k = self.n_landmarks, self._n, self._k
         if N == 0:
             return np.empty(0)
-        mu, S, P = self._mu, self._S, self._P[:n, :k]
+        mu, S, Pt = self._mu, self._S, self._Pt[:k, :n]
         lm = mu[3:n].reshape(N, 2)
         z_hat, Hx, Hm = landmark_measurement(mu[:3], lm)  # (Eq. 17.2, 17.3) for every landmark
-        Sxx = S[:3, :3] - P[:3] @ P[:3].T  # robot block
-        Sxm = S[:3, 3:n] - P[:3] @ P[3:].T  # robot-landmark blocks, (3, 2N)
+        Sxx = S[:3, :3] - Pt[:, :3].T @ Pt[:, :3]  # robot block
+        Sxm = S[:3, 3:n] - Pt[:, :3].T @ Pt[:, 3:]  # robot-landmark blocks, (3, 2N)
         Sxm = Sxm.reshape(3, N, 2).transpose(1, 0, 2)
         r = np.arange(3, n, 2)
         Smm = np.empty((N, 2, 2))  # landmark diagonal blocks
@@ -758,8 +824,8 @@ class EKFSLAM:
         Smm[:, 0, 1] = Smm[:, 1, 0] = S[r, r + 1]
         Smm[:, 1, 1] = S[r + 1, r + 1]
         if k:
-            Pl = P[3:].reshape(N, 2, k)
-            Smm -= Pl @ Pl.transpose(0, 2, 1)
+            Pl = Pt[:, 3:].reshape(k, N, 2)
+            Smm -= np.einsum("kni,knj->nij", Pl, Pl)
         cross = Hx @ Sxm @ Hm.transpose(0, 2, 1)
         # Psi_k = H_k Sigma H_k^T + Q on the 5 non-zero columns  (Table 10.2 line 15)
         Psi = Hx @ Sxx @ Hx.transpose(0, 2, 1) + cross + cross.transpose(0, 2, 1) + Hm @ Smm @ Hm.transpose(0, 2, 1) + Q
@@ -793,7 +859,7 @@ class EKFSLAM:
         Course text, Algorithm 2; Thrun, Burgard & Fox (2005), Table 10.2
         lines 9-18.
         """
-        return self._associate(_check_z(z), as_covariance(Q, "Q", 2), _check_alpha(alpha))
+        return self._associate(_check_z(z), _as_cov2(Q, "Q"), _check_alpha(alpha))
 
     def _associate(self, z, Q, alpha):
         d = self._mahalanobis(z, Q)
@@ -855,18 +921,8 @@ def _range_bearing(mu, a):
     return r, _wrap(math.atan2(dy, dx) - th), h
 
 
-def _inv_chol2(S):
-    """``L^-1`` for the Cholesky factor ``S = L L^T`` of a 2 x 2 SPD matrix (upper triangle read)."""
-    s00, s01, s11 = float(S[0, 0]), float(S[0, 1]), float(S[1, 1])
-    if not s00 > 0:
-        raise ValueError("innovation covariance S = H Sigma H^T + Q is not positive definite")
-    l00 = np.sqrt(s00)
-    l10 = s01 / l00
-    rest = s11 - l10 * l10
-    if not rest > 0:
-        raise ValueError("innovation covariance S = H Sigma H^T + Q is not positive definite")
-    l11 = np.sqrt(rest)
-    return np.array([[1.0 / l00, 0.0], [-l10 / (l00 * l11), 1.0 / l11]])
+def _not_pd():
+    raise ValueError("innovation covariance S = H Sigma H^T + Q is not positive definite")
 
 
 # --------------------------------------------------------------------------- provisional list
@@ -875,12 +931,14 @@ class _ProvisionalList:
 
     A measurement that matches no landmark of the map starts or re-observes a
     candidate: a 2-D Gaussian in the world frame from the inverse measurement,
-    ``m = h^-1(x, z)`` with covariance ``J_x Sigma_x J_x^T + J_z Q J_z^T``
-    (``J_z = Hm^-1``, ``J_x = -Hm^-1 Hx``: the implicit-function Jacobians of
-    ``h(x, m) = z``). A candidate re-observed (squared Mahalanobis distance
-    ``<= alpha``) `confirm` times within `window` steps of its first sighting
-    becomes a landmark; one that is not is forgotten. Measurements that only
-    feed candidates never reach the filter (outlier rejection).
+    ``m = h^-1(x, z)`` with covariance ``J_z Q J_z^T`` (``J_z = Hm^-1``, the
+    implicit-function Jacobian of ``h(x, m) = z``). The robot's own
+    uncertainty is left out: over the few steps of the window both sightings
+    share it, so it does not separate them. A candidate re-observed (squared
+    Mahalanobis distance ``<= alpha``) `confirm` times within `window` steps
+    of its first sighting becomes a landmark; one that is not is forgotten.
+    Measurements that only feed candidates never reach the filter (outlier
+    rejection).
 
     References
     ----------
@@ -897,19 +955,18 @@ class _ProvisionalList:
     def _keep(self, mask):
         self.m, self.P, self.count, self.first = self.m[mask], self.P[mask], self.count[mask], self.first[mask]
 
-    def observe(self, x, Sigma_x, z, Q, alpha, t):
+    def observe(self, x, z, Q, alpha, t):
         """Return True when `z` confirms a candidate (or confirmation is off)."""
         if self.confirm <= 1:
             return True
         self._keep(t - self.first < self.window)  # forget candidates older than the window
         m_new = landmark_from_measurement(x, z)
-        _, Hx, Hm = landmark_measurement(x, m_new)
+        _, _, Hm = landmark_measurement(x, m_new)
         Jz = np.linalg.inv(Hm)
-        Jx = -Jz @ Hx
-        P_new = Jx @ Sigma_x @ Jx.T + Jz @ Q @ Jz.T
+        P_new = Jz @ Q @ Jz.T  # J_z Q J_z^T: the robot's own uncertainty is shared by both sightings
         if self.m.shape[0]:
-            zc, Hxc, Hmc = landmark_measurement(x, self.m)
-            Psi = Hxc @ Sigma_x @ Hxc.transpose(0, 2, 1) + Hmc @ self.P @ Hmc.transpose(0, 2, 1) + Q
+            zc, _, Hmc = landmark_measurement(x, self.m)
+            Psi = Hmc @ self.P @ Hmc.transpose(0, 2, 1) + Q
             nu = _innovation(z, zc)
             d = np.einsum("ki,ki->k", nu, np.linalg.solve(Psi, nu[..., None])[..., 0])
             best = int(np.argmin(d))
@@ -1087,7 +1144,7 @@ def run_ekf_slam(run, *, known=True, fast=True, alpha=DEFAULT_ALPHA, confirm=1, 
             else:
                 j = associate(z, Q, alpha)  # (Algorithm 2)
                 if j == filt.n_landmarks:  # new landmark hypothesis wins
-                    if not provisional.observe(filt.x, filt.Sigma_x, z, Q, alpha, t):
+                    if not provisional.observe(filt.x, z, Q, alpha, t):
                         n_rejected += 1
                         continue
                     j = add(z)

@@ -57,6 +57,7 @@ __all__ = [
     "fastslam_update_unknown",
     "fastslam_resample",
     "fastslam_estimate",
+    "fastslam_map_moments",
     "fastslam_default_p0",
     "FastSLAMResult",
     "run_fastslam",
@@ -84,14 +85,6 @@ def _mm(A, B):
     return out
 
 
-def _mv(A, v):
-    """Batched product of 2x2 blocks with 2-vectors."""
-    out = np.empty(np.broadcast_shapes(A.shape[:-1], v.shape))
-    out[..., 0] = A[..., 0, 0] * v[..., 0] + A[..., 0, 1] * v[..., 1]
-    out[..., 1] = A[..., 1, 0] * v[..., 0] + A[..., 1, 1] * v[..., 1]
-    return out
-
-
 def _inv(A):
     """Determinant and inverse of 2x2 blocks: ``inv [[a, b], [c, d]] = [[d, -b], [-c, a]] / (ad - bc)``."""
     det = A[..., 0, 0] * A[..., 1, 1] - A[..., 0, 1] * A[..., 1, 0]
@@ -107,13 +100,6 @@ def _sym(A):
     return 0.5 * (A + _T(A))
 
 
-def _log_gauss(nu, C):
-    """``log N(nu; 0, C)`` for 2-vectors ``nu (..., 2)`` and covariances ``C (..., 2, 2)``."""
-    det, Cinv = _inv(C)
-    maha = np.einsum("...i,...ij,...j->...", nu, Cinv, nu)
-    return -0.5 * maha - _LOG_2PI - 0.5 * np.log(det)
-
-
 # --------------------------------------------------------------------------- cores (no validation)
 def _init_core(x, z, Q):
     """Mean and covariance of a new landmark (Table 13.1 lines 7-9); broadcasts ``x (..., 3)``, ``z (..., 2)``."""
@@ -124,23 +110,62 @@ def _init_core(x, z, Q):
     return mu, Sigma
 
 
+def _innovation(H, Sigma, Q):
+    """``H Sigma`` and ``S = H Sigma H^T + Q`` for batches of 2x2 blocks, written out per component.
+
+    Returns ``(a00, a01, a10, a11)`` of ``A = H Sigma`` and ``(S00, S01, S11)``
+    of the symmetric ``S``; component arithmetic on contiguous arrays is several
+    times faster than batched 2x2 ``matmul``.
+    """
+    h00, h01, h10, h11 = H[..., 0, 0], H[..., 0, 1], H[..., 1, 0], H[..., 1, 1]
+    s00, s11 = Sigma[..., 0, 0], Sigma[..., 1, 1]
+    s01 = 0.5 * (Sigma[..., 0, 1] + Sigma[..., 1, 0])
+    a00 = h00 * s00 + h01 * s01
+    a01 = h00 * s01 + h01 * s11
+    a10 = h10 * s00 + h11 * s01
+    a11 = h10 * s01 + h11 * s11
+    # S = H Sigma H^T + Q  (Table 13.1 line 14, Table 13.2 line 7; Thrun calls it Q)
+    S00 = a00 * h00 + a01 * h01 + Q[0, 0]
+    S01 = a00 * h10 + a01 * h11 + 0.5 * (Q[0, 1] + Q[1, 0])
+    S11 = a10 * h10 + a11 * h11 + Q[1, 1]
+    return (a00, a01, a10, a11), (S00, S01, S11), (s00, s01, s11)
+
+
+def _log_gauss_2(nu0, nu1, C00, C01, C11):
+    """``log N(nu; 0, C)`` from the components of 2-vectors and symmetric 2x2 covariances."""
+    det = C00 * C11 - C01 * C01
+    maha = (nu0 * nu0 * C11 - 2.0 * nu0 * nu1 * C01 + nu1 * nu1 * C00) / det
+    return -0.5 * maha - _LOG_2PI - 0.5 * np.log(det)
+
+
 def _update_core(x, mu, Sigma, z, Q, weight_cov="S"):
     """Per-particle landmark EKF update and log importance weight (Table 13.1 lines 12-18)."""
     z_hat, _, H = landmark_measurement(x, mu)  # z_hat = h(mu_j, x), H = h'(mu_j, x)  (lines 12-13)
-    nu = z - z_hat
-    nu[..., 1] = wrap_angle(nu[..., 1])
-    HS = _mm(H, Sigma)
-    S = _sym(_mm(HS, _T(H)) + Q)  # S = H Sigma H^T + Q  (Table 13.1 line 14; Thrun calls it Q)
-    det_S, S_inv = _inv(S)
-    K = _mm(_T(HS), S_inv)  # K = Sigma H^T S^-1  (line 15)
-    mu_new = mu + _mv(K, nu)  # mu = mu + K (z - z_hat)  (line 16)
-    Sigma_new = _sym(Sigma - _mm(K, HS))  # Sigma = (I - K H) Sigma  (line 17)
+    nu0 = z[..., 0] - z_hat[..., 0]
+    nu1 = wrap_angle(z[..., 1] - z_hat[..., 1])
+    (a00, a01, a10, a11), (S00, S01, S11), (s00, s01, s11) = _innovation(H, Sigma, Q)
+    det = S00 * S11 - S01 * S01
+    i00, i01, i11 = S11 / det, -S01 / det, S00 / det  # S^-1
+    # K = Sigma H^T S^-1 = (H Sigma)^T S^-1  (line 15)
+    K00 = a00 * i00 + a10 * i01
+    K01 = a00 * i01 + a10 * i11
+    K10 = a01 * i00 + a11 * i01
+    K11 = a01 * i01 + a11 * i11
+    mu_new = np.empty(z_hat.shape)
+    # mu = mu + K (z - z_hat)  (line 16)
+    mu_new[..., 0] = mu[..., 0] + K00 * nu0 + K01 * nu1
+    mu_new[..., 1] = mu[..., 1] + K10 * nu0 + K11 * nu1
+    # Sigma = (I - K H) Sigma = Sigma - K (H Sigma)  (line 17), symmetric
+    Sigma_new = np.empty(H.shape)
+    Sigma_new[..., 0, 0] = s00 - (K00 * a00 + K01 * a10)
+    Sigma_new[..., 0, 1] = Sigma_new[..., 1, 0] = s01 - 0.5 * (K00 * a01 + K01 * a11 + K10 * a00 + K11 * a10)
+    Sigma_new[..., 1, 1] = s11 - (K10 * a01 + K11 * a11)
     if weight_cov == "S":
         # w = |2 pi S|^-1/2 exp(-1/2 nu^T S^-1 nu)  (Table 13.1 line 18)
-        log_w = -0.5 * np.einsum("...i,...ij,...j->...", nu, S_inv, nu) - _LOG_2PI - 0.5 * np.log(det_S)
+        log_w = _log_gauss_2(nu0, nu1, S00, S01, S11)
     else:
         # erratum of the course text's Algorithm 3: Q^-1 (measurement noise only) in the exponent
-        log_w = _log_gauss(nu, np.broadcast_to(Q, S.shape))
+        log_w = _log_gauss_2(nu0, nu1, Q[0, 0], 0.5 * (Q[0, 1] + Q[1, 0]), Q[1, 1])
     return mu_new, Sigma_new, log_w
 
 
@@ -530,29 +555,39 @@ def fastslam_update_known(state, z, ids, Q, *, weight_cov="S"):
     return _update_known_core(state, z, ids, Q, weight_cov)
 
 
-def _update_known_core(state, z, ids, Q, weight_cov):
-    mu, Sigma = state.mu.copy(), state.Sigma.copy()
-    seen, counts = state.seen.copy(), state.counts + 0
+def _update_known_core(state, z, ids, Q, weight_cov, copy=True):
+    """Known-correspondence update of all particles; ``copy=False`` writes into `state`'s arrays."""
+    if copy:
+        mu, Sigma = state.mu.copy(), state.Sigma.copy()
+        seen, counts = state.seen.copy(), state.counts.copy()
+    else:
+        mu, Sigma, seen, counts = state.mu, state.Sigma, state.seen, state.counts
     log_w = state.log_weights.copy()
     x = state.poses[:, None, :]  # (M, 1, 3)
     for obs in _rounds(ids):
         j, zk = ids[obs], z[obs]  # (k,), (k, 2)
         new = ~seen[:, j]  # (M, k): never seen before  (Table 13.1 line 6)
-        mu_old, Sigma_old = mu[:, j], Sigma[:, j]
-        if new.any():
+        fresh, known = new.all(axis=0), (~new).all(axis=0)
+        if np.all(fresh | known):  # the usual case: all particles agree on which landmarks are new
+            if known.any():
+                jk = j[known]
+                mu_u, Sigma_u, lw = _update_core(x, mu[:, jk], Sigma[:, jk], zk[known], Q, weight_cov)  # (12-18)
+                mu[:, jk], Sigma[:, jk] = mu_u, Sigma_u
+                log_w = log_w + lw.sum(axis=1)
+            if fresh.any():
+                # mu_j = h^-1(z, x), Sigma_j = H^-1 Q H^-T; w = p0, equal for all particles  (lines 7-10)
+                mu[:, j[fresh]], Sigma[:, j[fresh]] = _init_core(x, zk[fresh], Q)
+        else:
             mu_init, Sigma_init = _init_core(x, zk, Q)
-            # the update below must not see the placeholder mean of an unseen slot
-            mu_old = np.where(new[..., None], mu_init, mu_old)
-            Sigma_old = np.where(new[..., None, None], Sigma_init, Sigma_old)
-        mu_upd, Sigma_upd, lw = _update_core(x, mu_old, Sigma_old, zk, Q, weight_cov)
-        if new.any():
-            mu_upd = np.where(new[..., None], mu_old, mu_upd)
-            Sigma_upd = np.where(new[..., None, None], Sigma_old, Sigma_upd)
-            lw = np.where(new, 0.0, lw)  # w = p0, equal for all particles  (Table 13.1 line 10)
-        mu[:, j], Sigma[:, j] = mu_upd, Sigma_upd
+            # the update must not see the placeholder mean of an unseen slot
+            mu_old = np.where(new[..., None], mu_init, mu[:, j])
+            Sigma_old = np.where(new[..., None, None], Sigma_init, Sigma[:, j])
+            mu_upd, Sigma_upd, lw = _update_core(x, mu_old, Sigma_old, zk, Q, weight_cov)
+            mu[:, j] = np.where(new[..., None], mu_old, mu_upd)
+            Sigma[:, j] = np.where(new[..., None, None], Sigma_old, Sigma_upd)
+            log_w = log_w + np.where(new, 0.0, lw).sum(axis=1)  # new: w = p0 for all  (line 10)
         seen[:, j] = True
         counts[:, j] += 1
-        log_w = log_w + lw.sum(axis=1)
     return FastSLAMState(state.poses, mu, Sigma, seen, counts, _normalised(log_w))
 
 
@@ -643,27 +678,37 @@ def fastslam_update_unknown(state, z, Q, *, p0=None, weight_cov="S", max_range=N
     return _update_unknown_core(state, z, Q, log_p0, weight_cov, max_range, half_fov)
 
 
-def _update_unknown_core(state, z, Q, log_p0, weight_cov, max_range, half_fov):
+def _update_unknown_core(state, z, Q, log_p0, weight_cov, max_range, half_fov, copy=True):
+    """Unknown-correspondence update; ``copy=False`` may write into `state`'s arrays."""
     z = z[z[:, 0] > 0]
     M = state.n_particles
     need = int(state.seen.sum(axis=1).max(initial=0)) + z.shape[0]
-    state = _grow(state, need)
-    mu, Sigma = state.mu.copy(), state.Sigma.copy()
-    seen, counts = state.seen.copy(), state.counts + 0
+    grown = _grow(state, need)
+    if copy and grown is state:
+        mu, Sigma = state.mu.copy(), state.Sigma.copy()
+        seen, counts = state.seen.copy(), state.counts.copy()
+    else:
+        mu, Sigma, seen, counts = grown.mu, grown.Sigma, grown.seen, grown.counts
     log_w = state.log_weights.copy()
     matched = np.zeros_like(seen)
     x = state.poses
     rows = np.arange(M)
     for zk in z:
-        # placeholder means of unseen slots are moved off the pose so that h stays defined
-        mu_safe = np.where(seen[..., None], mu, x[:, None, :2] + 1.0)
-        z_hat, _, H = landmark_measurement(x[:, None, :], mu_safe)  # (Table 13.2 lines 5-6)
-        nu = zk - z_hat
-        nu[..., 1] = wrap_angle(nu[..., 1])
-        S = _sym(_mm(_mm(H, Sigma), _T(H)) + Q)  # S_j = H Sigma_j H^T + Q  (Table 13.2 line 7)
-        ll = np.where(seen, _log_gauss(nu, S), -np.inf)  # log w_j  (Table 13.2 line 8)
-        j = np.argmax(ll, axis=1)  # ties: smallest index
-        best = ll[rows, j]
+        used = np.flatnonzero(seen.any(axis=0))
+        hi = int(used[-1]) + 1 if used.size else 0  # slots at and beyond hi are empty in every particle
+        if hi:
+            # placeholder means of unseen slots are moved off the pose so that h stays defined
+            sn = seen[:, :hi]
+            mu_safe = np.where(sn[..., None], mu[:, :hi], x[:, None, :2] + 1.0)
+            z_hat, _, H = landmark_measurement(x[:, None, :], mu_safe)  # (Table 13.2 lines 5-6)
+            _, (S00, S01, S11), _ = _innovation(H, Sigma[:, :hi], Q)  # S_j  (Table 13.2 line 7)
+            nu1 = wrap_angle(zk[1] - z_hat[..., 1])
+            ll = np.where(sn, _log_gauss_2(zk[0] - z_hat[..., 0], nu1, S00, S01, S11), -np.inf)  # w_j  (line 8)
+            j = np.argmax(ll, axis=1)  # ties: smallest index
+            best = ll[rows, j]
+        else:
+            j = np.zeros(M, dtype=np.int64)
+            best = np.full(M, -np.inf)
         is_new = best < log_p0  # c_hat = N + 1 when p0 beats every w_j  (Table 13.2 lines 11-12)
         old = ~is_new
         if old.any():
@@ -770,11 +815,60 @@ def fastslam_estimate(state):
     posterior; a point estimate is read off it).
     """
     _check_state(state)
-    w = state.weights
+    return _estimate(state.poses, state.weights)
+
+
+def _estimate(poses, w):
     pose = np.empty(3)
-    pose[:2] = w @ state.poses[:, :2]
-    pose[2] = circular_mean(state.poses[:, 2], w)
-    return pose, int(np.argmax(state.log_weights))
+    pose[:2] = w @ poses[:, :2]
+    pose[2] = circular_mean(poses[:, 2], w)
+    return pose, int(np.argmax(w))
+
+
+def fastslam_map_moments(state, slots):
+    """Mean and covariance of the map implied by the whole particle set.
+
+    Parameters
+    ----------
+    state : FastSLAMState
+        Weighted particle set; the landmarks in `slots` must be seen in every
+        particle.
+    slots : ndarray of int, shape (L,)
+        Landmark slots to include, in this order.
+
+    Returns
+    -------
+    mean : ndarray, shape (2L,)
+        ``sum_k w_k mu^[k]`` with ``mu^[k] = [mu_{s1}^[k], mu_{s2}^[k], ...]``.
+    cov : ndarray, shape (2L, 2L)
+        Law of total covariance over the particles (the mixture's covariance):
+        ``sum_k w_k blockdiag(Sigma^[k]) + sum_k w_k (mu^[k] - mean)(mu^[k] - mean)^T``.
+        Each particle's own covariance is block-diagonal (landmarks are
+        independent given the path); all correlation between landmarks comes
+        from the second term, the spread of the particles' maps.
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Sec. 13.2-13.3 (the factored posterior:
+    correlations live in the particle set).
+    """
+    _check_state(state)
+    idx = np.asarray(slots)
+    if idx.ndim != 1 or (idx.size and idx.dtype.kind not in "iu"):
+        raise ValueError(f"slots must be a 1-D array of integers, got shape {idx.shape} dtype {idx.dtype}")
+    if np.any(idx < 0) or np.any(idx >= state.capacity):
+        raise ValueError(f"slots must lie in [0, {state.capacity})")
+    if not state.seen[:, idx].all():
+        raise ValueError("every landmark in slots must be seen in every particle")
+    w = state.weights
+    mu = state.mu[:, idx].reshape(state.n_particles, -1)
+    mean = w @ mu
+    d = mu - mean
+    cov = np.einsum("k,ki,kj->ij", w, d, d)  # spread of the particles' maps
+    within = np.einsum("k,klij->lij", w, state.Sigma[:, idx])  # E[Sigma^[k]], one 2x2 block per landmark
+    for a in range(idx.size):
+        cov[2 * a:2 * a + 2, 2 * a:2 * a + 2] += within[a]
+    return mean, cov
 
 
 # --------------------------------------------------------------------------- whole runs
@@ -943,14 +1037,15 @@ def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=Non
             zt, idt = zt[keep], idt[keep]
             if zt.shape[0]:
                 idt = idt.astype(np.int64)
-                state = _update_known_core(_grow(state, int(idt.max()) + 1), zt, idt, Q, weight_cov)
+                state = _update_known_core(_grow(state, int(idt.max()) + 1), zt, idt, Q, weight_cov, copy=False)
         else:
-            state = _update_unknown_core(state, zt, Q, log_p0, weight_cov, max_range, half_fov)
+            state = _update_unknown_core(state, zt, Q, log_p0, weight_cov, max_range, half_fov, copy=False)
         poses_hist[t + 1] = state.poses
-        x_est[t + 1], best = fastslam_estimate(state)
-        x_cov[t + 1] = _pose_cov(state.poses, state.weights, x_est[t + 1])
+        w = np.exp(state.log_weights)  # normalised: logsumexp(log_weights) = 0
+        x_est[t + 1], best = _estimate(state.poses, w)
+        x_cov[t + 1] = _pose_cov(state.poses, w, x_est[t + 1])
         n_lm[t + 1] = int(state.seen[best].sum())
-        ess[t] = effective_sample_size(state.weights)
+        ess[t] = effective_sample_size(w)
         if t == T - 1:
             break  # keep the last weights: they pick the final most likely particle
         if ess[t] < thr * n:
@@ -963,7 +1058,7 @@ def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=Non
 
 def _finish(last, poses_hist, parents, x_est, x_cov, ess, resampled, n_lm):
     T = poses_hist.shape[0] - 1
-    _, best = fastslam_estimate(last)
+    best = int(np.argmax(last.log_weights))
     lineage = np.arange(last.n_particles)  # each final particle's ancestor in row h
     b = best
     path = np.empty((T + 1, 3))

@@ -189,11 +189,15 @@ def kf_predict(x, P, F, Q, *, B=None, u=None):
         u = _as_vec(u, "u", B.shape[-1])
         named += [(B, 2, "B"), (u, 1, "u")]
     _check_batch(*named)
-    # x_bar = A x + B u  (Table 3.1 line 2)
+    return _kf_predict(x, P, F, Q, B, u)
+
+
+def _kf_predict(x, P, F, Q, B=None, u=None):
+    # x_bar = F x + B u  (Table 3.1 line 2, F = A_t)
     x_bar = _mv(F, x)
     if B is not None:
         x_bar = x_bar + _mv(B, u)
-    # P_bar = A P A^T + R  (Table 3.1 line 3)
+    # P_bar = F P F^T + Q  (Table 3.1 line 3, Q = R_t)
     P_bar = F @ P @ _T(F) + Q
     return Gaussian(x_bar, _sym(P_bar))
 
@@ -232,13 +236,17 @@ def kf_update(x, P, z, H, R):
     H = _as_mat(H, "H", k, n)
     R = _as_cov(R, "R", k, definite=True)
     _check_batch((x, 1, "x"), (P, 2, "P"), (z, 1, "z"), (H, 2, "H"), (R, 2, "R"))
-    # S = C P C^T + Q ; K = P C^T S^-1  (Table 3.1 line 4)
+    return _kf_update(x, P, z, H, R)
+
+
+def _kf_update(x, P, z, H, R):
+    # S = H P H^T + R, K = P H^T S^-1  (Table 3.1 line 4, H = C_t, R = Q_t)
     PHt = P @ _T(H)
     S = _sym(H @ PHt + R)
     K = _T(np.linalg.solve(S, _T(PHt)))
-    # x = x_bar + K (z - C x_bar)  (Table 3.1 line 5)
+    # x = x_bar + K (z - H x_bar)  (Table 3.1 line 5)
     x_new = x + _mv(K, z - _mv(H, x))
-    # P = (I - K C) P_bar  (Table 3.1 line 6)
+    # P = (I - K H) P_bar  (Table 3.1 line 6)
     P_new = P - K @ H @ P
     return Gaussian(x_new, _sym(P_new))
 

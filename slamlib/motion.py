@@ -47,6 +47,9 @@ STRAIGHT_LINE_OMEGA = 1e-6
 #: Below this translation (metres) ``odometry_from_poses`` sets ``rot1 = 0``.
 MIN_TRANS = 1e-9
 _LOG_2PI = float(np.log(2.0 * np.pi))
+#: Variances of the motion densities are floored here, so that a degenerate
+#: hypothesis (e.g. ``x_next == x``) gets a large but finite density.
+_VAR_FLOOR = 1e-12
 
 
 # --------------------------------------------------------------------------- helpers
@@ -305,7 +308,7 @@ def motion_model_velocity(x_next, u, x, dt, alpha, *, log=False):
     ``(v_hat, w_hat, gamma_hat)``; as a density over ``x_next`` it carries the
     Jacobian factor ``1 / (|v_hat| dt^4 sinc(w_hat dt / 2)^2 / 2)``.
     The arc is recovered in a numerically stable chord form (see
-    ``_velocity_inverse``); a variance below ``1e-300`` is raised to it.
+    ``_velocity_inverse``); a variance below ``1e-12`` is raised to it.
 
     References
     ----------
@@ -322,7 +325,7 @@ def motion_model_velocity(x_next, u, x, dt, alpha, *, log=False):
     a = _as_alpha(alpha, 6)
     v, w = u
     v_hat, w_hat, gamma_hat = _velocity_inverse(x_next, x, dt)
-    var = np.maximum([a[0] * v**2 + a[1] * w**2, a[2] * v**2 + a[3] * w**2, a[4] * v**2 + a[5] * w**2], 1e-300)
+    var = np.maximum([a[0] * v**2 + a[1] * w**2, a[2] * v**2 + a[3] * w**2, a[4] * v**2 + a[5] * w**2], _VAR_FLOOR)
     lp = _log_normal(v - v_hat, var[0]) + _log_normal(w - w_hat, var[1]) + _log_normal(gamma_hat, var[2])
     return lp if log else np.exp(lp)
 
@@ -482,7 +485,7 @@ def motion_model_odometry(x_next, u, x, alpha, *, log=False):
     -----
     This is a density over the increments ``(rot1, trans, rot2)``; as a density
     over ``x_next`` it carries the factor ``1 / trans_hat`` (the Jacobian of
-    the polar step). A variance below ``1e-300`` (for instance ``x_next == x``)
+    the polar step). A variance below ``1e-12`` (for instance ``x_next == x``)
     is raised to it, so the result stays finite.
 
     References
@@ -499,7 +502,7 @@ def motion_model_odometry(x_next, u, x, alpha, *, log=False):
     a = _as_alpha(alpha, 4)
     h = _odometry_from_poses(x, x_next)
     r1h, th, r2h = h[..., 0], h[..., 1], h[..., 2]
-    var1, var2, var3 = (np.maximum(vv, 1e-300) for vv in _odometry_vars(r1h, th, r2h, a))
+    var1, var2, var3 = (np.maximum(vv, _VAR_FLOOR) for vv in _odometry_vars(r1h, th, r2h, a))
     # p1 p2 p3  (Table 5.5 lines 5-8)
     lp = (
         _log_normal(wrap_angle(u[0] - r1h), var1)

@@ -1,0 +1,154 @@
+"""Command line of the autograder: ``python -m autograder {grade,batch,bundle,gradescope,calibrate,list}``.
+
+``grade``
+    Grade one submission, print a per-test report, write Gradescope's
+    ``results.json``. Exit status 0 whenever grading completed, whatever the score.
+``batch``
+    Grade a folder of submissions in parallel: one CSV row each (with per-function
+    columns) and one results JSON each.
+``bundle``
+    Build a Gradescope autograder zip for one exercise.
+``gradescope``
+    What ``run_autograder`` in the bundle runs: grade ``ROOT/submission/*`` into
+    ``ROOT/results/results.json``.
+``calibrate``
+    Run the statistical checks on the reference implementation over many seeds.
+``list``
+    List the exercises, their functions and test cases.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import traceback
+from pathlib import Path
+
+__all__ = ["main"]
+
+
+def _limits(args):
+    from .sandbox import Limits
+
+    kw = {}
+    if getattr(args, "timeout", None):
+        kw["call_timeout"] = float(args.timeout)
+    if getattr(args, "import_timeout", None):
+        kw["import_timeout"] = float(args.import_timeout)
+    return Limits(**kw)
+
+
+def _cmd_grade(args):
+    from .engine import grade
+    from .results import fallback_results, write_json_atomic
+
+    try:
+        result = grade(args.submission, args.exercise, limits=_limits(args), workers=args.workers)
+    except Exception:  # noqa: BLE001 - a grader bug still leaves a valid results.json
+        msg = "The autograder failed internally while grading this submission:\n" + traceback.format_exc(limit=5)
+        print(msg, file=sys.stderr)
+        if args.results:
+            write_json_atomic(args.results, fallback_results(msg))
+        return 1
+    if args.results:
+        write_json_atomic(args.results, result.to_gradescope())
+    print(result.text_report(verbose=args.verbose))
+    if args.results:
+        print(f"\nresults written to {args.results}")
+    return 0 if result.exercise else 2
+
+
+def _cmd_batch(args):
+    from .batch import run_batch
+
+    run_batch(args.folder, args.exercise, out_csv=args.out, jobs=args.jobs, results_dir=args.results_dir,
+              limits=_limits(args), progress=not args.quiet)
+    return 0
+
+
+def _cmd_bundle(args):
+    from .bundle import build_bundle
+
+    path = build_bundle(args.exercise, args.output)
+    print(f"wrote {path}")
+    return 0
+
+
+def _cmd_gradescope(args):
+    from .bundle import run_gradescope
+
+    return run_gradescope(args.root, args.exercise, limits=_limits(args))
+
+
+def _cmd_calibrate(args):
+    from .calibrate import main as cal_main
+
+    return cal_main(n_seeds=args.seeds, out=args.out)
+
+
+def _cmd_list(args):
+    from .exercises import all_exercises
+
+    for ex in all_exercises():
+        print(f"{ex.name}  ({ex.notebook}, {ex.max_score():g} points)")
+        for fn in ex.functions:
+            print(f"  {fn}{ex.functions[fn]}  {ex.max_score(fn):g} points")
+            for t in ex.tests_for(fn):
+                print(f"    [{t.visibility:6}] {t.weight:>4g}  {t.name}")
+    return 0
+
+
+def build_parser():
+    ap = argparse.ArgumentParser(prog="python -m autograder", description="Autograder of the course exercises.")
+    sub = ap.add_subparsers(dest="cmd", required=True)
+
+    g = sub.add_parser("grade", help="grade one submission")
+    g.add_argument("submission", help="the student's .ipynb or .py")
+    g.add_argument("--exercise", "-e", help="exercise name (default: from the notebook's metadata)")
+    g.add_argument("--results", "-r", help="write Gradescope's results.json here")
+    g.add_argument("--workers", type=int, default=None, help="functions graded in parallel (default: CPU count)")
+    g.add_argument("--timeout", type=float, help="cap on every call's wall-clock timeout (seconds)")
+    g.add_argument("--import-timeout", type=float, help="time allowed to load the submission (seconds)")
+    g.add_argument("--verbose", "-v", action="store_true", help="show the output of passed tests too")
+    g.set_defaults(func=_cmd_grade)
+
+    b = sub.add_parser("batch", help="grade a folder of submissions")
+    b.add_argument("folder")
+    b.add_argument("--exercise", "-e", required=True)
+    b.add_argument("--out", "-o", default="grades.csv", help="CSV file (default grades.csv)")
+    b.add_argument("--results-dir", help="folder of per-submission results JSON (default: <out stem>_results/)")
+    b.add_argument("--jobs", "-j", type=int, default=2, help="submissions graded in parallel")
+    b.add_argument("--timeout", type=float, help="cap on every call's wall-clock timeout (seconds)")
+    b.add_argument("--import-timeout", type=float, help="time allowed to load a submission (seconds)")
+    b.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
+    b.set_defaults(func=_cmd_batch)
+
+    z = sub.add_parser("bundle", help="build a Gradescope autograder zip")
+    z.add_argument("--exercise", "-e", required=True)
+    z.add_argument("--output", "-o", default="autograder.zip")
+    z.set_defaults(func=_cmd_bundle)
+
+    s = sub.add_parser("gradescope", help="grade ROOT/submission into ROOT/results/results.json")
+    s.add_argument("--root", default="/autograder")
+    s.add_argument("--exercise", "-e", required=True)
+    s.add_argument("--timeout", type=float)
+    s.add_argument("--import-timeout", type=float)
+    s.set_defaults(func=_cmd_gradescope)
+
+    c = sub.add_parser("calibrate", help="false-failure calibration of the statistical checks")
+    c.add_argument("--seeds", type=int, default=2000)
+    c.add_argument("--out", help="write the p-values (CSV)")
+    c.set_defaults(func=_cmd_calibrate)
+
+    ls = sub.add_parser("list", help="list exercises and tests")
+    ls.set_defaults(func=_cmd_list)
+    return ap
+
+
+def main(argv=None):
+    args = build_parser().parse_args(argv)
+    return args.func(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

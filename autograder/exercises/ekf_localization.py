@@ -1,0 +1,279 @@
+"""Exercise 2: EKF localization (prediction, update, nearest-neighbour association)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+import slamlib as sl
+
+from .. import loops
+from ..context import Out
+from ..spec import Exercise
+from .common import random_pose, spd
+
+EX = Exercise(
+    "ekf_localization",
+    "EKF localization",
+    notebook="02_ekf_localization.ipynb",
+    functions={
+        "ekf_predict": "(mu, Sigma, u, dt, M)",
+        "ekf_update": "(mu_bar, Sigma_bar, z, m, Q)",
+        "associate_ml": "(mu_bar, Sigma_bar, z, landmarks, Q, gate)",
+    },
+)
+
+MU_BAR, SIGMA_BAR = Out("mu_bar", (3,)), Out("Sigma_bar", (3, 3))
+MU, SIGMA = Out("mu", (3,)), Out("Sigma", (3, 3))
+INDEX = Out("index", (), "index")
+
+
+def _belief(rng, heading=None):
+    return random_pose(rng, heading=heading), spd(rng, 3, scale=0.2)
+
+
+def _control(rng, omega=None):
+    w = rng.choice([-1, 1]) * rng.uniform(0.05, 1.5) if omega is None else omega
+    return np.array([rng.uniform(-0.5, 2.0), w]), float(rng.uniform(0.05, 0.5))
+
+
+# =========================================================================== ekf_predict
+def _predict(ctx, mu, Sigma, u, dt, M):
+    mu_bar, S = ctx.expect(ctx.call(mu, Sigma, u, dt, M), MU_BAR, SIGMA_BAR)
+    ctx.wrapped("the heading mu_bar[2]", mu_bar[2])
+    return mu_bar, S
+
+
+def _check_predict(ctx, mu, Sigma, u, dt, M):
+    mu_bar, S = _predict(ctx, mu, Sigma, u, dt, M)
+    ref = sl.ekf_predict(mu, Sigma, u, dt, M)
+    ctx.close("mu_bar", mu_bar, ref[0], atol=1e-9, rtol=1e-9, angles=[2])
+    ctx.close("Sigma_bar", S, ref[1], atol=1e-9, rtol=1e-7)
+    return S
+
+
+@EX.test("ekf_predict", "mean and covariance on random beliefs", weight=10,
+         hint="mu_bar is the noise-free exact-arc motion of mu; Sigma_bar = G Sigma G^T + V M V^T with G and V "
+              "evaluated at (mu, u) (Table 7.2 lines 2-7).")
+def _(ctx):
+    for _ in range(6):
+        mu, Sigma = _belief(ctx.rng)
+        u, dt = _control(ctx.rng)
+        _check_predict(ctx, mu, Sigma, u, dt, spd(ctx.rng, 2, scale=0.05))
+
+
+@EX.test("ekf_predict", "straight-line motion (omega = 0)", weight=5,
+         hint="For abs(omega) < 1e-6 use the straight-line limit of the motion and of its Jacobians.")
+def _(ctx):
+    for w in (0.0, 1e-8, -3e-7):
+        mu, Sigma = _belief(ctx.rng)
+        u, dt = _control(ctx.rng, omega=w)
+        _check_predict(ctx, mu, Sigma, u, dt, spd(ctx.rng, 2, scale=0.05))
+
+
+@EX.test("ekf_predict", "heading wrapped to [-pi, pi)", weight=4,
+         hint="Wrap the predicted heading to [-pi, pi).")
+def _(ctx):
+    for th, w in ((3.05, 1.0), (-3.05, -1.0), (np.pi - 1e-4, 0.3)):
+        mu, Sigma = _belief(ctx.rng, heading=th)
+        u = np.array([0.8, w])
+        _check_predict(ctx, mu, Sigma, u, 0.4, spd(ctx.rng, 2, scale=0.05))
+
+
+@EX.test("ekf_predict", "covariance symmetric", weight=4, visibility="hidden",
+         hint="G Sigma G^T + V M V^T is symmetric; make sure both terms use the transposes on the right.")
+def _(ctx):
+    for _ in range(4):
+        mu, Sigma = _belief(ctx.rng)
+        Sigma = Sigma * 50.0
+        u, dt = _control(ctx.rng)
+        _, S = _predict(ctx, mu, Sigma, u, dt, spd(ctx.rng, 2, scale=2.0))
+        ctx.symmetric("Sigma_bar", S)
+
+
+@EX.test("ekf_predict", "EKF localization run with your ekf_predict", weight=12, visibility="hidden", timeout=10,
+         hint="Your ekf_predict, combined with the reference ekf_update on a simulated run, must track the robot "
+              "as well as the reference filter.")
+def _(ctx):
+    run = loops.scenario("localization")
+
+    def predict(t, mu, Sigma, u, dt, M):
+        return _predict(ctx, mu, Sigma, u, dt, M)
+
+    try:
+        traj, _ = loops.ekf_localization_loop(run, predict=predict, update=loops.ref_ekf_update)
+    except loops.LoopError as exc:
+        ctx.fail(str(exc))
+    ctx.last_call = None
+    loops.compare_ate(ctx, "EKF localization", traj, loops.reference("ekf_known"), run)
+
+
+# =========================================================================== ekf_update
+def _update(ctx, mu_bar, Sigma_bar, z, m, Q):
+    mu, S = ctx.expect(ctx.call(mu_bar, Sigma_bar, z, m, Q), MU, SIGMA)
+    ctx.wrapped("the heading mu[2]", mu[2])
+    return mu, S
+
+
+def _meas_case(rng, mu_bar, behind=False):
+    if behind:
+        ang = mu_bar[2] + np.pi + rng.choice([-1, 1]) * rng.uniform(0.0, 0.02)
+    else:
+        ang = mu_bar[2] + rng.uniform(-2.5, 2.5)
+    m = mu_bar[:2] + rng.uniform(1.0, 6.0) * np.array([np.cos(ang), np.sin(ang)])
+    z = sl.landmark_measurement(mu_bar, m)[0] + rng.normal(0.0, [0.2, 0.05])
+    z[1] = sl.wrap_angle(z[1])
+    return z, m
+
+
+def _check_update(ctx, mu_bar, Sigma_bar, z, m, Q):
+    mu, S = _update(ctx, mu_bar, Sigma_bar, z, m, Q)
+    ref = sl.ekf_update(mu_bar, Sigma_bar, z, m, Q)
+    ctx.close("mu", mu, ref[0], atol=1e-9, rtol=1e-8, angles=[2])
+    ctx.close("Sigma", S, ref[1], atol=1e-10, rtol=1e-7)
+    return mu, S
+
+
+@EX.test("ekf_update", "mean and covariance on random beliefs", weight=12,
+         hint="S = H Sigma_bar H^T + Q, K = Sigma_bar H^T S^-1, mu = mu_bar + K (z - z_hat), "
+              "Sigma = (I - K H) Sigma_bar, with z_hat and H at mu_bar (Table 7.2 lines 10-18).")
+def _(ctx):
+    for _ in range(6):
+        mu_bar, Sigma_bar = _belief(ctx.rng)
+        z, m = _meas_case(ctx.rng, mu_bar)
+        _check_update(ctx, mu_bar, Sigma_bar, z, m, spd(ctx.rng, 2, scale=0.05))
+
+
+@EX.test("ekf_update", "bearing innovation wrapped", weight=8,
+         hint="Wrap the bearing component of the innovation z - z_hat to [-pi, pi) before multiplying by K, "
+              "and wrap the updated heading.")
+def _(ctx):
+    for th in (0.3, np.pi - 0.01, -np.pi + 0.02):
+        mu_bar, Sigma_bar = _belief(ctx.rng, heading=th)
+        z, m = _meas_case(ctx.rng, mu_bar, behind=True)
+        _check_update(ctx, mu_bar, Sigma_bar, z, m, np.diag([0.05, 0.02]))
+
+
+@EX.test("ekf_update", "covariance symmetric and not larger than the prior", weight=5, visibility="hidden",
+         hint="(I - K H) Sigma_bar is symmetric and Sigma_bar - Sigma is positive semi-definite: an update never "
+              "adds uncertainty.")
+def _(ctx):
+    for _ in range(4):
+        mu_bar, Sigma_bar = _belief(ctx.rng)
+        z, m = _meas_case(ctx.rng, mu_bar)
+        _, S = _update(ctx, mu_bar, Sigma_bar, z, m, spd(ctx.rng, 2, scale=0.05))
+        ctx.symmetric("Sigma", S)
+        D = Sigma_bar - 0.5 * (S + S.T)
+        if np.linalg.eigvalsh(D).min() < -1e-9 * max(1.0, np.abs(Sigma_bar).max()):
+            ctx.fail("Sigma_bar - Sigma has a negative eigenvalue: the update increased the uncertainty")
+
+
+@EX.test("ekf_update", "EKF localization run with your ekf_update", weight=15, visibility="hidden",
+         hint="Your ekf_update, combined with the reference ekf_predict on a simulated run, must track the robot "
+              "as well as the reference filter.")
+def _(ctx):
+    run = loops.scenario("localization")
+
+    def update(t, mu, Sigma, z, m, Q):
+        return _update(ctx, mu, Sigma, z, m, Q)
+
+    try:
+        traj, _ = loops.ekf_localization_loop(run, predict=loops.ref_ekf_predict, update=update)
+    except loops.LoopError as exc:
+        ctx.fail(str(exc))
+    ctx.last_call = None
+    loops.compare_ate(ctx, "EKF localization", traj, loops.reference("ekf_known"), run)
+
+
+# =========================================================================== associate_ml
+def _assoc(ctx, mu_bar, Sigma_bar, z, landmarks, Q, gate):
+    return ctx.expect(ctx.call(mu_bar, Sigma_bar, z, landmarks, Q, gate), INDEX)
+
+
+def _clear_case(rng):
+    """A belief, landmarks and a measurement whose nearest neighbour is unambiguous."""
+    while True:
+        mu_bar = random_pose(rng, extent=2.0)
+        Sigma_bar = spd(rng, 3, scale=0.5, cond=50.0)
+        K = int(rng.integers(3, 8))
+        landmarks = mu_bar[:2] + rng.uniform(-6, 6, size=(K, 2))
+        k = int(rng.integers(K))
+        z = sl.landmark_measurement(mu_bar + rng.normal(0, [0.3, 0.3, 0.1]), landmarks[k])[0]
+        Q = spd(rng, 2, scale=0.1)
+        d = np.sort(sl.landmark_mahalanobis(mu_bar, Sigma_bar, z, landmarks, Q))
+        if d.size < 2 or d[1] > d[0] * (1 + 1e-3) + 1e-6:
+            return mu_bar, Sigma_bar, z, landmarks, Q
+
+
+@EX.test("associate_ml", "nearest neighbour in Mahalanobis distance", weight=8,
+         hint="For each landmark k: nu_k = z - h(mu_bar, m_k) (bearing wrapped), S_k = H_k Sigma_bar H_k^T + Q, "
+              "d_k = nu_k^T S_k^-1 nu_k; return the k with the smallest d_k (not the largest likelihood, which "
+              "also weighs det S_k).")
+def _(ctx):
+    for _ in range(10):
+        mu_bar, Sigma_bar, z, landmarks, Q = _clear_case(ctx.rng)
+        got = _assoc(ctx, mu_bar, Sigma_bar, z, landmarks, Q, 1e6)
+        want = sl.associate_ml(mu_bar, Sigma_bar, z, landmarks, Q, 1e6)
+        if got != want:
+            d = sl.landmark_mahalanobis(mu_bar, Sigma_bar, z, landmarks, Q)
+            ctx.fail(f"returned {got}, expected {want}; the squared Mahalanobis distances are "
+                     f"{np.array2string(d, precision=4)}")
+
+
+@EX.test("associate_ml", "gate, equality at the gate and an empty map", weight=6,
+         hint="Return -1 when the smallest distance exceeds gate or there are no landmarks; a distance equal to "
+              "the gate still counts as a match.")
+def _(ctx):
+    # an exactly representable case: S = I and nu = (0.5, 0), so d = 0.25 exactly
+    mu0, S0, Q0 = np.zeros(3), np.zeros((3, 3)), np.eye(2)
+    lm0, z0 = np.array([[1.0, 0.0]]), np.array([1.5, 0.0])
+    for gate in (0.25, 0.2499, 1.0):
+        got = _assoc(ctx, mu0, S0, z0, lm0, Q0, gate)
+        want = sl.associate_ml(mu0, S0, z0, lm0, Q0, gate)
+        if got != want:
+            ctx.fail(f"returned {got}, expected {want} (the distance is exactly 0.25, the gate {gate})")
+    mu_bar, Sigma_bar, z, landmarks, Q = _clear_case(ctx.rng)
+    got = _assoc(ctx, mu_bar, Sigma_bar, z, np.zeros((0, 2)), Q, 10.0)
+    if got != -1:
+        ctx.fail(f"returned {got} for an empty map (landmarks of shape (0, 2)), expected -1")
+    d = sl.landmark_mahalanobis(mu_bar, Sigma_bar, z, landmarks, Q)
+    for gate in (0.5 * d.min(), 2.0 * d.min() + 1e-9):
+        got = _assoc(ctx, mu_bar, Sigma_bar, z, landmarks, Q, float(gate))
+        want = sl.associate_ml(mu_bar, Sigma_bar, z, landmarks, Q, float(gate))
+        if got != want:
+            ctx.fail(f"returned {got}, expected {want} (smallest distance {d.min():.4g}, gate {gate:.4g})")
+
+
+@EX.test("associate_ml", "ties go to the smallest index", weight=4, visibility="hidden",
+         hint="When two landmarks are equally close, return the smaller index (np.argmin does).")
+def _(ctx):
+    for _ in range(3):
+        mu_bar, Sigma_bar, z, landmarks, Q = _clear_case(ctx.rng)
+        best = sl.associate_ml(mu_bar, Sigma_bar, z, landmarks, Q, 1e6)
+        dup = np.vstack([landmarks, landmarks[best], landmarks[best]])
+        got = _assoc(ctx, mu_bar, Sigma_bar, z, dup, Q, 1e6)
+        if got != best:
+            ctx.fail(f"landmarks {best}, {len(landmarks)} and {len(landmarks) + 1} are identical and nearest; "
+                     f"returned {got}, expected {best}")
+
+
+@EX.test("associate_ml", "EKF localization with unknown correspondences", weight=7, visibility="hidden",
+         hint="Plugged into EKF localization with unknown correspondences, your association must choose the "
+              "same landmarks as the reference.")
+def _(ctx):
+    run = loops.scenario("localization")
+
+    def associate(t, mu, Sigma, z, landmarks, Q, gate):
+        return _assoc(ctx, mu, Sigma, z, landmarks, Q, gate)
+
+    try:
+        traj, ids = loops.ekf_localization_loop(run, predict=loops.ref_ekf_predict, update=loops.ref_ekf_update,
+                                                associate=associate, gate=loops.GATE)
+    except loops.LoopError as exc:
+        ctx.fail(str(exc))
+    ctx.last_call = None
+    ref_traj, ref_ids = loops.reference("ekf_unknown")
+    agree = float(np.mean(np.array(ids) == np.array(ref_ids))) if len(ids) == len(ref_ids) else 0.0
+    if agree < 0.98:
+        ctx.fail(f"your associations agree with the reference's for {100 * agree:.1f} % of the measurements "
+                 "(98 % needed)")
+    loops.compare_ate(ctx, "EKF localization with unknown correspondences", traj, ref_traj, run)

@@ -1,0 +1,341 @@
+"""Exercise 4: EKF SLAM (prediction, measurement model, landmark initialisation, update, association)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+import slamlib as sl
+
+from .. import loops
+from ..context import Out
+from ..spec import Exercise
+from .common import check_fd, fd_jacobian, random_pose, spd
+
+EX = Exercise(
+    "ekf_slam",
+    "EKF SLAM",
+    notebook="04_ekf_slam.ipynb",
+    functions={
+        "ekf_slam_predict": "(mu, Sigma, u, dt, M)",
+        "ekf_slam_measurement": "(mu, j)",
+        "ekf_slam_init_landmark": "(mu, z, j)",
+        "ekf_slam_update": "(mu_bar, Sigma_bar, z, j, Q)",
+        "ekf_slam_associate": "(mu_bar, Sigma_bar, z, n_seen, Q, alpha)",
+    },
+)
+INDEX = Out("index", (), "index")
+
+
+def _state(rng, N=4, heading=None, scale=0.2):
+    """A random EKF-SLAM belief with N landmarks around the robot and a full covariance."""
+    x = random_pose(rng, extent=2.0, heading=heading)
+    lm = []
+    for _ in range(N):
+        a = rng.uniform(-np.pi, np.pi)
+        lm.append(x[:2] + rng.uniform(1.0, 6.0) * np.array([np.cos(a), np.sin(a)]))
+    mu = np.concatenate([x] + lm) if N else x.copy()
+    Sigma = spd(rng, 3 + 2 * N, scale=scale, cond=30.0)
+    return mu, Sigma
+
+
+def _control(rng, omega=None):
+    w = rng.choice([-1, 1]) * rng.uniform(0.05, 1.5) if omega is None else omega
+    return np.array([rng.uniform(-0.5, 2.0), w]), float(rng.uniform(0.05, 0.5))
+
+
+# =========================================================================== ekf_slam_predict
+def _predict(ctx, mu, Sigma, u, dt, M):
+    n = mu.shape[0]
+    mu_bar, S = ctx.expect(ctx.call(mu, Sigma, u, dt, M), Out("mu_bar", (n,)), Out("Sigma_bar", (n, n)))
+    ctx.wrapped("the heading mu_bar[2]", mu_bar[2])
+    return mu_bar, S
+
+
+def _check_predict(ctx, mu, Sigma, u, dt, M):
+    mu_bar, S = _predict(ctx, mu, Sigma, u, dt, M)
+    ref = sl.ekf_slam_predict(mu, Sigma, u, dt, M)
+    ctx.close("mu_bar", mu_bar, ref[0], atol=1e-9, rtol=1e-9, angles=[2])
+    ctx.close("Sigma_bar", S, ref[1], atol=1e-9, rtol=1e-7)
+
+
+@EX.test("ekf_slam_predict", "robot moves, landmarks stay", weight=8,
+         hint="Only the robot pose moves (exact arc); G = I + F_x^T (G_x - I) F_x and "
+              "Sigma_bar = G Sigma G^T + F_x^T V M V^T F_x (Algorithm 1 lines 2-5).")
+def _(ctx):
+    for _ in range(5):
+        mu, Sigma = _state(ctx.rng)
+        u, dt = _control(ctx.rng)
+        _check_predict(ctx, mu, Sigma, u, dt, spd(ctx.rng, 2, scale=0.05))
+
+
+@EX.test("ekf_slam_predict", "any number of landmarks (N = 0, 1, 7)", weight=4,
+         hint="Size F_x and G from len(mu): the state has 3 + 2N entries, N may be 0.")
+def _(ctx):
+    for N in (0, 1, 7):
+        mu, Sigma = _state(ctx.rng, N=N)
+        u, dt = _control(ctx.rng)
+        _check_predict(ctx, mu, Sigma, u, dt, spd(ctx.rng, 2, scale=0.05))
+
+
+@EX.test("ekf_slam_predict", "straight-line motion and wrapped heading", weight=3, visibility="hidden",
+         hint="Use the straight-line limit for abs(omega) < 1e-6 and wrap the heading.")
+def _(ctx):
+    for w, th in ((0.0, 0.5), (1e-8, -1.0), (1.2, np.pi - 0.01)):
+        mu, Sigma = _state(ctx.rng, N=3, heading=th)
+        u, dt = _control(ctx.rng, omega=w)
+        _check_predict(ctx, mu, Sigma, u, dt, spd(ctx.rng, 2, scale=0.05))
+
+
+@EX.test("ekf_slam_predict", "EKF SLAM run with your ekf_slam_predict", weight=5, visibility="hidden",
+         hint="Plugged into EKF SLAM on a simulated run, your prediction must track the robot as well as the "
+              "reference.")
+def _(ctx):
+    run = loops.scenario("slam")
+
+    def predict(t, mu, Sigma, u, dt, M):
+        return _predict(ctx, mu, Sigma, u, dt, M)
+
+    _slam_e2e(ctx, run, predict=predict)
+
+
+def _slam_e2e(ctx, run, *, predict=loops.ref_slam_predict, init=loops.ref_slam_init, update=loops.ref_slam_update):
+    try:
+        traj, lm = loops.ekf_slam_loop(run, predict=predict, init=init, update=update)
+    except loops.LoopError as exc:
+        ctx.fail(str(exc))
+    ctx.last_call = None
+    ref_traj, ref_lm = loops.reference("ekf_slam")
+    loops.compare_ate(ctx, "EKF SLAM", traj, ref_traj, run)
+    seen = ~np.isnan(ref_lm[:, 0])
+    err = np.sqrt(np.mean(np.sum((lm[seen] - run.landmarks[seen]) ** 2, axis=1)))
+    ref_err = np.sqrt(np.mean(np.sum((ref_lm[seen] - run.landmarks[seen]) ** 2, axis=1)))
+    if not np.isfinite(err) or abs(err - ref_err) > 0.05 * ref_err + 0.01:
+        ctx.fail(f"EKF SLAM: the landmark error is {err:.4f} m, the reference filter's is {ref_err:.4f} m")
+
+
+# =========================================================================== ekf_slam_measurement
+def _meas(ctx, mu, j):
+    n = mu.shape[0]
+    return ctx.expect(ctx.call(mu, j), Out("z_hat", (2,)), Out("H", (2, n)))
+
+
+def _behind(mu, j):
+    """Move landmark j straight behind the robot (bearing at +-pi)."""
+    mu = mu.copy()
+    th = mu[2]
+    mu[3 + 2 * j:5 + 2 * j] = mu[:2] + 3.0 * np.array([np.cos(th + np.pi + 1e-4), np.sin(th + np.pi + 1e-4)])
+    return mu
+
+
+@EX.test("ekf_slam_measurement", "expected measurement z_hat", weight=6,
+         hint="z_hat = [sqrt(q), wrap(atan2(dy, dx) - theta)] with (dx, dy) = m_j - (x, y) (Eq. 17.2); "
+              "landmark j lives at mu[3 + 2j], mu[4 + 2j].")
+def _(ctx):
+    for k in range(6):
+        mu, _ = _state(ctx.rng, N=5)
+        j = int(ctx.rng.integers(5))
+        if k == 5:
+            mu = _behind(mu, j)
+        z, _ = _meas(ctx, mu, j)
+        ref = sl.ekf_slam_measurement(mu, j)
+        ctx.wrapped("the bearing z_hat[1]", z[1])
+        ctx.close("z_hat", z, ref[0], atol=1e-9, rtol=1e-9, angles=[1])
+
+
+@EX.test("ekf_slam_measurement", "Jacobian H = h F_{x,j} in the full state", weight=8,
+         hint="H is zero except in the robot columns 0-2 and the landmark columns 3+2j, 4+2j (Eq. 17.3).")
+def _(ctx):
+    for _ in range(6):
+        mu, _ = _state(ctx.rng, N=5)
+        j = int(ctx.rng.integers(5))
+        _, H = _meas(ctx, mu, j)
+        ctx.close("H", H, sl.ekf_slam_measurement(mu, j)[1], atol=1e-9, rtol=1e-7)
+
+
+@EX.test("ekf_slam_measurement", "H matches finite differences of your z_hat", weight=6, visibility="hidden",
+         hint="Your H disagrees with the numerical derivatives of your own z_hat.")
+def _(ctx):
+    for _ in range(2):
+        mu, _ = _state(ctx.rng, N=3)
+        j = int(ctx.rng.integers(3))
+        _, H = _meas(ctx, mu, j)
+        num = fd_jacobian(lambda mm: _meas(ctx, mm, j)[0], mu, angle_out=[1])
+        ctx.last_call = ctx.describe_call("ekf_slam_measurement", (mu, j), {})
+        check_fd(ctx, "H", H, num)
+
+
+# =========================================================================== ekf_slam_init_landmark
+def _init(ctx, mu, z, j):
+    return ctx.expect(ctx.call(mu, z, j), Out("mu", mu.shape))
+
+
+@EX.test("ekf_slam_init_landmark", "landmark mean from the first sighting", weight=8,
+         hint="m_j = [x + r cos(phi + theta), y + r sin(phi + theta)] written into mu[3 + 2j], mu[4 + 2j] "
+              "(Algorithm 1 line 10).")
+def _(ctx):
+    for _ in range(6):
+        mu, _ = _state(ctx.rng, N=4)
+        j = int(ctx.rng.integers(4))
+        z = np.array([ctx.rng.uniform(0.5, 8.0), ctx.rng.uniform(-np.pi, np.pi)])
+        got = _init(ctx, mu, z, j)
+        ctx.close("mu", got, sl.ekf_slam_init_landmark(mu, z, j), atol=1e-9, rtol=1e-9, angles=[2])
+
+
+@EX.test("ekf_slam_init_landmark", "nothing else changes", weight=4,
+         hint="Return a copy of mu with only landmark j's two entries replaced; do not modify mu itself.")
+def _(ctx):
+    for _ in range(4):
+        mu, _ = _state(ctx.rng, N=6)
+        j = int(ctx.rng.integers(6))
+        z = np.array([ctx.rng.uniform(0.5, 8.0), ctx.rng.uniform(-np.pi, np.pi)])
+        got = _init(ctx, mu, z, j)
+        keep = np.ones(mu.shape, bool)
+        keep[3 + 2 * j:5 + 2 * j] = False
+        ctx.equal("the entries of mu other than landmark j", got[keep], mu[keep])
+
+
+@EX.test("ekf_slam_init_landmark", "EKF SLAM run with your ekf_slam_init_landmark", weight=3, visibility="hidden",
+         hint="Plugged into EKF SLAM on a simulated run, your initialisation must give the reference's map.")
+def _(ctx):
+    def init(t, mu, z, j):
+        return _init(ctx, mu, z, j)
+
+    _slam_e2e(ctx, loops.scenario("slam"), init=init)
+
+
+# =========================================================================== ekf_slam_update
+def _update(ctx, mu_bar, Sigma_bar, z, j, Q):
+    n = mu_bar.shape[0]
+    mu, S = ctx.expect(ctx.call(mu_bar, Sigma_bar, z, j, Q), Out("mu", (n,)), Out("Sigma", (n, n)))
+    ctx.wrapped("the heading mu[2]", mu[2])
+    return mu, S
+
+
+def _noisy_z(rng, mu, j):
+    z = sl.ekf_slam_measurement(mu, j)[0] + rng.normal(0.0, [0.15, 0.05])
+    z[1] = sl.wrap_angle(z[1])
+    return z
+
+
+def _check_update(ctx, mu, Sigma, z, j, Q):
+    got_mu, got_S = _update(ctx, mu, Sigma, z, j, Q)
+    ref = sl.ekf_slam_update(mu, Sigma, z, j, Q)
+    ctx.close("mu", got_mu, ref[0], atol=1e-9, rtol=1e-8, angles=[2])
+    ctx.close("Sigma", got_S, ref[1], atol=1e-10, rtol=1e-7)
+    return got_S
+
+
+@EX.test("ekf_slam_update", "mean and covariance on random beliefs", weight=10,
+         hint="S = H Sigma_bar H^T + Q, K = Sigma_bar H^T S^-1, mu = mu_bar + K (z - z_hat), "
+              "Sigma = (I - K H) Sigma_bar (Algorithm 1 lines 17-19).")
+def _(ctx):
+    for _ in range(5):
+        mu, Sigma = _state(ctx.rng, N=4)
+        j = int(ctx.rng.integers(4))
+        _check_update(ctx, mu, Sigma, _noisy_z(ctx.rng, mu, j), j, spd(ctx.rng, 2, scale=0.05))
+
+
+@EX.test("ekf_slam_update", "bearing innovation wrapped", weight=5,
+         hint="Wrap the bearing of z - z_hat to [-pi, pi) and the updated heading.")
+def _(ctx):
+    for th in (0.2, np.pi - 0.01):
+        mu, Sigma = _state(ctx.rng, N=3, heading=th)
+        j = int(ctx.rng.integers(3))
+        mu = _behind(mu, j)
+        _check_update(ctx, mu, Sigma, _noisy_z(ctx.rng, mu, j), j, np.diag([0.05, 0.02]))
+
+
+@EX.test("ekf_slam_update", "covariance symmetric and not larger than the prior", weight=3, visibility="hidden",
+         hint="(I - K H) Sigma_bar is symmetric, and an update never adds uncertainty.")
+def _(ctx):
+    for _ in range(3):
+        mu, Sigma = _state(ctx.rng, N=4)
+        j = int(ctx.rng.integers(4))
+        _, S = _update(ctx, mu, Sigma, _noisy_z(ctx.rng, mu, j), j, spd(ctx.rng, 2, scale=0.05))
+        ctx.symmetric("Sigma", S)
+        if np.linalg.eigvalsh(Sigma - 0.5 * (S + S.T)).min() < -1e-9 * max(1.0, np.abs(Sigma).max()):
+            ctx.fail("Sigma_bar - Sigma has a negative eigenvalue: the update increased the uncertainty")
+
+
+@EX.test("ekf_slam_update", "EKF SLAM run with your ekf_slam_update", weight=7, visibility="hidden",
+         hint="Plugged into EKF SLAM on a simulated run, your update must track the robot and map the landmarks "
+              "as well as the reference.")
+def _(ctx):
+    def update(t, mu, Sigma, z, j, Q):
+        return _update(ctx, mu, Sigma, z, j, Q)
+
+    _slam_e2e(ctx, loops.scenario("slam"), update=update)
+
+
+# =========================================================================== ekf_slam_associate
+def _assoc(ctx, mu, Sigma, z, n_seen, Q, alpha):
+    return ctx.expect(ctx.call(mu, Sigma, z, n_seen, Q, alpha), INDEX)
+
+
+def _clear_assoc(rng, N=5):
+    while True:
+        mu, Sigma = _state(rng, N=N, scale=0.05)
+        k = int(rng.integers(N))
+        z = _noisy_z(rng, mu, k)
+        Q = spd(rng, 2, scale=0.05)
+        d = []
+        for i in range(N):
+            z_hat, H = sl.ekf_slam_measurement(mu, i)
+            S = H @ Sigma @ H.T + Q
+            nu = z - z_hat
+            nu[1] = sl.wrap_angle(nu[1])
+            d.append(nu @ np.linalg.solve(S, nu))
+        d = np.sort(d)
+        if d[1] > d[0] * (1 + 1e-3) + 1e-6:
+            return mu, Sigma, z, Q
+
+
+@EX.test("ekf_slam_associate", "nearest landmark by Mahalanobis distance", weight=8,
+         hint="For k < n_seen: d_k = nu_k^T S_k^-1 nu_k with S_k = H_k Sigma_bar H_k^T + Q; return the smallest "
+              "if d_k <= alpha (Algorithm 2).")
+def _(ctx):
+    for _ in range(8):
+        mu, Sigma, z, Q = _clear_assoc(ctx.rng)
+        got = _assoc(ctx, mu, Sigma, z, 5, Q, 1e6)
+        want = sl.ekf_slam_associate(mu, Sigma, z, 5, Q, 1e6)
+        if got != want:
+            ctx.fail(f"returned {got}, expected {want}")
+
+
+@EX.test("ekf_slam_associate", "new landmark above alpha, and n_seen = 0", weight=5,
+         hint="Return n_seen (a new landmark) when every distance exceeds alpha, or when n_seen = 0.")
+def _(ctx):
+    mu, Sigma, z, Q = _clear_assoc(ctx.rng)
+    for n_seen, alpha in ((5, 1e-9), (0, 1e6), (3, 5.99)):
+        got = _assoc(ctx, mu, Sigma, z, n_seen, Q, alpha)
+        want = sl.ekf_slam_associate(mu, Sigma, z, n_seen, Q, alpha)
+        if got != want:
+            ctx.fail(f"returned {got}, expected {want} (n_seen = {n_seen}, alpha = {alpha:g})")
+
+
+@EX.test("ekf_slam_associate", "slots beyond n_seen are ignored", weight=4, visibility="hidden",
+         hint="Only the first n_seen landmarks are in the map; later slots hold nothing yet.")
+def _(ctx):
+    for _ in range(3):
+        mu, Sigma, z, Q = _clear_assoc(ctx.rng, N=6)
+        mu = mu.copy()
+        mu[3 + 2 * 5:5 + 2 * 5] = sl.landmark_from_measurement(mu[:3], z)  # slot 5 matches z perfectly
+        got = _assoc(ctx, mu, Sigma, z, 4, Q, 1e6)
+        want = sl.ekf_slam_associate(mu, Sigma, z, 4, Q, 1e6)
+        if got != want:
+            ctx.fail(f"returned {got}, expected {want} (n_seen = 4)")
+
+
+@EX.test("ekf_slam_associate", "ties go to the smallest index", weight=3, visibility="hidden",
+         hint="When two landmarks are equally close, return the smaller index.")
+def _(ctx):
+    mu, Sigma, z, Q = _clear_assoc(ctx.rng, N=4)
+    best = sl.ekf_slam_associate(mu, Sigma, z, 4, Q, 1e6)
+    mu = mu.copy()
+    Sigma = np.zeros_like(Sigma)
+    other = 3 if best != 3 else 2
+    lo, hi = min(best, other), max(best, other)
+    mu[3 + 2 * other:5 + 2 * other] = mu[3 + 2 * best:5 + 2 * best]
+    got = _assoc(ctx, mu, Sigma, z, 4, Q, 1e6)
+    if got != lo:
+        ctx.fail(f"landmarks {lo} and {hi} are identical and nearest; returned {got}, expected {lo}")

@@ -1,0 +1,114 @@
+"""Declaring exercises and their test cases.
+
+Each exercise module under :mod:`autograder.exercises` builds one
+:class:`Exercise` and registers test cases with its :meth:`Exercise.test`
+decorator::
+
+    EX = Exercise("motion_sensor_models", "Motion and sensor models", notebook="01_motion_sensor_models.ipynb",
+                  functions={"velocity_motion": "(x, u, dt)", ...})
+
+    @EX.test("velocity_motion", "straight-line limit", weight=3, hint="For |omega| < 1e-6 ...")
+    def _(ctx):
+        got = ctx.call(x, u, dt)                     # runs in the child process
+        x_next, G, V = ctx.expect(got, OUT_X, OUT_G, OUT_V)
+        ref = sl.velocity_motion(x, u, dt)           # runs here, in the grader
+        ctx.close("x_next", x_next, ref[0], angles=[2])
+
+A test passes when ``run(ctx)`` returns; it fails when a check raises
+:class:`~autograder.context.Fail` or a call of the student's function fails.
+"""
+
+from __future__ import annotations
+
+import inspect
+from dataclasses import dataclass, field
+from typing import Callable
+
+__all__ = ["TestCase", "Exercise", "parse_signature", "VISIBILITY"]
+
+#: Gradescope visibility of public and hidden tests.
+VISIBILITY = {"public": "visible", "hidden": "after_due_date"}
+
+
+def parse_signature(text):
+    """``"(x, u, *, rng)"`` -> :class:`inspect.Signature`."""
+    ns = {}
+    exec(f"def _f{text}: pass", ns)  # noqa: S102 - our own constant strings
+    return inspect.signature(ns["_f"])
+
+
+@dataclass(frozen=True)
+class TestCase:
+    """One graded test of one contract function.
+
+    Attributes
+    ----------
+    function : str
+        The contract function it checks; the test's name begins with it.
+    title : str
+        What it checks (the rest of the name).
+    weight : float
+        Points.
+    run : callable
+        ``run(ctx)``; see :class:`~autograder.context.Ctx`.
+    visibility : str
+        ``"public"`` (self-check and Gradescope "visible") or ``"hidden"``
+        (Gradescope "after_due_date"; not in the self-check).
+    timeout : float
+        Wall-clock limit of each call of the student's function (seconds).
+    hint : str
+        The message a student sees when the test fails.
+    """
+
+    function: str
+    title: str
+    weight: float
+    run: Callable
+    visibility: str = "public"
+    timeout: float = 10.0
+    hint: str = ""
+
+    @property
+    def name(self):
+        return f"{self.function}: {self.title}"
+
+
+@dataclass
+class Exercise:
+    """An exercise: its contract functions (in grading order) and test cases."""
+
+    name: str
+    title: str
+    notebook: str
+    functions: dict
+    seed: int = 20240
+    tests: list = field(default_factory=list)
+
+    def test(self, function, title, *, weight, visibility="public", timeout=10.0, hint=""):
+        """Decorator registering ``run(ctx)`` as a test of ``function``."""
+        if function not in self.functions:
+            raise ValueError(f"{function!r} is not a function of exercise {self.name!r}")
+        if visibility not in VISIBILITY:
+            raise ValueError(f"visibility must be one of {sorted(VISIBILITY)}")
+
+        def deco(run):
+            case = TestCase(function, title, float(weight), run, visibility, float(timeout), hint)
+            if any(t.name == case.name for t in self.tests):
+                raise ValueError(f"duplicate test name {case.name!r}")
+            self.tests.append(case)
+            return run
+
+        return deco
+
+    def signature(self, function):
+        return parse_signature(self.functions[function])
+
+    def params(self, function):
+        """Names of the contract parameters, in order."""
+        return list(self.signature(function).parameters)
+
+    def tests_for(self, function):
+        return [t for t in self.tests if t.function == function]
+
+    def max_score(self, function=None):
+        return sum(t.weight for t in self.tests if function is None or t.function == function)

@@ -1,0 +1,324 @@
+"""Reading a submission without running it: notebook or Python file to code units.
+
+A notebook's code cells are read with :mod:`nbformat` (no kernel). IPython
+syntax is dropped with a note: cells starting with a ``%%`` cell magic, and lines
+starting with ``%`` (line magics) or ``!`` (shell escapes). Cells tagged
+``skip-grading`` are left out. Each remaining cell becomes one *unit* that the
+child executes statement by statement (a statement that raises is skipped, so a
+broken plotting cell does not cost the functions defined elsewhere).
+
+The static checks here parse every unit with :mod:`ast`: syntax errors, and which
+contract functions depend on an import of ``slamlib`` or ``autograder`` (directly,
+or through helper functions and module-level names of the submission).
+"""
+
+from __future__ import annotations
+
+import ast
+import builtins
+import json
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+__all__ = ["Submission", "SubmissionError", "load_submission", "forbidden_usage", "SKIP_TAG"]
+
+SKIP_TAG = "skip-grading"
+FORBIDDEN = ("slamlib", "autograder")
+_MAGIC_LINE = re.compile(r"^\s*[%!]")
+
+
+class SubmissionError(Exception):
+    """The file cannot be graded at all (unreadable, unsupported type ...)."""
+
+
+@dataclass
+class Submission:
+    """A submission's code, ready to be sent to child processes.
+
+    Attributes
+    ----------
+    path : Path
+        The file.
+    kind : str
+        ``"notebook"`` or ``"python"``.
+    units : list of dict
+        ``{"source", "filename", "label"}`` per code cell (notebook) or one for the file.
+    exercise : str or None
+        The exercise named in the notebook metadata (``metadata["slam_course"]["exercise"]``).
+    notes : list of str
+        What was dropped or could not be parsed.
+    syntax_errors : dict
+        Unit label -> message, for units that do not parse.
+    """
+
+    path: Path
+    kind: str
+    units: list
+    exercise: str | None = None
+    notes: list = field(default_factory=list)
+    syntax_errors: dict = field(default_factory=dict)
+
+    @property
+    def display_name(self):
+        return self.path.name
+
+
+def _strip_magics(source, label, notes):
+    lines = source.splitlines(True)
+    if lines and lines[0].lstrip().startswith("%%"):
+        notes.append(f"{label}: cell magic {lines[0].split()[0]} -- the whole cell is left out")
+        return ""
+    out = []
+    dropped = 0
+    for line in lines:
+        if _MAGIC_LINE.match(line):
+            dropped += 1
+            # keep the line count so that error messages point at the right line
+            out.append("pass  # " + line.strip().replace("\n", " ") + "\n" if _indent_needed(out) else "\n")
+        else:
+            out.append(line)
+    if dropped:
+        notes.append(f"{label}: {dropped} IPython magic/shell line{'s' if dropped > 1 else ''} left out")
+    return "".join(out)
+
+
+def _indent_needed(previous):
+    for line in reversed(previous):
+        if line.strip():
+            return line.rstrip().endswith(":")
+    return False
+
+
+def load_submission(path):
+    """Read ``path`` (``.ipynb`` or ``.py``) into a :class:`Submission`.
+
+    Raises
+    ------
+    SubmissionError
+        If the file is missing, not a readable notebook, or of another type.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise SubmissionError(f"{path.name}: no such file")
+    suffix = path.suffix.lower()
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise SubmissionError(f"{path.name}: cannot be read ({exc})") from None
+    if len(raw) > 50 << 20:
+        raise SubmissionError(f"{path.name}: the file is larger than 50 MB")
+    if suffix == ".py":
+        try:
+            text = raw.decode("utf-8")
+        except UnicodeDecodeError:
+            raise SubmissionError(f"{path.name}: not a UTF-8 text file") from None
+        sub = Submission(path, "python", [{"source": text, "filename": path.name, "label": path.name}])
+    elif suffix == ".ipynb":
+        sub = _load_notebook(path, raw)
+    else:
+        raise SubmissionError(f"{path.name}: unsupported file type (submit the exercise notebook .ipynb or a .py file)")
+    for unit in sub.units:
+        try:
+            ast.parse(unit["source"], filename=unit["filename"])
+        except SyntaxError as exc:
+            msg = f"syntax error at line {exc.lineno}: {exc.msg}"
+            sub.syntax_errors[unit["label"]] = msg
+            sub.notes.append(f"{unit['label']}: {msg} -- nothing in it can be graded")
+        except ValueError as exc:  # null bytes
+            sub.syntax_errors[unit["label"]] = str(exc)
+            sub.notes.append(f"{unit['label']}: {exc}")
+    return sub
+
+
+def _load_notebook(path, raw):
+    import nbformat
+
+    try:
+        data = json.loads(raw.decode("utf-8"))
+    except (UnicodeDecodeError, ValueError) as exc:
+        raise SubmissionError(f"{path.name}: not a Jupyter notebook (invalid JSON: {exc})") from None
+    if not isinstance(data, dict) or "cells" not in data:
+        raise SubmissionError(f"{path.name}: not a Jupyter notebook (no cells)")
+    try:
+        nb = nbformat.reads(json.dumps(data), as_version=4)
+    except Exception as exc:  # noqa: BLE001 - nbformat raises many kinds
+        raise SubmissionError(f"{path.name}: not a readable Jupyter notebook ({type(exc).__name__}: {exc})") from None
+    notes = []
+    units = []
+    code_index = 0
+    for cell in nb.cells:
+        if cell.get("cell_type") != "code":
+            continue
+        code_index += 1
+        label = f"code cell {code_index}"
+        tags = cell.get("metadata", {}).get("tags", []) or []
+        if SKIP_TAG in tags:
+            continue
+        source = cell.get("source", "")
+        if isinstance(source, list):
+            source = "".join(source)
+        if not isinstance(source, str):
+            continue
+        source = _strip_magics(source, label, notes)
+        if not source.strip():
+            continue
+        units.append({"source": source, "filename": f"{path.name}, {label}", "label": label})
+    meta = nb.get("metadata", {}).get("slam_course", {})
+    exercise = meta.get("exercise") if isinstance(meta, dict) else None
+    sub = Submission(path, "notebook", units, exercise if isinstance(exercise, str) else None, notes)
+    return sub
+
+
+# --------------------------------------------------------------------------- static dependency analysis
+def _is_forbidden_module(name):
+    return isinstance(name, str) and name.split(".")[0] in FORBIDDEN
+
+
+def _mentions_forbidden_string(node):
+    for n in ast.walk(node):
+        if isinstance(n, ast.Constant) and isinstance(n.value, str) and _is_forbidden_module(n.value.strip()):
+            return True
+    return False
+
+
+def _loaded_names(node):
+    return {n.id for n in ast.walk(node) if isinstance(n, ast.Name) and isinstance(n.ctx, ast.Load)}
+
+
+def _bound_names(target):
+    return {n.id for n in ast.walk(target) if isinstance(n, ast.Name)}
+
+
+def _forbidden_imports(node):
+    """Import statements anywhere under ``node`` that reach a forbidden package."""
+    found = []
+    for n in ast.walk(node):
+        if isinstance(n, ast.Import):
+            for alias in n.names:
+                if _is_forbidden_module(alias.name):
+                    found.append((alias.name, n.lineno))
+        elif isinstance(n, ast.ImportFrom) and n.level == 0 and _is_forbidden_module(n.module):
+            found.append((n.module, n.lineno))
+    return found
+
+
+def _module_level(stmts):
+    """Statements executed at module level (descending into if/try/with/loops, not defs)."""
+    for stmt in stmts:
+        yield stmt
+        if isinstance(stmt, (ast.If, ast.For, ast.AsyncFor, ast.While, ast.With, ast.AsyncWith, ast.Try)):
+            for attr in ("body", "orelse", "finalbody"):
+                yield from _module_level(getattr(stmt, attr, []) or [])
+            for handler in getattr(stmt, "handlers", []) or []:
+                yield from _module_level(handler.body)
+
+
+def forbidden_usage(units, functions):
+    """Which contract functions depend on ``slamlib`` or ``autograder``.
+
+    A function depends on a forbidden package when its body imports it, names a
+    string like ``"slamlib..."`` (``importlib.import_module``), or loads a
+    module-level name bound by such an import -- directly or through helper
+    functions, classes and module-level assignments of the submission.
+
+    Returns
+    -------
+    dict
+        Function name -> human-readable reason, for the functions that depend on one.
+    """
+    tainted = {}  # module-level name -> description of the import that bound it
+    defs = {}  # module-level name -> nodes whose code runs when the name is used
+    star = []
+    for unit in units:
+        try:
+            tree = ast.parse(unit["source"], filename=unit["filename"])
+        except (SyntaxError, ValueError):
+            continue
+        for stmt in _module_level(tree.body):
+            where = f"{unit['label']} line {stmt.lineno}"
+            if isinstance(stmt, ast.Import):
+                for alias in stmt.names:
+                    if _is_forbidden_module(alias.name):
+                        bound = alias.asname or alias.name.split(".")[0]
+                        tainted[bound] = f"`{bound}` (import {alias.name}, {where})"
+            elif isinstance(stmt, ast.ImportFrom) and stmt.level == 0 and _is_forbidden_module(stmt.module):
+                for alias in stmt.names:
+                    if alias.name == "*":
+                        star.append(f"from {stmt.module} import * ({where})")
+                    else:
+                        bound = alias.asname or alias.name
+                        tainted[bound] = f"`{bound}` (from {stmt.module} import {alias.name}, {where})"
+            for name, node in _bindings(stmt):
+                defs.setdefault(name, []).append(node)
+    defined = set(defs) | set(tainted)
+    builtin_names = set(dir(builtins))
+
+    def reason(node, seen):
+        imps = _forbidden_imports(node)
+        if imps:
+            mod, line = imps[0]
+            return f"imports {mod} (line {line})"
+        if _mentions_forbidden_string(node):
+            return "names the slamlib/autograder package in a string (a dynamic import)"
+        names = sorted(n for n in _loaded_names(node) if not _locally_bound(node, n))
+        for name in names:
+            if name in tainted:
+                return f"uses {tainted[name]}"
+        if star:
+            for name in names:
+                if name not in defined and name not in builtin_names:
+                    return f"uses `{name}`, which can only come from {star[0]}"
+        for name in names:
+            if name in defs and name not in seen:
+                seen.add(name)
+                for sub in defs[name]:
+                    why = reason(sub, seen)
+                    if why:
+                        return f"calls `{name}`, which {why}"
+        return None
+
+    out = {}
+    for fn in functions:
+        if fn in tainted:
+            out[fn] = f"{fn} is {tainted[fn]}, not your own implementation"
+            continue
+        for node in defs.get(fn, []):
+            why = reason(node, {fn})
+            if why:
+                out[fn] = f"{fn} {why}"
+                break
+    return out
+
+
+def _locally_bound(node, name):
+    """Whether ``name`` is a parameter or a local assignment inside function ``node``."""
+    if not isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
+        return False
+    args = node.args
+    params = {a.arg for a in args.args + args.posonlyargs + args.kwonlyargs}
+    if args.vararg:
+        params.add(args.vararg.arg)
+    if args.kwarg:
+        params.add(args.kwarg.arg)
+    if name in params:
+        return True
+    body = node.body if isinstance(node.body, list) else [node.body]
+    for stmt in body:
+        for n in ast.walk(stmt):
+            if isinstance(n, ast.Name) and isinstance(n.ctx, ast.Store) and n.id == name:
+                return True
+            if isinstance(n, (ast.Global, ast.Nonlocal)) and name in n.names:
+                return False
+    return False
+
+
+def _bindings(stmt):
+    """(name, node) pairs a module-level statement binds, with the code that runs when the name is used."""
+    if isinstance(stmt, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+        return [(stmt.name, stmt)]
+    if isinstance(stmt, ast.Assign):
+        return [(n, stmt.value) for t in stmt.targets for n in _bound_names(t)]
+    if isinstance(stmt, (ast.AnnAssign, ast.AugAssign)) and stmt.value is not None:
+        return [(n, stmt.value) for n in _bound_names(stmt.target)]
+    return []

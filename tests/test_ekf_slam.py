@@ -1,0 +1,514 @@
+"""EKF SLAM (slamlib.ekf_slam): teaching and fast versions, Algorithms 1 and 2, against theory."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import slamlib as sl
+from slamlib import ekf_slam as es
+
+DT = 0.1
+M = np.diag([0.1**2, np.deg2rad(3.0) ** 2])
+Q = np.diag([0.1**2, np.deg2rad(2.0) ** 2])
+TOL = dict(rtol=1e-9, atol=1e-9)
+
+
+def make_run(seed, *, n_landmarks=14, n_steps=160, extent=16.0, max_range=6.0):
+    """A seeded loop among landmarks (circle of radius 6.7 m, closes after about 105 steps)."""
+    rng = np.random.default_rng(seed)
+    landmarks = sl.make_landmark_world(n_landmarks, extent=extent, min_separation=2.0, rng=rng)
+    u = sl.loop_controls(n_steps, v=1.0, omega=0.15)
+    return sl.simulate_landmark_run(landmarks, u, DT, x0=[0.0, -6.7, 0.0], M=M, Q=Q, max_range=max_range,
+                                    fov=np.pi, rng=rng)
+
+
+@pytest.fixture(scope="module")
+def run():
+    return make_run(1)
+
+
+def random_state(rng, N):
+    """A state with ``N`` landmarks 2-6 m from the robot and a random SPD covariance."""
+    ang = rng.uniform(-np.pi, np.pi, N)
+    rad = rng.uniform(2.0, 6.0, N)
+    x = np.array([0.3, -0.2, 0.4])
+    mu = np.concatenate([x, (x[:2] + np.column_stack([rad * np.cos(ang), rad * np.sin(ang)])).ravel()])
+    B = 0.2 * rng.standard_normal((3 + 2 * N, 3 + 2 * N))
+    Sigma = B @ B.T / (3 + 2 * N) + 0.01 * np.eye(3 + 2 * N)
+    return mu, Sigma
+
+
+def first_sightings(run):
+    """Landmark ids in the order they are first measured."""
+    order = []
+    for ids in run.ids:
+        for i in ids:
+            if i >= 0 and i not in order:
+                order.append(int(i))
+    return order
+
+
+# --------------------------------------------------------------------------- measurement model
+def test_measurement_matches_sensor_model_and_spreads_h_into_five_columns():
+    rng = np.random.default_rng(2)
+    mu, _ = random_state(rng, 4)
+    for j in range(4):
+        z_hat, H = sl.ekf_slam_measurement(mu, j)
+        z_ref, Hx, Hm = sl.landmark_measurement(mu[:3], mu[3 + 2 * j:5 + 2 * j])
+        np.testing.assert_allclose(z_hat, z_ref, rtol=0, atol=1e-15)
+        assert H.shape == (2, 11)
+        np.testing.assert_array_equal(H[:, :3], Hx)
+        np.testing.assert_array_equal(H[:, 3 + 2 * j:5 + 2 * j], Hm)
+        rest = np.delete(H, [0, 1, 2, 3 + 2 * j, 4 + 2 * j], axis=1)
+        assert not rest.any(), "H = h F_{x,j} has only five non-zero columns"
+
+
+@pytest.mark.parametrize("j", [0, 2])
+def test_jacobian_H_against_central_differences(j):
+    rng = np.random.default_rng(3)
+    mu, _ = random_state(rng, 3)
+    _, H = sl.ekf_slam_measurement(mu, j)
+    eps = 1e-6
+    H_num = np.empty_like(H)
+    for i in range(mu.size):
+        d = np.zeros(mu.size)
+        d[i] = eps
+        zp, _ = sl.ekf_slam_measurement(mu + d, j)
+        zm, _ = sl.ekf_slam_measurement(mu - d, j)
+        diff = zp - zm
+        diff[1] = sl.wrap_angle(diff[1])
+        H_num[:, i] = diff / (2 * eps)
+    np.testing.assert_allclose(H, H_num, rtol=1e-6, atol=1e-8)
+
+
+def test_hot_path_models_equal_the_foundation_models():
+    rng = np.random.default_rng(4)
+    for w in [0.0, 1e-7, 1e-4, 0.3, -2.0]:
+        for _ in range(5):
+            x = rng.uniform(-3, 3, 3)
+            u = np.array([rng.uniform(-2, 2), w])
+            for a, b in zip(es._velocity_motion(x, u, 0.37), sl.velocity_motion(x, u, 0.37)):
+                np.testing.assert_allclose(a, b, rtol=0, atol=1e-13)
+    mu, _ = random_state(rng, 5)
+    for j in range(5):
+        r, phi, h = es._range_bearing(mu, 3 + 2 * j)
+        z_hat, Hx, Hm = sl.landmark_measurement(mu[:3], mu[3 + 2 * j:5 + 2 * j])
+        np.testing.assert_allclose([r, phi], z_hat, rtol=0, atol=1e-14)
+        np.testing.assert_allclose(h, np.hstack([Hx, Hm]), rtol=1e-14, atol=1e-14)
+    angles = np.concatenate([rng.uniform(-20, 20, 500), [np.pi, -np.pi, 3 * np.pi, 0.0]])
+    np.testing.assert_array_equal([es._wrap(a) for a in angles], sl.wrap_angle(angles))
+
+
+def test_init_landmark_inverts_the_measurement():
+    rng = np.random.default_rng(5)
+    mu, _ = random_state(rng, 3)
+    z_hat, _ = sl.ekf_slam_measurement(mu, 1)
+    blank = mu.copy()
+    blank[5:7] = 0.0
+    out = sl.ekf_slam_init_landmark(blank, z_hat, 1)
+    np.testing.assert_allclose(out, mu, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(np.delete(out, [5, 6]), np.delete(blank, [5, 6]))
+
+
+# --------------------------------------------------------------------------- prediction and update
+def test_predict_moves_only_the_robot_and_matches_ekf_localization():
+    rng = np.random.default_rng(6)
+    mu, Sigma = random_state(rng, 5)
+    u = np.array([1.2, 0.4])
+    mu_bar, Sigma_bar = sl.ekf_slam_predict(mu, Sigma, u, DT, M)
+    np.testing.assert_array_equal(mu_bar[3:], mu[3:])
+    np.testing.assert_array_equal(Sigma_bar[3:, 3:], Sigma[3:, 3:])
+    x_next, G, V = sl.velocity_motion(mu[:3], u, DT)
+    np.testing.assert_allclose(mu_bar[:3], x_next, rtol=0, atol=1e-14)
+    np.testing.assert_allclose(Sigma_bar[:3, 3:], G @ Sigma[:3, 3:], rtol=1e-12, atol=1e-15)
+    # the robot block is EKF localization's prediction (Table 7.2)
+    ref_mu, ref_Sigma = sl.ekf_predict(mu[:3], Sigma[:3, :3], u, DT, M)
+    np.testing.assert_allclose(mu_bar[:3], ref_mu, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(Sigma_bar[:3, :3], ref_Sigma, rtol=1e-12, atol=1e-15)
+
+
+def test_update_with_a_certain_landmark_is_ekf_localization():
+    """A landmark with zero variance and no correlation is a known map point (Table 7.2)."""
+    x = np.array([1.0, 2.0, 0.3])
+    Sx = np.diag([0.2, 0.1, 0.05])
+    m = np.array([4.0, 3.5])
+    mu = np.concatenate([x, m])
+    Sigma = np.zeros((5, 5))
+    Sigma[:3, :3] = Sx
+    z = np.array([3.3, 0.2])
+    mu_new, Sigma_new = sl.ekf_slam_update(mu, Sigma, z, 0, Q)
+    ref_mu, ref_Sigma = sl.ekf_update(x, Sx, z, m, Q)
+    np.testing.assert_allclose(mu_new[:3], ref_mu, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(Sigma_new[:3, :3], ref_Sigma, rtol=1e-10, atol=1e-14)
+    np.testing.assert_array_equal(mu_new[3:], m)
+
+
+def test_first_sighting_with_a_known_pose_gives_the_inverse_measurement_covariance():
+    """Robot certain, landmark prior 1e6: the posterior is Hm^-1 Q Hm^-T up to O(1 / prior)."""
+    f = sl.EKFSLAM([0.0, 0.0, 0.2], prior_var=1e6)
+    z = np.array([5.0, 0.4])
+    j = f.add_landmark(z)
+    f.update(z, j, Q)
+    _, _, Hm = sl.landmark_measurement(f.mu[:3], f.mu[3:5])
+    Hinv = np.linalg.inv(Hm)
+    np.testing.assert_allclose(f.Sigma[3:, 3:], Hinv @ Q @ Hinv.T, rtol=1e-5, atol=1e-10)
+    np.testing.assert_allclose(f.Sigma[:3], 0.0, atol=1e-12)
+    np.testing.assert_allclose(f.mu[3:], sl.landmark_from_measurement(f.mu[:3], z), atol=1e-9)
+
+
+def test_update_shrinks_the_covariance_and_keeps_it_symmetric():
+    rng = np.random.default_rng(7)
+    mu, Sigma = random_state(rng, 4)
+    z_hat, _ = sl.ekf_slam_measurement(mu, 2)
+    mu_new, Sigma_new = sl.ekf_slam_update(mu, Sigma, z_hat + [0.05, -0.01], 2, Q)
+    np.testing.assert_array_equal(Sigma_new, Sigma_new.T)
+    assert np.linalg.eigvalsh(Sigma - Sigma_new).min() > -1e-12, "an update only removes uncertainty"
+    assert np.linalg.eigvalsh(Sigma_new).min() > 0
+
+
+# --------------------------------------------------------------------------- teaching == fast
+def test_fast_class_equals_contract_functions_step_by_step():
+    rng = np.random.default_rng(8)
+    mu, Sigma = random_state(rng, 6)
+    f = sl.EKFSLAM.from_state(mu, Sigma, capacity=6)
+    for t in range(12):
+        u = np.array([1.0, 0.3 * np.sin(t)])
+        mu, Sigma = sl.ekf_slam_predict(mu, Sigma, u, DT, M)
+        f.predict(u, DT, M)
+        for j in rng.permutation(6)[:4]:
+            z = sl.ekf_slam_measurement(mu, j)[0] + rng.normal(0, [0.1, 0.03])
+            mu, Sigma = sl.ekf_slam_update(mu, Sigma, z, j, Q)
+            f.update(z, j, Q)
+            np.testing.assert_allclose(f.Sigma_x, Sigma[:3, :3], **TOL)
+        if t == 5:  # a new landmark forces the buffers to double (capacity 6 -> 12)
+            z = np.array([3.0, 0.5])
+            n = mu.size
+            mu = np.concatenate([mu, [0.0, 0.0]])
+            Sigma = np.pad(Sigma, ((0, 2), (0, 2)))
+            Sigma[n, n] = Sigma[n + 1, n + 1] = es.DEFAULT_PRIOR_VAR
+            mu = sl.ekf_slam_init_landmark(mu, z, 6)
+            mu, Sigma = sl.ekf_slam_update(mu, Sigma, z, 6, Q)
+            assert f.add_landmark(z) == 6
+            f.update(z, 6, Q)
+            assert f.capacity == 12
+        np.testing.assert_allclose(f.mu, mu, **TOL)
+        np.testing.assert_allclose(f.Sigma, Sigma, **TOL)
+    np.testing.assert_allclose(f.landmark_variances(), np.diag(Sigma)[3::2] + np.diag(Sigma)[4::2], **TOL)
+
+
+def test_step_equals_predict_then_updates():
+    rng = np.random.default_rng(9)
+    mu, Sigma = random_state(rng, 5)
+    a, b = sl.EKFSLAM.from_state(mu, Sigma), sl.EKFSLAM.from_state(mu, Sigma)
+    z = np.array([sl.ekf_slam_measurement(mu, j)[0] for j in (4, 1, 3)]) + 0.02
+    a.step([1.0, 0.2], DT, M, z, [4, 1, 3], Q)
+    b.predict([1.0, 0.2], DT, M)
+    for zi, j in zip(z, (4, 1, 3)):
+        b.update(zi, j, Q)
+    np.testing.assert_array_equal(a.mu, b.mu)
+    np.testing.assert_array_equal(a.Sigma, b.Sigma)
+
+
+def test_known_correspondences_fast_equals_teaching_run_through_growth(run):
+    fast = sl.run_ekf_slam(run, fast=True, capacity=1, snapshots=[40, 160])
+    plain = sl.run_ekf_slam(run, fast=False, snapshots=[40, 160])
+    assert fast.n_landmarks[-1] >= 8, "the run must grow the buffers 1 -> 2 -> 4 -> 8 -> 16"
+    np.testing.assert_array_equal(fast.landmark_ids, plain.landmark_ids)
+    np.testing.assert_allclose(fast.x, plain.x, **TOL)
+    np.testing.assert_allclose(fast.Sigma_x, plain.Sigma_x, **TOL)
+    np.testing.assert_allclose(fast.mu, plain.mu, **TOL)
+    np.testing.assert_allclose(fast.Sigma, plain.Sigma, **TOL)
+    np.testing.assert_allclose(fast.landmark_var, plain.landmark_var, **TOL)
+    for t in (40, 160):
+        np.testing.assert_allclose(fast.snapshots[t][1], plain.snapshots[t][1], **TOL)
+
+
+def test_fixed_size_algorithm_1_equals_the_growing_filter(run):
+    """Algorithm 1 as printed: all N landmarks in the state from the start, unseen ones at the prior."""
+    N = run.landmarks.shape[0]
+    mu = np.concatenate([run.x0, np.zeros(2 * N)])
+    Sigma = np.diag(np.r_[np.zeros(3), np.full(2 * N, es.DEFAULT_PRIOR_VAR)])
+    seen = set()
+    T = 60
+    for t in range(T):
+        mu, Sigma = sl.ekf_slam_predict(mu, Sigma, run.u[t], run.dt, run.M)
+        for z, j in zip(run.z[t], run.ids[t]):
+            if j not in seen:
+                mu = sl.ekf_slam_init_landmark(mu, z, j)
+                seen.add(j)
+            mu, Sigma = sl.ekf_slam_update(mu, Sigma, z, j, run.Q)
+    short = sl.simulate_landmark_run(run.landmarks, run.u[:T], run.dt, x0=run.x0, M=run.M, Q=run.Q,
+                                     max_range=run.max_range, fov=run.fov, rng=np.random.default_rng(0))
+    short = type(run)(**{**short.__dict__, "z": run.z[:T], "ids": run.ids[:T], "u": run.u[:T]})
+    res = sl.run_ekf_slam(short)
+    idx = np.r_[0, 1, 2, np.ravel([[3 + 2 * i, 4 + 2 * i] for i in res.landmark_ids])]
+    np.testing.assert_allclose(res.mu, mu[idx], **TOL)
+    np.testing.assert_allclose(res.Sigma, Sigma[np.ix_(idx, idx)], **TOL)
+    unseen = [i for i in range(N) if i not in seen]
+    for i in unseen:  # never-seen landmarks keep their prior and no correlation
+        assert Sigma[3 + 2 * i, 3 + 2 * i] == es.DEFAULT_PRIOR_VAR
+        assert np.count_nonzero(Sigma[3 + 2 * i]) == 1
+
+
+def test_unknown_correspondences_fast_equals_teaching_with_clutter(run):
+    cluttered = sl.add_clutter(run, 0.3, rng=np.random.default_rng(10))
+    for confirm in (1, 3):
+        fast = sl.run_ekf_slam(cluttered, known=False, confirm=confirm, window=6)
+        plain = sl.run_ekf_slam(cluttered, known=False, confirm=confirm, window=6, fast=False)
+        np.testing.assert_array_equal(fast.n_landmarks, plain.n_landmarks)
+        np.testing.assert_array_equal(fast.landmark_ids, plain.landmark_ids)
+        assert fast.n_rejected == plain.n_rejected
+        np.testing.assert_allclose(fast.mu, plain.mu, **TOL)
+        np.testing.assert_allclose(fast.Sigma, plain.Sigma, **TOL)
+
+
+def test_fast_covariance_is_exactly_symmetric(run):
+    res = sl.run_ekf_slam(run, capacity=2)
+    np.testing.assert_array_equal(res.Sigma, res.Sigma.T)
+    assert np.linalg.eigvalsh(res.Sigma).min() > 0
+
+
+# --------------------------------------------------------------------------- behaviour on seeded runs
+def test_landmark_uncertainty_shrinks_with_reobservation(run):
+    res = sl.run_ekf_slam(run)
+    var = res.landmark_var
+    for k in range(var.shape[1]):
+        v = var[~np.isnan(var[:, k]), k]
+        assert np.all(np.diff(v) <= 1e-12), "a landmark's variance never grows (predictions leave it alone)"
+    counts = np.bincount(np.concatenate(run.ids), minlength=run.landmarks.shape[0])[res.landmark_ids]
+    first = np.array([v[~np.isnan(v)][0] for v in var.T])
+    last = var[-1]
+    often = counts >= 20
+    assert often.sum() >= 5
+    assert np.all(last[often] < 0.5 * first[often])
+
+
+def test_landmark_errors_shrink_with_reobservation():
+    errs_first, errs_last = [], []
+    for seed in range(4):
+        r = make_run(100 + seed)
+        res = sl.run_ekf_slam(r, snapshots=range(r.n_steps + 1))
+        for k, i in enumerate(res.landmark_ids):
+            t0 = int(np.argmax(res.n_landmarks > k))  # step at which landmark k entered the map
+            mu0 = res.snapshots[t0][0]
+            errs_first.append(np.linalg.norm(mu0[3 + 2 * k:5 + 2 * k] - r.landmarks[i]))
+            errs_last.append(np.linalg.norm(res.landmarks[k] - r.landmarks[i]))
+    assert np.sqrt(np.mean(np.square(errs_last))) < 0.7 * np.sqrt(np.mean(np.square(errs_first)))
+
+
+def test_nees_inside_chi_square_band_over_monte_carlo_runs():
+    """Robot-pose and landmark NEES of 30 seeded runs of 80 steps, against their 99 % bands."""
+    base = make_run(0)
+    n_runs = 30
+    robot, lmk = [], []
+    for seed in range(n_runs):
+        r = sl.simulate_landmark_run(base.landmarks, sl.loop_controls(80, v=1.0, omega=0.15), DT, x0=base.x0,
+                                     M=M, Q=Q, max_range=6.0, fov=np.pi, rng=np.random.default_rng(200 + seed))
+        res = sl.run_ekf_slam(r)
+        ts = [20, 40, 60, 80]
+        robot.append(sl.nees(sl.pose_error(res.x[ts], r.x_true[ts]), res.Sigma_x[ts]))
+        e = res.landmarks - r.landmarks[res.landmark_ids]
+        lmk.append(sl.nees(e.ravel(), res.Sigma[3:, 3:]) / e.size)  # joint map NEES per dof
+    lo, hi = sl.nees_band(3, n_runs, p=0.99)
+    avg = np.mean(robot, axis=0)
+    assert np.all((lo <= avg) & (avg <= hi)), f"robot NEES {avg} outside [{lo:.2f}, {hi:.2f}]"
+    map_avg = float(np.mean(lmk))
+    assert 0.6 < map_avg < 1.5, f"map NEES per dof {map_avg:.2f}"
+
+
+def test_unknown_correspondences_find_the_true_number_of_landmarks(run):
+    res = sl.run_ekf_slam(run, known=False)
+    seen = set(np.concatenate(run.ids).tolist())
+    assert res.n_landmarks[-1] == len(seen)
+    assert sorted(res.landmark_ids.tolist()) == sorted(seen), "one landmark per true landmark, no duplicates"
+    known = sl.run_ekf_slam(run)
+    order = np.argsort(res.landmark_ids)
+    np.testing.assert_allclose(res.landmarks[order], known.landmarks[np.argsort(known.landmark_ids)], atol=1e-9)
+
+
+def test_clutter_creates_fake_landmarks_and_the_provisional_list_rejects_them():
+    r = make_run(11, n_steps=200)
+    counts = np.bincount(np.concatenate(r.ids), minlength=r.landmarks.shape[0])
+    assert counts[counts > 0].min() >= 6, "every seen landmark is re-observed often in this world"
+    cluttered = sl.add_clutter(r, 0.5, rng=np.random.default_rng(12))
+    n_clutter = sum(int(np.sum(i < 0)) for i in cluttered.ids)
+    assert n_clutter > 60
+    naive = sl.run_ekf_slam(cluttered, known=False)
+    assert np.sum(naive.landmark_ids < 0) > 30, "plain Algorithm 2 turns clutter into landmarks"
+    robust = sl.run_ekf_slam(cluttered, known=False, confirm=3, window=5)
+    assert robust.n_landmarks[-1] == np.count_nonzero(counts)
+    assert not np.any(robust.landmark_ids < 0)
+    assert sorted(robust.landmark_ids.tolist()) == np.flatnonzero(counts).tolist()
+    assert robust.n_rejected >= n_clutter - 10
+
+
+def test_add_clutter_is_seeded_and_marks_spurious_measurements(run):
+    a = sl.add_clutter(run, 1.0, rng=np.random.default_rng(13))
+    b = sl.add_clutter(run, 1.0, rng=np.random.default_rng(13))
+    for za, zb, ia, i0 in zip(a.z, b.z, a.ids, run.ids):
+        np.testing.assert_array_equal(za, zb)
+        assert np.sum(ia >= 0) == len(i0)
+        assert np.all((za[ia < 0, 0] >= 0.5) & (za[ia < 0, 0] <= run.max_range))
+    assert sum(np.sum(i < 0) for i in a.ids) > 100
+    assert a.x_true is run.x_true
+
+
+# --------------------------------------------------------------------------- association
+def _distances(mu, Sigma, z, n):
+    out = []
+    for k in range(n):
+        z_hat, H = sl.ekf_slam_measurement(mu, k)
+        S = H @ Sigma @ H.T + Q
+        nu = z - z_hat
+        nu[1] = sl.wrap_angle(nu[1])
+        out.append(nu @ np.linalg.solve(S, nu))
+    return np.array(out)
+
+
+def test_associate_semantics():
+    rng = np.random.default_rng(14)
+    mu, Sigma = random_state(rng, 5)
+    z = sl.ekf_slam_measurement(mu, 3)[0] + [0.05, 0.01]
+    d = _distances(mu, Sigma, z, 5)
+    best = int(np.argmin(d))
+    assert best == 3
+    assert sl.ekf_slam_associate(mu, Sigma, z, 5, Q, d[best] + 1.0) == 3
+    assert sl.ekf_slam_associate(mu, Sigma, z, 5, Q, d[best]) == 3, "a distance equal to alpha is a match"
+    assert sl.ekf_slam_associate(mu, Sigma, z, 5, Q, np.nextafter(d[best], 0)) == 5, "above alpha: new landmark"
+    assert sl.ekf_slam_associate(mu, Sigma, z, 0, Q, 1e9) == 0, "n_seen = 0: always a new landmark"
+    assert sl.ekf_slam_associate(mu, Sigma, z, 3, Q, 1e9) == int(np.argmin(d[:3])), "slots >= n_seen ignored"
+    assert sl.ekf_slam_associate(mu, Sigma, z, 3, Q, 0.0) == 3
+    assert sl.ekf_slam_associate(mu, Sigma, z, 5, Q, np.inf) == 3
+    assert isinstance(sl.ekf_slam_associate(mu, Sigma, z, 5, Q, 1.0), int)
+
+
+def test_associate_ties_go_to_the_smallest_index():
+    rng = np.random.default_rng(15)
+    mu, Sigma = random_state(rng, 4)
+    # landmarks 1 and 3 identical in mean and covariance (and in their correlation with the robot)
+    mu[9:11] = mu[5:7]
+    for a, b in ((9, 5), (10, 6)):
+        Sigma[a, :] = Sigma[b, :]
+        Sigma[:, a] = Sigma[:, b]
+    Sigma[9:11, 9:11] = Sigma[5:7, 5:7]
+    z = sl.ekf_slam_measurement(mu, 1)[0]
+    d = _distances(mu, Sigma, z, 4)
+    assert d[1] == d[3]
+    assert sl.ekf_slam_associate(mu, Sigma, z, 4, Q, 10.0) == 1
+    f = sl.EKFSLAM.from_state(mu, Sigma)
+    assert f.associate(z, Q, 10.0) == 1
+
+
+def test_fast_mahalanobis_equals_the_teaching_distances():
+    rng = np.random.default_rng(16)
+    mu, Sigma = random_state(rng, 7)
+    f = sl.EKFSLAM.from_state(mu, Sigma)
+    # pending (not yet applied) corrections must be accounted for
+    for j in (2, 5):
+        z = sl.ekf_slam_measurement(mu, j)[0] + 0.03
+        mu, Sigma = sl.ekf_slam_update(mu, Sigma, z, j, Q)
+        f.update(z, j, Q)
+    assert f._k == 4
+    z = sl.ekf_slam_measurement(mu, 4)[0] + [0.2, -0.05]
+    np.testing.assert_allclose(f.mahalanobis(z, Q), _distances(mu, Sigma, z, 7), rtol=1e-9)
+    for alpha in (0.0, 1.0, 50.0):
+        assert f.associate(z, Q, alpha) == sl.ekf_slam_associate(mu, Sigma, z, 7, Q, alpha)
+    empty = sl.EKFSLAM([0.0, 0.0, 0.0])
+    assert empty.associate(z, Q, 1e9) == 0
+    assert empty.mahalanobis(z, Q).shape == (0,)
+
+
+# --------------------------------------------------------------------------- purity and input checks
+def test_inputs_are_not_modified():
+    rng = np.random.default_rng(17)
+    mu, Sigma = random_state(rng, 3)
+    z = np.array([3.0, 0.2])
+    args = [mu, Sigma, z, Q, M]
+    for a in args:
+        a.setflags(write=False)  # any write raises
+    copies = [a.copy() for a in args]
+    sl.ekf_slam_predict(mu, Sigma, np.array([1.0, 0.1]), DT, M)
+    sl.ekf_slam_measurement(mu, 1)
+    sl.ekf_slam_init_landmark(mu, z, 1)
+    sl.ekf_slam_update(mu, Sigma, z, 1, Q)
+    sl.ekf_slam_associate(mu, Sigma, z, 3, Q, 5.0)
+    f = sl.EKFSLAM.from_state(mu, Sigma)
+    f.step([1.0, 0.1], DT, M, z[None], [1], Q)
+    for a, c in zip(args, copies):
+        np.testing.assert_array_equal(a, c)
+
+
+def test_run_does_not_modify_the_run(run):
+    x_true = run.x_true.copy()
+    z = [a.copy() for a in run.z]
+    sl.run_ekf_slam(run, known=False, confirm=2)
+    np.testing.assert_array_equal(run.x_true, x_true)
+    for a, b in zip(run.z, z):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_filter_views_are_read_only():
+    f = sl.EKFSLAM([0.0, 0.0, 0.0])
+    f.add_landmark([2.0, 0.3])
+    with pytest.raises(ValueError):
+        f.mu[0] = 1.0
+    with pytest.raises(ValueError):
+        f.Sigma[0, 0] = 1.0
+    g = f.copy()
+    g.predict([1.0, 0.0], DT, M)
+    assert f.mu[0] == 0.0 and g.mu[0] > 0.0
+
+
+@pytest.mark.parametrize("call, match", [
+    (lambda mu, S: sl.ekf_slam_predict(mu[:4], S, [1, 0], DT, M), "mu must have shape"),
+    (lambda mu, S: sl.ekf_slam_predict(mu, S[:5, :5], [1, 0], DT, M), "Sigma must have shape"),
+    (lambda mu, S: sl.ekf_slam_predict(mu, S + np.triu(np.ones_like(S)), [1, 0], DT, M), "Sigma must be symmetric"),
+    (lambda mu, S: sl.ekf_slam_predict(mu, S, [1, 0, 0], DT, M), "u must have shape"),
+    (lambda mu, S: sl.ekf_slam_predict(mu, S, [1, 0], -0.1, M), "dt must be non-negative"),
+    (lambda mu, S: sl.ekf_slam_predict(mu, S, [1, 0], DT, -M), "M must be positive semi-definite"),
+    (lambda mu, S: sl.ekf_slam_measurement(mu, 3), "j must be in"),
+    (lambda mu, S: sl.ekf_slam_measurement(mu, 1.0), "j must be an integer"),
+    (lambda mu, S: sl.ekf_slam_init_landmark(mu, [np.nan, 0.0], 0), "z must be finite"),
+    (lambda mu, S: sl.ekf_slam_update(mu, S, [1.0, 0.0], -1, Q), "j must be in"),
+    (lambda mu, S: sl.ekf_slam_update(mu, S, [1.0, 0.0], 0, np.eye(3)), "Q must have shape"),
+    (lambda mu, S: sl.ekf_slam_update(mu[:5], S, [1.0, 0.0], 0, Q), "Sigma_bar must have shape"),
+    (lambda mu, S: sl.ekf_slam_associate(mu, S, [1.0, 0.0], 4, Q, 1.0), "n_seen must be in"),
+    (lambda mu, S: sl.ekf_slam_associate(mu, S, [1.0, 0.0], 1, Q, -1.0), "alpha must be non-negative"),
+    (lambda mu, S: sl.ekf_slam_associate(mu, S, [1.0, 0.0], 1, Q, np.nan), "alpha must be non-negative"),
+    (lambda mu, S: sl.ekf_slam_associate(mu, S, "z", 1, Q, 1.0), "z must be a numeric array"),
+    (lambda mu, S: sl.EKFSLAM.from_state(mu, S).update([1.0, 0.0], 3, Q), "j must be in"),
+    (lambda mu, S: sl.EKFSLAM.from_state(mu, S).update([1.0, 0.0], 0, [[1, 2], [0, 1]]), "Q must be symmetric"),
+    (lambda mu, S: sl.EKFSLAM.from_state(mu, S).predict([1.0, 0.0], DT, -M), "M must be positive semi-definite"),
+    (lambda mu, S: sl.EKFSLAM.from_state(mu, S).step([1, 0], DT, M, [[1.0, 0.0]], [5], Q), "j must hold indices"),
+    (lambda mu, S: sl.EKFSLAM([0.0, 0.0]), "x0 must have shape"),
+    (lambda mu, S: sl.EKFSLAM([0.0, 0.0, 0.0], prior_var=0.0), "prior_var must be positive"),
+])
+def test_bad_inputs_raise_naming_the_argument(call, match):
+    mu, Sigma = random_state(np.random.default_rng(18), 3)
+    with pytest.raises((ValueError, TypeError), match=match):
+        call(mu, Sigma)
+
+
+def test_run_helpers_reject_bad_arguments(run):
+    with pytest.raises(TypeError, match="run must be a LandmarkRun"):
+        sl.run_ekf_slam(object())
+    with pytest.raises(ValueError, match="confirm must be in"):
+        sl.run_ekf_slam(run, known=False, confirm=0)
+    with pytest.raises(ValueError, match="alpha must be non-negative"):
+        sl.run_ekf_slam(run, known=False, alpha=-1.0)
+    with pytest.raises(ValueError, match="snapshots must be in"):
+        sl.run_ekf_slam(run, snapshots=[run.n_steps + 1])
+    with pytest.raises(TypeError, match="rng must be a numpy.random.Generator"):
+        sl.add_clutter(run, 1.0, rng=1)
+    with pytest.raises(ValueError, match="rate must be non-negative"):
+        sl.add_clutter(run, -1.0, rng=np.random.default_rng(0))
+
+
+def test_singular_innovation_is_reported():
+    f = sl.EKFSLAM([0.0, 0.0, 0.0], prior_var=1.0)
+    j = f.add_landmark([2.0, 0.0])
+    f2 = sl.EKFSLAM.from_state(np.r_[0.0, 0.0, 0.0, 2.0, 0.0], np.zeros((5, 5)))
+    with pytest.raises(ValueError, match="not positive definite"):
+        f2.update([2.0, 0.0], 0, np.zeros((2, 2)))
+    f.update([2.0, 0.0], j, np.zeros((2, 2)))  # a positive prior keeps S definite even with Q = 0

@@ -1,0 +1,362 @@
+"""MRCLAM Dataset 6 loader, scoring up to a rigid transform, and SLAM on the real log."""
+
+from __future__ import annotations
+
+import gzip
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import slamlib as sl
+from slamlib.datasets.mrclam import MRCLAM_DT, MRCLAM_M, MRCLAM_Q, load_mrclam
+
+ORIGINAL = Path("/work/shared/data/mrclam/MRCLAM_Dataset6")
+#: Landmark sightings of robot 1 per landmark index 0..14 (subjects 6..20) over its whole log.
+ROBOT1_PER_LANDMARK = [73, 131, 84, 48, 50, 32, 88, 169, 140, 91, 140, 158, 115, 85, 130]
+
+
+@pytest.fixture(scope="module")
+def run1():
+    return load_mrclam(1)
+
+
+def _rot(a):
+    return np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+
+
+# --------------------------------------------------------------------------- loader
+def test_shapes_and_time_grid(run1):
+    T = run1.n_steps
+    assert run1.dt == MRCLAM_DT
+    assert run1.x_true.shape == (T + 1, 3) and run1.u.shape == (T, 2) and run1.t.shape == (T + 1,)
+    assert len(run1.z) == len(run1.ids) == T
+    np.testing.assert_allclose(np.diff(run1.t), run1.dt, rtol=0, atol=1e-9)
+    assert run1.t[0] == 0.0
+    np.testing.assert_array_equal(run1.x0, run1.x_true[0])
+    assert run1.landmarks.shape == (15, 2) and run1.landmark_std.shape == (15, 2)
+    # robot 1's Vicon track ends first (772 s after the Vicon start); its commands start 12.2 s in
+    assert 755.0 < run1.t[-1] <= 760.0
+    for z, i in zip(run1.z, run1.ids):
+        assert z.shape == (i.shape[0], 2) and i.dtype.kind == "i"
+
+
+def test_units_and_ranges(run1):
+    Z = np.concatenate(run1.z)
+    assert 0.9 < Z[:, 0].min() and Z[:, 0].max() < 9.0  # metres
+    assert np.all(np.abs(Z[:, 1]) < 0.65)  # radians: the camera sees about +-35 degrees
+    assert np.all(np.abs(run1.u[:, 0]) <= 0.1) and np.all(np.abs(run1.u[:, 1]) <= 0.45)  # m/s, rad/s
+    assert np.all((run1.x_true[:, 2] >= -np.pi) & (run1.x_true[:, 2] < np.pi))
+    lo, hi = run1.x_true[:, :2].min(axis=0), run1.x_true[:, :2].max(axis=0)
+    assert np.all(lo > [-1.0, -5.5]) and np.all(hi < [5.0, 6.5])  # inside the hall
+    # subject 6 (index 0) and 20 (index 14) from Landmark_Groundtruth.dat
+    np.testing.assert_allclose(run1.landmarks[0], [0.58831396, -4.28264845], atol=1e-8)
+    np.testing.assert_allclose(run1.landmarks[14], [1.24712229, 4.46500471], atol=1e-8)
+
+
+def test_barcode_mapping_counts():
+    run = load_mrclam(1)
+    # Robot1_Measurement.dat: 1942 records = 1534 landmarks + 407 robots (barcodes 14, 23, 32, 41)
+    # + 1 of barcode 43, which belongs to no subject
+    assert run.counts == {"landmark": 1534, "robot": 407, "unknown": 1, "outside": 0}
+    assert run.n_sightings == 1534
+    np.testing.assert_array_equal(np.bincount(np.concatenate(run.ids), minlength=15), ROBOT1_PER_LANDMARK)
+    run2 = load_mrclam(2)
+    assert run2.counts == {"landmark": 3239, "robot": 792, "unknown": 0, "outside": 0}
+
+
+def test_sightings_agree_with_vicon(run1):
+    # a wrong barcode -> landmark mapping or a wrong step assignment gives metre-scale residuals
+    res = sl.measurement_residuals(run1.x_true, run1.z, run1.ids, run1.landmarks)
+    assert res.shape == (1534, 2)
+    assert np.median(np.abs(res[:, 0])) < 0.10
+    assert np.median(np.abs(res[:, 1])) < 0.015
+    assert abs(np.mean(res[:, 1])) < 0.005
+
+
+def test_controls_agree_with_vicon(run1):
+    # averaged over 1 s, the commands match the Vicon motion to a few cm/s and rad/s
+    res = sl.control_residuals(run1.x_true, run1.u, run1.dt, window=10)
+    assert np.all(np.abs(res.mean(axis=0)) < [0.01, 0.01])
+    assert np.all(res.std(axis=0) < [0.03, 0.08])
+
+
+def test_t_max_and_dt_scale_M():
+    run = load_mrclam(1, dt=0.05, t_max=30.0)
+    assert run.n_steps == 600
+    np.testing.assert_allclose(run.M, MRCLAM_M * 2.0)
+    np.testing.assert_allclose(run.Q, MRCLAM_Q)
+    full = load_mrclam(1, dt=0.05)
+    np.testing.assert_array_equal(run.u, full.u[:600])
+    np.testing.assert_array_equal(run.x_true, full.x_true[:601])
+    M = np.diag([0.01, 0.02])
+    np.testing.assert_array_equal(load_mrclam(1, t_max=5.0, M=M).M, M)
+
+
+def test_run_is_read_only(run1):
+    with pytest.raises(ValueError):
+        run1.u[0, 0] = 1.0
+
+
+@pytest.mark.parametrize(
+    "kwargs, exc, match",
+    [
+        ({"robot": 3}, ValueError, "robot"),
+        ({"robot": 0}, ValueError, "robot"),
+        ({"robot": "1"}, TypeError, "robot"),
+        ({"robot": True}, TypeError, "robot"),
+        ({"dt": 0.0}, ValueError, "dt"),
+        ({"dt": 2.0}, ValueError, "dt"),
+        ({"t_max": 0.01}, ValueError, "t_max"),
+        ({"t_max": -1.0}, ValueError, "t_max"),
+        ({"M": np.eye(3)}, ValueError, "M"),
+        ({"Q": np.array([[1.0, 2.0], [2.0, 1.0]])}, ValueError, "Q"),
+        ({"data_dir": "/nonexistent/mrclam"}, FileNotFoundError, "data_dir"),
+    ],
+)
+def test_bad_arguments(kwargs, exc, match):
+    with pytest.raises(exc, match=match):
+        load_mrclam(**kwargs)
+
+
+def _write(path, rows, header="# a header line\n"):
+    with gzip.open(path, "wt") as f:
+        f.write(header + "".join("\t".join(str(v) for v in r) + "\n" for r in rows))
+
+
+@pytest.fixture
+def tiny(tmp_path):
+    """A hand-made log: known controls, two landmarks, unsorted and unknown sightings."""
+    _write(tmp_path / "Barcodes.dat.gz", [(1, 5), (2, 14)] + [(s, 100 + s) for s in range(6, 21)])
+    _write(tmp_path / "Landmark_Groundtruth.dat.gz",
+           [(s, float(s), 1.0, 1e-4, 1e-4) for s in range(20, 5, -1)])  # reversed order on purpose
+    # commands: 0.1 m/s from t=100.0, 0.3 m/s from t=100.25, stop at t=101.0
+    _write(tmp_path / "Robot1_Odometry.dat.gz", [(100.0, 0.1, 0.0), (100.25, 0.3, 0.0), (101.0, 0.0, 0.0)])
+    _write(tmp_path / "Robot1_Groundtruth.dat.gz",
+           [(99.9 + 0.1 * k, 0.01 * k, 0.0, 0.0) for k in range(15)])
+    _write(tmp_path / "Robot1_Measurement.dat.gz", [
+        (100.52, 106, 6.0, 0.1),   # landmark 0, nearest step end t=0.5 -> step 4
+        (100.26, 120, 14.0, 3.5),  # landmark 14, step 2 (after 0.3 s); bearing 3.5 is wrapped
+        (100.31, 5, 1.0, 0.0),     # robot 1's own barcode: skipped as a robot
+        (100.40, 77, 2.0, 0.0),    # barcode of no subject: skipped
+        (99.0, 107, 7.0, 0.0),     # before the start: outside
+    ])
+    return tmp_path
+
+
+def test_tiny_log(tiny):
+    run = load_mrclam(1, dt=0.1, data_dir=tiny)
+    assert run.n_steps == 10
+    assert run.t_start == pytest.approx(100.0)
+    np.testing.assert_allclose(run.landmarks[:, 0], np.arange(6, 21))
+    # zero-order hold averaged per step: step 2 covers [0.2, 0.3): half at 0.1, half at 0.3
+    np.testing.assert_allclose(run.u[:, 0], [0.1, 0.1, 0.2, 0.3, 0.3, 0.3, 0.3, 0.3, 0.3, 0.3], atol=1e-12)
+    assert run.counts == {"landmark": 2, "robot": 1, "unknown": 1, "outside": 1}
+    assert [k for k, i in enumerate(run.ids) if i.size] == [2, 4]
+    np.testing.assert_array_equal(run.ids[2], [14])
+    np.testing.assert_array_equal(run.ids[4], [0])
+    np.testing.assert_allclose(run.z[2], [[14.0, 3.5 - 2 * np.pi]])
+    np.testing.assert_allclose(run.x_true[:, 0], 0.01 + 0.1 * np.arange(11) * 0.1, atol=1e-12)
+
+
+def test_malformed_file(tiny):
+    _write(tiny / "Robot1_Odometry.dat.gz", [(100.0, 0.1), (101.0, 0.2)])
+    with pytest.raises(ValueError, match="Robot1_Odometry.*3 columns"):
+        load_mrclam(1, data_dir=tiny)
+    (tiny / "Robot1_Odometry.dat.gz").unlink()
+    with pytest.raises(FileNotFoundError, match="Robot1_Odometry"):
+        load_mrclam(1, data_dir=tiny)
+
+
+@pytest.mark.skipif(not ORIGINAL.is_dir(), reason="the original MRCLAM Dataset 6 folder is not on this machine")
+def test_shipped_subset_matches_original():
+    ours, orig = load_mrclam(1), load_mrclam(1, data_dir=ORIGINAL)
+    T = ours.n_steps
+    np.testing.assert_allclose(ours.u, orig.u[:T], atol=1e-12)  # change points only: lossless
+    assert all(np.array_equal(a, b) for a, b in zip(ours.ids, orig.ids[:T]))
+    # ground truth thinned to 10 Hz: within 1 cm and 0.05 rad of the 60 Hz track
+    assert np.abs(ours.x_true[:, :2] - orig.x_true[:T + 1, :2]).max() < 0.01
+    assert np.abs(sl.angle_diff(ours.x_true[:, 2], orig.x_true[:T + 1, 2])).max() < 0.05
+
+
+# --------------------------------------------------------------------------- alignment and scores
+def test_align_recovers_rigid_transform():
+    rng = np.random.default_rng(0)
+    P = rng.uniform(-5, 5, size=(50, 2))
+    R, t = _rot(2.5), np.array([1.5, -3.0])
+    R_hat, t_hat = sl.align_se2(P, P @ R.T + t)
+    np.testing.assert_allclose(R_hat, R, atol=1e-12)
+    np.testing.assert_allclose(t_hat, t, atol=1e-12)
+    # with noise the fit is close and the residual is what the noise leaves
+    noisy = P @ R.T + t + rng.normal(0, 0.01, P.shape)
+    R_hat, t_hat = sl.align_se2(P, noisy)
+    np.testing.assert_allclose(R_hat, R, atol=5e-3)
+    np.testing.assert_allclose(t_hat, t, atol=5e-3)
+
+
+def test_align_excludes_reflections():
+    rng = np.random.default_rng(1)
+    P = rng.uniform(-1, 1, size=(20, 2))
+    R, _ = sl.align_se2(P, P * [1.0, -1.0])  # a mirror image: best proper rotation instead
+    assert np.linalg.det(R) == pytest.approx(1.0, abs=1e-12)
+    np.testing.assert_allclose(R.T @ R, np.eye(2), atol=1e-12)
+
+
+def test_align_rejects_degenerate_input():
+    with pytest.raises(ValueError, match="coincide"):
+        sl.align_se2(np.ones((5, 2)), np.zeros((5, 2)))
+    with pytest.raises(ValueError, match="at least 2"):
+        sl.align_se2(np.ones((1, 2)), np.zeros((1, 2)))
+    with pytest.raises(ValueError, match="true_xy"):
+        sl.align_se2(np.ones((3, 2)), np.zeros((4, 2)))
+
+
+def test_apply_se2_poses_and_points():
+    R, t = _rot(np.pi / 2), np.array([1.0, 0.0])
+    np.testing.assert_allclose(sl.apply_se2(R, t, [[1.0, 0.0, 3.0]]), [[1.0, 1.0, 3.0 + np.pi / 2 - 2 * np.pi]])
+    np.testing.assert_allclose(sl.apply_se2(R, t, [2.0, 0.0]), [1.0, 2.0], atol=1e-15)
+    with pytest.raises(ValueError, match="R"):
+        sl.apply_se2(np.diag([1.0, -1.0]), t, [0.0, 0.0])
+    with pytest.raises(ValueError, match="x"):
+        sl.apply_se2(R, t, np.zeros((3, 4)))
+
+
+def _wiggly_path(seed=0, T=300):
+    rng = np.random.default_rng(seed)
+    u = np.column_stack([np.full(T, 0.5), rng.normal(0, 0.3, T)])
+    return sl.dead_reckoning([0.0, 0.0, 0.0], u, 0.1)
+
+
+def test_ate_zero_and_invariant_to_rigid_transform():
+    true = _wiggly_path()
+    s0 = sl.score_trajectory(true, true)
+    assert s0.ate == pytest.approx(0.0, abs=1e-12) and s0.heading_rmse == pytest.approx(0.0, abs=1e-12)
+    est = true + np.random.default_rng(2).normal(0, [0.05, 0.05, 0.02], true.shape)
+    ref = sl.score_trajectory(est, true)
+    moved = sl.apply_se2(_rot(-1.2), np.array([4.0, 7.0]), est)
+    again = sl.score_trajectory(moved, true)
+    assert again.ate == pytest.approx(ref.ate, rel=1e-9)
+    assert again.heading_rmse == pytest.approx(ref.heading_rmse, rel=1e-9)
+    assert 0.03 < ref.ate < 0.1
+    # without alignment the moved estimate is metres off
+    assert sl.score_trajectory(moved, true, align=False).ate > 3.0
+    # the returned transform undoes the motion
+    np.testing.assert_allclose(sl.apply_se2(again.R, again.t, moved)[:, :2],
+                               sl.apply_se2(ref.R, ref.t, est)[:, :2], atol=1e-9)
+
+
+def test_landmarks_scored_in_the_trajectory_frame():
+    true = _wiggly_path(3)
+    lm = np.random.default_rng(4).uniform(-5, 5, size=(8, 2))
+    R, t = _rot(0.4), np.array([-2.0, 1.0])
+    # path and map moved together: both perfect after the trajectory's alignment
+    row = sl.score_run("moved", sl.apply_se2(R, t, true), true, landmarks_est=sl.apply_se2(R, t, lm), landmarks_true=lm)
+    assert row.ate == pytest.approx(0.0, abs=1e-9) and row.landmark_rmse == pytest.approx(0.0, abs=1e-9)
+    assert (row.n_landmarks, row.n_matched) == (8, 8)
+    # a map rotated relative to its own path is wrong, even though a fit on the map alone would hide it
+    rot_map = sl.apply_se2(R, t, lm)
+    row = sl.score_run("map off", true, true, landmarks_est=rot_map, landmarks_true=lm)
+    assert row.landmark_rmse > 1.0
+    Rm, tm = sl.align_se2(rot_map, lm)
+    assert sl.score_landmarks(rot_map, lm, transform=(Rm, tm)) == pytest.approx(0.0, abs=1e-9)
+    # seen selects rows; None means no alignment
+    seen = np.arange(8) < 3
+    est = lm + 0.1
+    assert sl.score_landmarks(est, lm, transform=None, seen=seen) == pytest.approx(np.sqrt(0.02))
+    with pytest.raises(ValueError, match="seen"):
+        sl.score_landmarks(est, lm, transform=None, seen=np.ones(3, dtype=bool))
+    with pytest.raises(TypeError, match="transform"):
+        sl.score_landmarks(est, lm, transform="identity")
+
+
+def test_match_landmarks_unknown_order():
+    lm = np.random.default_rng(5).uniform(-5, 5, size=(6, 2))
+    perm = np.array([3, 0, 5, 1, 4, 2])
+    est = np.vstack([lm[perm] + 0.01, [[50.0, 50.0]]])  # plus one spurious landmark far away
+    ei, ti = sl.match_landmarks(est, lm, max_dist=1.0)
+    np.testing.assert_array_equal(ti, np.arange(6))
+    np.testing.assert_array_equal(perm[ei], ti)
+    row = sl.score_run("unknown", _wiggly_path(), _wiggly_path(), landmarks_est=est, landmarks_true=lm,
+                       match=True, max_dist=1.0)
+    assert (row.n_landmarks, row.n_matched) == (7, 6)
+    assert row.landmark_rmse == pytest.approx(0.01 * np.sqrt(2), rel=1e-9)
+
+
+def test_format_score_table():
+    rows = [sl.RunScore("dead reckoning", 2.1234, 0.5, float("nan"), 0, 0),
+            sl.RunScore("EKF", 0.2049, np.radians(6.04), 0.1251, 15, 15)]
+    text = sl.format_score_table(rows).splitlines()
+    assert len(text) == 3
+    assert text[1].split() == ["dead", "reckoning", "2.12", "28.6", "-", "-"]
+    assert text[2].split() == ["EKF", "0.20", "6.0", "0.13", "15/15"]
+    with pytest.raises(TypeError, match="RunScore"):
+        sl.format_score_table([(1, 2)])
+
+
+def test_dead_reckoning_equals_step_by_step():
+    rng = np.random.default_rng(6)
+    u = np.column_stack([rng.uniform(-0.2, 0.5, 400), rng.normal(0, 1.0, 400)])
+    u[::7, 1] = 0.0  # straight-line steps too
+    x0 = np.array([1.0, -2.0, 3.0])
+    x = x0.copy()
+    loop = [x]
+    for uk in u:
+        x = sl.velocity_motion(x, uk, 0.1)[0]
+        loop.append(x)
+    loop = np.array(loop)
+    out = sl.dead_reckoning(x0, u, 0.1)
+    assert out.shape == (401, 3)
+    np.testing.assert_allclose(out[:, :2], loop[:, :2], atol=1e-10)
+    np.testing.assert_allclose(sl.angle_diff(out[:, 2], loop[:, 2]), 0.0, atol=1e-10)
+    assert np.all((out[:, 2] >= -np.pi) & (out[:, 2] < np.pi))
+    np.testing.assert_array_equal(sl.dead_reckoning(x0, np.zeros((0, 2)), 0.1), x0[None])
+    with pytest.raises(ValueError, match="u"):
+        sl.dead_reckoning(x0, np.zeros((5, 3)), 0.1)
+    with pytest.raises(ValueError, match="dt"):
+        sl.dead_reckoning(x0, u, -0.1)
+
+
+def test_residuals_vanish_on_exact_data():
+    run = sl.simulate_landmark_run(np.array([[3.0, 1.0], [-1.0, 4.0]]), sl.loop_controls(50, v=1.0, omega=0.3), 0.1,
+                                   x0=np.zeros(3), M=np.zeros((2, 2)), Q=np.zeros((2, 2)),
+                                   rng=np.random.default_rng(7))
+    res = sl.measurement_residuals(run.x_true, run.z, run.ids, run.landmarks)
+    assert res.shape == (sum(len(i) for i in run.ids), 2) and res.shape[0] > 50
+    np.testing.assert_allclose(res, 0.0, atol=1e-12)
+    np.testing.assert_allclose(sl.control_residuals(run.x_true, run.u, run.dt), 0.0, atol=1e-9)
+    with pytest.raises(ValueError, match="window"):
+        sl.control_residuals(run.x_true, run.u, run.dt, window=0)
+
+
+# --------------------------------------------------------------------------- SLAM on the real log
+@pytest.fixture(scope="module")
+def window():
+    """Robot 1, first 400 s: dead reckoning drifts to an aligned ATE of about 1 m."""
+    run = load_mrclam(1, t_max=400.0)
+    dr = sl.score_trajectory(sl.dead_reckoning(run.x0, run.u, run.dt), run.x_true)
+    assert dr.ate > 0.8
+    return run, dr
+
+
+@pytest.mark.slow
+def test_ekf_slam_beats_dead_reckoning(window):
+    run, dr = window
+    res = sl.run_ekf_slam(run, known=True)
+    assert res.x.shape == run.x_true.shape
+    score = sl.score_trajectory(res.x, run.x_true)
+    assert score.ate < 0.5 * dr.ate
+    lm = np.zeros((15, 2))
+    lm[res.landmark_ids] = res.landmarks
+    seen = np.zeros(15, dtype=bool)
+    seen[res.landmark_ids] = True
+    assert seen.sum() >= 12
+    assert sl.score_landmarks(lm, run.landmarks, transform=score, seen=seen) < 0.5
+
+
+@pytest.mark.slow
+def test_fastslam_beats_dead_reckoning(window):
+    run, dr = window
+    res = sl.run_fastslam(run, n_particles=20, rng=np.random.default_rng(0), known=True)
+    score = sl.score_trajectory(res.x_est, run.x_true)
+    assert score.ate < 0.5 * dr.ate
+    assert sl.score_landmarks(res.landmarks, run.landmarks, transform=score, seen=res.seen) < 0.5
