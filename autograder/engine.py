@@ -274,7 +274,7 @@ def _in_blocked_tree(filename):
     return any(full.startswith(p) for p in BLOCKED_PATHS)
 
 
-def grade(path, exercise=None, *, limits=None, workers=None, seed=None):
+def grade(path, exercise=None, *, limits=None, workers=None, seed=None, functions=None):
     """Grade one submission file.
 
     Parameters
@@ -289,6 +289,9 @@ def grade(path, exercise=None, *, limits=None, workers=None, seed=None):
         Functions graded in parallel (each in its own child); default: CPU count.
     seed : int, optional
         Base seed of the test inputs (the exercise's fixed seed by default).
+    functions : list of str, optional
+        Grade only these contract functions (for re-grading one function; the
+        results then hold only their tests).
 
     Returns
     -------
@@ -297,7 +300,7 @@ def grade(path, exercise=None, *, limits=None, workers=None, seed=None):
     t0 = time.perf_counter()
     limits = limits or Limits()
     name = os.path.basename(str(path))
-    result = GradeResult(name, exercise)
+    result = GradeResult(name, None)
     try:
         sub = load_submission(path)
     except SubmissionError as exc:
@@ -331,14 +334,20 @@ def grade(path, exercise=None, *, limits=None, workers=None, seed=None):
         result.tests = _zero_all(ex, "FAILED\n" + msg)
         result.execution_time = time.perf_counter() - t0
         return result
-    if not sub.units:
+    if not any(u["source"].strip() for u in sub.units):
         msg = "The submission contains no code."
         result.error = msg
         result.tests = _zero_all(ex, "FAILED\n" + msg)
         result.execution_time = time.perf_counter() - t0
         return result
     forbidden = forbidden_usage(sub.units, list(ex.functions))
-    functions = list(ex.functions)
+    if functions:
+        unknown = [f for f in functions if f not in ex.functions]
+        if unknown:
+            raise ValueError(f"not functions of {ex.name}: {', '.join(unknown)}")
+        functions = [f for f in ex.functions if f in functions]
+    else:
+        functions = list(ex.functions)
     workers = workers or min(len(functions), os.cpu_count() or 2)
     state = {}
     if workers <= 1:

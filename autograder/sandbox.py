@@ -506,9 +506,10 @@ def describe_isolation(iso):
         if "uid_error" in iso:
             lines.append(f"privileges: root, and dropping them FAILED ({iso['uid_error']}): RLIMIT_NPROC does not apply")
         else:
-            lines.append(f"privileges: dropped from root to unprivileged uid {iso.get('uid')} (unique per child)")
+            lines.append("privileges: dropped from root to a fresh unprivileged uid/gid per child (RLIMIT_NPROC applies; "
+                         "children cannot signal each other or the grader)")
     else:
-        lines.append(f"privileges: runs as the grader's own uid {iso.get('uid')} (not root)")
+        lines.append("privileges: runs as the grader's own (unprivileged) user" + (", in a new user namespace" if iso.get("userns") else ""))
     rl = iso.get("rlimits") or {}
     lines.append("rlimits: " + ", ".join(f"{k[7:]}={v}" for k, v in rl.items()))
     lines.append("audit hook: " + ("imports of slamlib/autograder, their files, processes, sockets, ctypes lookups refused"

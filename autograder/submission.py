@@ -74,20 +74,14 @@ def _strip_magics(source, label, notes):
     for line in lines:
         if _MAGIC_LINE.match(line):
             dropped += 1
-            # keep the line count so that error messages point at the right line
-            out.append("pass  # " + line.strip().replace("\n", " ") + "\n" if _indent_needed(out) else "\n")
+            # a `pass` at the same indentation keeps blocks valid and line numbers unchanged
+            indent = line[: len(line) - len(line.lstrip())]
+            out.append(f"{indent}pass  # IPython line left out\n")
         else:
             out.append(line)
     if dropped:
         notes.append(f"{label}: {dropped} IPython magic/shell line{'s' if dropped > 1 else ''} left out")
     return "".join(out)
-
-
-def _indent_needed(previous):
-    for line in reversed(previous):
-        if line.strip():
-            return line.rstrip().endswith(":")
-    return False
 
 
 def load_submission(path):

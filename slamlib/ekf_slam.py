@@ -67,10 +67,10 @@ __all__ = [
 ]
 
 #: Default new-landmark threshold ``alpha`` on the squared Mahalanobis distance:
-#: the 99.99 % quantile of the chi-square distribution with 2 degrees of freedom,
-#: ``-2 ln(1e-4)`` (about 18.4). A run makes hundreds of measurements, so a
-#: 99.9 % gate would already split a landmark in two now and then.
-DEFAULT_ALPHA = float(-2.0 * np.log(1e-4))
+#: the 99.999 % quantile of the chi-square distribution with 2 degrees of freedom,
+#: ``-2 ln(1e-5)`` (about 23.0). A run makes thousands of measurements, so a
+#: 99 % or 99.9 % gate would split landmarks in two now and then.
+DEFAULT_ALPHA = float(-2.0 * np.log(1e-5))
 #: Default prior variance (m^2) of a landmark before its first sighting (the
 #: finite stand-in for the infinite ``Sigma_0`` entries of Algorithm 1).
 DEFAULT_PRIOR_VAR = 1e4

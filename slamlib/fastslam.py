@@ -124,7 +124,7 @@ def _innovation(H, Sigma, Q):
     a01 = h00 * s01 + h01 * s11
     a10 = h10 * s00 + h11 * s01
     a11 = h10 * s01 + h11 * s11
-    # S = H Sigma H^T + Q  (Table 13.1 line 14, Table 13.2 line 7; Thrun calls it Q)
+    # S = H Sigma H^T + Q  (Table 13.1 line 14 and Table 13.2, where Thrun calls it Q)
     S00 = a00 * h00 + a01 * h01 + Q[0, 0]
     S01 = a00 * h10 + a01 * h11 + 0.5 * (Q[0, 1] + Q[1, 0])
     S11 = a10 * h10 + a11 * h11 + Q[1, 1]
@@ -140,22 +140,22 @@ def _log_gauss_2(nu0, nu1, C00, C01, C11):
 
 def _update_core(x, mu, Sigma, z, Q, weight_cov="S"):
     """Per-particle landmark EKF update and log importance weight (Table 13.1 lines 12-18)."""
-    z_hat, _, H = landmark_measurement(x, mu)  # z_hat = h(mu_j, x), H = h'(mu_j, x)  (lines 12-13)
+    z_hat, _, H = landmark_measurement(x, mu)  # z_hat = h(mu_j, x), H = h'(mu_j, x)  (Table 13.1 lines 12-13)
     nu0 = z[..., 0] - z_hat[..., 0]
     nu1 = wrap_angle(z[..., 1] - z_hat[..., 1])
     (a00, a01, a10, a11), (S00, S01, S11), (s00, s01, s11) = _innovation(H, Sigma, Q)
     det = S00 * S11 - S01 * S01
     i00, i01, i11 = S11 / det, -S01 / det, S00 / det  # S^-1
-    # K = Sigma H^T S^-1 = (H Sigma)^T S^-1  (line 15)
+    # K = Sigma H^T S^-1 = (H Sigma)^T S^-1  (Table 13.1 line 15)
     K00 = a00 * i00 + a10 * i01
     K01 = a00 * i01 + a10 * i11
     K10 = a01 * i00 + a11 * i01
     K11 = a01 * i01 + a11 * i11
     mu_new = np.empty(z_hat.shape)
-    # mu = mu + K (z - z_hat)  (line 16)
+    # mu = mu + K (z - z_hat)  (Table 13.1 line 16)
     mu_new[..., 0] = mu[..., 0] + K00 * nu0 + K01 * nu1
     mu_new[..., 1] = mu[..., 1] + K10 * nu0 + K11 * nu1
-    # Sigma = (I - K H) Sigma = Sigma - K (H Sigma)  (line 17), symmetric
+    # Sigma = (I - K H) Sigma = Sigma - K (H Sigma)  (Table 13.1 line 17), symmetric
     Sigma_new = np.empty(H.shape)
     Sigma_new[..., 0, 0] = s00 - (K00 * a00 + K01 * a10)
     Sigma_new[..., 0, 1] = Sigma_new[..., 1, 0] = s01 - 0.5 * (K00 * a01 + K01 * a11 + K10 * a00 + K11 * a10)
@@ -575,7 +575,7 @@ def _update_known_core(state, z, ids, Q, weight_cov, copy=True):
                 mu[:, jk], Sigma[:, jk] = mu_u, Sigma_u
                 log_w = log_w + lw.sum(axis=1)
             if fresh.any():
-                # mu_j = h^-1(z, x), Sigma_j = H^-1 Q H^-T; w = p0, equal for all particles  (lines 7-10)
+                # mu_j = h^-1(z, x), Sigma_j = H^-1 Q H^-T; w = p0, equal for all particles  (Table 13.1 lines 7-10)
                 mu[:, j[fresh]], Sigma[:, j[fresh]] = _init_core(x, zk[fresh], Q)
         else:
             mu_init, Sigma_init = _init_core(x, zk, Q)
@@ -585,7 +585,7 @@ def _update_known_core(state, z, ids, Q, weight_cov, copy=True):
             mu_upd, Sigma_upd, lw = _update_core(x, mu_old, Sigma_old, zk, Q, weight_cov)
             mu[:, j] = np.where(new[..., None], mu_old, mu_upd)
             Sigma[:, j] = np.where(new[..., None, None], Sigma_old, Sigma_upd)
-            log_w = log_w + np.where(new, 0.0, lw).sum(axis=1)  # new: w = p0 for all  (line 10)
+            log_w = log_w + np.where(new, 0.0, lw).sum(axis=1)  # new: w = p0 for all  (Table 13.1 line 10)
         seen[:, j] = True
         counts[:, j] += 1
     return FastSLAMState(state.poses, mu, Sigma, seen, counts, _normalised(log_w))
@@ -612,7 +612,7 @@ def fastslam_default_p0(Q, gate=13.815510557964274):
 
     References
     ----------
-    Thrun, Burgard & Fox (2005), Table 13.2 line 11 (``w_{N+1} = p0``).
+    Thrun, Burgard & Fox (2005), Table 13.2 (the new-feature likelihood ``p0``).
     """
     Q = _check_Q(Q)
     gate = as_scalar(gate, "gate", positive=True)
@@ -639,7 +639,7 @@ def fastslam_update_unknown(state, z, Q, *, p0=None, weight_cov="S", max_range=N
         association itself always uses ``S``.
     max_range : float, optional, keyword-only
         Sensor range. When given, the landmark counters are maintained as in
-        Table 13.2 lines 23-31: a landmark inside the perceptual range
+        Table 13.2: a landmark inside the perceptual range
         (``r <= max_range`` and ``|phi| <= fov / 2``) that no measurement of
         the step matched loses one count and is removed below zero.
     fov : float, optional, keyword-only
@@ -693,48 +693,58 @@ def _update_unknown_core(state, z, Q, log_p0, weight_cov, max_range, half_fov, c
     matched = np.zeros_like(seen)
     x = state.poses
     rows = np.arange(M)
+    used = np.flatnonzero(seen.any(axis=0))
+    # slots at and beyond hi stay empty in every particle during this step (a new landmark takes the
+    # particle's first free slot, at most one more per measurement)
+    hi = min(seen.shape[1], (int(used[-1]) + 1 if used.size else 0) + z.shape[0])
+    # the pose is fixed within the step: predict every landmark once, then refresh only what changes
+    # z_hat_j = h(mu_j, x), H_j = h'(mu_j, x), S_j = H_j Sigma_j H_j^T + Q for every landmark j  (Table 13.2)
+    mu_safe = np.where(seen[:, :hi, None], mu[:, :hi], x[:, None, :2] + 1.0)  # keep h defined on empty slots
+    z_hat, _, H = landmark_measurement(x[:, None, :], mu_safe)
+    _, S_parts, _ = _innovation(H, Sigma[:, :hi], Q)
+    S = np.stack(S_parts, axis=-1)  # (M, hi, 3): S00, S01, S11
+
+    def refresh(k, jk):
+        zh, _, Hk = landmark_measurement(x[k], mu[k, jk])
+        z_hat[k, jk] = zh
+        S[k, jk] = np.stack(_innovation(Hk, Sigma[k, jk], Q)[1], axis=-1)
+
     for zk in z:
-        used = np.flatnonzero(seen.any(axis=0))
-        hi = int(used[-1]) + 1 if used.size else 0  # slots at and beyond hi are empty in every particle
-        if hi:
-            # placeholder means of unseen slots are moved off the pose so that h stays defined
-            sn = seen[:, :hi]
-            mu_safe = np.where(sn[..., None], mu[:, :hi], x[:, None, :2] + 1.0)
-            z_hat, _, H = landmark_measurement(x[:, None, :], mu_safe)  # (Table 13.2 lines 5-6)
-            _, (S00, S01, S11), _ = _innovation(H, Sigma[:, :hi], Q)  # S_j  (Table 13.2 line 7)
-            nu1 = wrap_angle(zk[1] - z_hat[..., 1])
-            ll = np.where(sn, _log_gauss_2(zk[0] - z_hat[..., 0], nu1, S00, S01, S11), -np.inf)  # w_j  (line 8)
-            j = np.argmax(ll, axis=1)  # ties: smallest index
-            best = ll[rows, j]
-        else:
-            j = np.zeros(M, dtype=np.int64)
-            best = np.full(M, -np.inf)
-        is_new = best < log_p0  # c_hat = N + 1 when p0 beats every w_j  (Table 13.2 lines 11-12)
+        sn = seen[:, :hi]
+        nu1 = wrap_angle(zk[1] - z_hat[..., 1])
+        # w_j = N(nu_j; 0, S_j)  (Table 13.2)
+        ll = np.where(sn, _log_gauss_2(zk[0] - z_hat[..., 0], nu1, S[..., 0], S[..., 1], S[..., 2]), -np.inf)
+        j = np.argmax(ll, axis=1)  # ties: smallest index
+        best = ll[rows, j]
+        is_new = best < log_p0  # c_hat = new landmark when p0 beats every w_j  (Table 13.2)
         old = ~is_new
         if old.any():
             k, jk = rows[old], j[old]
-            mu_n, Sigma_n, lw = _update_core(x[k], mu[k, jk], Sigma[k, jk], zk, Q, weight_cov)  # (lines 17-20)
+            # EKF update of landmark c_hat  (Table 13.2)
+            mu_n, Sigma_n, lw = _update_core(x[k], mu[k, jk], Sigma[k, jk], zk, Q, weight_cov)
             mu[k, jk], Sigma[k, jk] = mu_n, Sigma_n
-            counts[k, jk] += 1  # i_j = i_j + 1  (line 21)
+            counts[k, jk] += 1  # i_j = i_j + 1  (Table 13.2)
             matched[k, jk] = True
-            # w = w_c_hat  (line 10); the erratum swaps its covariance for Q
+            # w = max_j w_j  (Table 13.2); the erratum swaps its covariance for Q
             log_w[k] += best[old] if weight_cov == "S" else lw
+            refresh(k, jk)
         if is_new.any():
             k = rows[is_new]
-            slot = np.argmin(seen[k], axis=1)  # first free slot (capacity ensured above)
-            mu_i, Sigma_i = _init_core(x[k], zk, Q)  # (Table 13.2 lines 13-15)
+            slot = np.argmin(seen[k], axis=1)  # first free slot (slot < hi, see above)
+            mu_i, Sigma_i = _init_core(x[k], zk, Q)  # mu = h^-1(z, x), Sigma = H^-1 Q H^-T  (Table 13.2)
             mu[k, slot], Sigma[k, slot] = mu_i, Sigma_i
             seen[k, slot] = True
-            counts[k, slot] = 1  # i_{N+1} = 1  (line 16)
+            counts[k, slot] = 1  # i_{N+1} = 1  (Table 13.2)
             matched[k, slot] = True
-            log_w[k] += log_p0  # w = p0  (line 11)
+            log_w[k] += log_p0  # w = p0  (Table 13.2)
+            refresh(k, slot)
     if max_range is not None:
         mu_safe = np.where(seen[..., None], mu, x[:, None, :2] + 1.0)
         z_hat, _, _ = landmark_measurement(x[:, None, :], mu_safe)
         in_view = seen & (z_hat[..., 0] <= max_range) & (np.abs(z_hat[..., 1]) <= half_fov)
         miss = in_view & ~matched
-        counts = counts - miss  # i_j = i_j - 1 for unmatched landmarks in range  (lines 25-27)
-        drop = seen & (counts < 0)  # discard landmark j  (line 28)
+        counts = counts - miss  # i_j = i_j - 1 for unmatched landmarks in range  (Table 13.2)
+        drop = seen & (counts < 0)  # discard landmark j when i_j < 0  (Table 13.2)
         seen = seen & ~drop
         counts = np.where(seen, counts, 0)
     return FastSLAMState(x, mu, Sigma, seen, counts, _normalised(log_w))

@@ -11,7 +11,8 @@
   filter step (prediction plus every measurement of the step, applied one after
   the other) with known and with unknown correspondences (Tables 7.2, 7.3);
   :func:`ekf_localization_run` runs either over a simulated
-  :class:`~slamlib.sim.LandmarkRun`.
+  :class:`~slamlib.sim.LandmarkRun`, :func:`ekf_localization_batch` many runs
+  at once (for Monte-Carlo studies).
 
 Notation of the Kalman filter (Table 3.1 writes the same filter as
 ``A_t, B_t, R_t, C_t, Q_t``):
@@ -66,6 +67,7 @@ __all__ = [
     "ekf_localization_unknown",
     "EKFRunResult",
     "ekf_localization_run",
+    "ekf_localization_batch",
 ]
 
 #: Default association gate on the squared Mahalanobis distance: the 99 %
@@ -135,7 +137,7 @@ def _check_batch(*named):
 
 
 def _T(A):
-    return np.swapaxes(A, -1, -2)
+    return A.swapaxes(-1, -2)
 
 
 def _sym(S):
@@ -679,3 +681,100 @@ def ekf_localization_run(run, *, known=True, mu0=None, Sigma0=None, M=None, Q=No
         mus[t + 1], Sigmas[t + 1] = mu, Sigma
         used.append(ids)
     return EKFRunResult(mus, Sigmas, tuple(used))
+
+
+def ekf_localization_batch(runs, *, mu0=None, Sigma0=None, M=None, Q=None):
+    """EKF localization with known correspondences over many runs at once.
+
+    The runs are filtered independently, but each prediction and each
+    measurement slot is one vectorised call over all runs, which makes
+    Monte-Carlo studies (NEES) fast. The result equals
+    :func:`ekf_localization_run` applied to each run in turn.
+
+    Parameters
+    ----------
+    runs : sequence of LandmarkRun
+        ``N`` runs with the same number of steps ``T`` and the same ``dt``
+        (landmarks, controls and measurements may differ).
+    mu0 : ndarray, shape (3,) or (N, 3), keyword-only, optional
+        Initial means; default to each run's ``x0``.
+    Sigma0 : ndarray, shape (3, 3) or (N, 3, 3), keyword-only, optional
+        Initial covariances; default to ``diag(0.01, 0.01, 0.001)``.
+    M, Q : ndarray, shape (2, 2) or (N, 2, 2), keyword-only, optional
+        Noise covariances assumed by the filter; default to each run's.
+
+    Returns
+    -------
+    EKFRunResult
+        ``(mu (N, T+1, 3), Sigma (N, T+1, 3, 3), ids)``, ``ids[n]`` the
+        correspondences of run ``n``.
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Table 7.2.
+    """
+    runs = list(runs)
+    if not runs:
+        raise ValueError("runs must hold at least one LandmarkRun")
+    for k, run in enumerate(runs):
+        for attr in ("landmarks", "dt", "x0", "u", "z", "ids", "M", "Q"):
+            if not hasattr(run, attr):
+                raise TypeError(f"runs[{k}] must be a LandmarkRun (missing attribute {attr!r})")
+    N = len(runs)
+    u = np.stack([as_array(r.u, f"runs[{k}].u", (None, 2)) for k, r in enumerate(runs)]) if len(
+        {np.shape(r.u) for r in runs}) == 1 else None
+    if u is None:
+        raise ValueError("runs must all have the same number of steps")
+    T = u.shape[1]
+    dt = as_scalar(runs[0].dt, "runs[0].dt", nonnegative=True)
+    if any(float(r.dt) != dt for r in runs):
+        raise ValueError("runs must all have the same dt")
+
+    def per_run(value, default, name, shape):
+        if value is None:
+            return np.stack([as_array(default(r), f"runs[{k}].{name}", shape) for k, r in enumerate(runs)])
+        arr = as_array(value, name, ndim=(len(shape), len(shape) + 1))
+        if arr.shape[-len(shape):] != shape or (arr.ndim > len(shape) and arr.shape[0] != N):
+            raise ValueError(f"{name} must have shape {shape} or ({N}, {', '.join(map(str, shape))}), got {arr.shape}")
+        return np.broadcast_to(arr, (N,) + shape).copy()
+
+    mu = per_run(mu0, lambda r: r.x0, "mu0", (3,))
+    Sigma = per_run(Sigma0, lambda r: np.diag([0.01, 0.01, 0.001]), "Sigma0", (3, 3))
+    Mf = per_run(M, lambda r: r.M, "M", (2, 2))
+    Qf = per_run(Q, lambda r: r.Q, "Q", (2, 2))
+    _as_cov(Sigma, "Sigma0", 3)
+    _as_cov(Mf, "M", 2)
+    _as_cov(Qf, "Q", 2, definite=True)
+
+    # pack the measurements of step t into slots: z (N, K_max, 2), landmark (N, K_max, 2), valid (N, K_max)
+    packed = []
+    for t in range(T):
+        zs = [_as_measurements(r.z[t], f"runs[{k}].z[{t}]") for k, r in enumerate(runs)]
+        ids = [_as_ids(r.ids[t], z.shape[0], r.landmarks.shape[0]) for r, z in zip(runs, zs)]
+        k_max = max(z.shape[0] for z in zs)
+        Z = np.zeros((N, k_max, 2))
+        Mk = np.zeros((N, k_max, 2))
+        valid = np.zeros((N, k_max), dtype=bool)
+        for n, (r, z, j) in enumerate(zip(runs, zs, ids)):
+            Z[n, : len(j)] = z
+            Mk[n, : len(j)] = np.asarray(r.landmarks)[j]
+            valid[n, : len(j)] = True
+        packed.append((Z, Mk, valid))
+
+    mus = np.empty((N, T + 1, 3))
+    Sigmas = np.empty((N, T + 1, 3, 3))
+    mus[:, 0], Sigmas[:, 0] = mu, Sigma
+    for t in range(T):
+        mu, Sigma = _ekf_predict(mu, Sigma, u[:, t], dt, Mf)  # (Table 7.2 lines 2-7)
+        Z, Mk, valid = packed[t]
+        for k in range(Z.shape[1]):  # the k-th measurement of every run that has one (line 10)
+            sel = valid[:, k]
+            if sel.all():
+                mu, Sigma = _ekf_update(mu, Sigma, Z[:, k], Mk[:, k], Qf)
+            else:
+                mu_s, Sigma_s = _ekf_update(mu[sel], Sigma[sel], Z[sel, k], Mk[sel, k], Qf[sel])
+                mu, Sigma = mu.copy(), Sigma.copy()
+                mu[sel], Sigma[sel] = mu_s, Sigma_s
+        mus[:, t + 1], Sigmas[:, t + 1] = mu, Sigma
+    ids = tuple(tuple(np.asarray(i, dtype=np.intp) for i in r.ids) for r in runs)
+    return EKFRunResult(mus, Sigmas, ids)

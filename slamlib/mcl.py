@@ -58,7 +58,6 @@ __all__ = [
     "MCLResult",
     "prepare_mcl",
     "odometry_steps",
-    "splice_log",
     "mcl_initialize",
     "scan_log_likelihood",
     "mcl_step",
@@ -194,25 +193,25 @@ class MCLParams:
         Used by :func:`kld_mcl_step`.
     """
 
-    n_particles: int = 5000
-    alpha: tuple[float, float, float, float] = (0.005, 0.0005, 0.01, 0.005)
+    n_particles: int = 10_000
+    alpha: tuple[float, float, float, float] = (0.05, 0.005, 0.05, 0.005)
     model: str = "likelihood_field"
     beam_step: int = 10
-    z_max: float = 15.0
-    sigma_hit: float = 0.2
+    z_max: float = 81.83
+    sigma_hit: float = 0.3
     lambda_short: float = 0.1
     w_hit: float = 0.85
     w_short: float = 0.05
     w_max: float = 0.05
     w_rand: float = 0.05
     max_dist: float = 2.0
-    likelihood_exponent: float = 0.5
+    likelihood_exponent: float = 0.2
     resample_threshold: float = 0.5
-    min_translation: float = 0.05
-    min_rotation: float = 0.05
+    min_translation: float = 0.2
+    min_rotation: float = 0.2
     sensor_offset: float = 0.25
-    occupied_threshold: float = 0.5
-    free_threshold: float = 0.2
+    occupied_threshold: float = 0.9
+    free_threshold: float = 0.1
     reject_unknown: bool = True
     augmented: AugmentedParams = field(default_factory=AugmentedParams)
     kld: KLDParams = field(default_factory=KLDParams)
@@ -276,7 +275,8 @@ class MCLState:
         Normalised log-weights (``logsumexp(log_weights) == 0``).
     w_slow, w_fast : float
         Long- and short-term averages of the per-beam measurement likelihood
-        (Augmented MCL, Table 8.3); 0 until the first update.
+        (Augmented MCL, Table 8.3); 0 until the first update, which sets both
+        to its average likelihood.
     """
 
     poses: np.ndarray
@@ -308,6 +308,13 @@ class MCLStepInfo(NamedTuple):
         Random particles added (Augmented MCL).
     w_avg : float
         Weighted average of the per-beam (geometric-mean) likelihood.
+    mean : ndarray, shape (3,)
+        Weighted mean pose of the particles after the measurement update,
+        before resampling and injection (the step's estimate).
+    spread : float
+        Weighted RMS distance of those particles from `mean` [m].
+    heading_spread : float
+        Circular standard deviation of their headings [rad].
     """
 
     ess: float
@@ -315,6 +322,9 @@ class MCLStepInfo(NamedTuple):
     resampled: bool
     n_injected: int
     w_avg: float
+    mean: np.ndarray
+    spread: float
+    heading_spread: float
 
 
 @dataclass(frozen=True)
@@ -339,13 +349,14 @@ class MCLResult:
         Number of particles.
     n_injected : ndarray of int, shape (S,)
         Random particles injected (Augmented MCL).
+    w_avg : ndarray, shape (S,)
+        Average per-beam measurement likelihood of every step.
     w_slow, w_fast : ndarray, shape (S,)
         The Augmented MCL averages after every step.
     snapshot_steps : ndarray of int, shape (N,)
         Steps at which particles were stored.
-    snapshots : list of ndarray, shape (M_i, 3)
-        Particles after the update of those steps (resampled to equal weights
-        when they were not).
+    snapshots : list of MCLState
+        Particle sets after those steps (usable as ``init`` of another run).
     final : MCLState
         Particle set after the last step.
     runtime : float
@@ -360,6 +371,7 @@ class MCLResult:
     ess: np.ndarray
     n_particles: np.ndarray
     n_injected: np.ndarray
+    w_avg: np.ndarray
     w_slow: np.ndarray
     w_fast: np.ndarray
     snapshot_steps: np.ndarray
@@ -422,7 +434,7 @@ def prepare_mcl(grid, params=None):
     return MCLModel(grid=grid, field=sensors.likelihood_field(grid, max_dist=params.max_dist, threshold=params.occupied_threshold), params=params)
 
 
-def odometry_steps(odom_poses, *, min_translation=0.05, min_rotation=0.05):
+def odometry_steps(odom_poses, *, min_translation=0.2, min_rotation=0.2):
     """Turn a log's odometry poses (one per scan) into filter steps.
 
     The first scan is always used, with a zero control. A later scan is used
@@ -470,53 +482,6 @@ def odometry_steps(odom_poses, *, min_translation=0.05, min_rotation=0.05):
     if index.size > 1:
         u[1:] = odometry_from_poses(odom[index[:-1]], odom[index[1:]])
     return index, u
-
-
-def splice_log(odom_poses, ranges, times, stop, resume):
-    """Cut a log to kidnap the robot: scans ``[0, stop)`` then ``[resume, L)``.
-
-    The odometry of the second part is re-expressed so that it continues
-    smoothly from the last kept pose: the robot's own odometry says it did not
-    move across the cut, while the scans come from somewhere else. Times are
-    shifted to stay increasing.
-
-    Parameters
-    ----------
-    odom_poses : ndarray, shape (L, 3)
-        Odometry pose at every scan.
-    ranges : ndarray, shape (L, K)
-        Range scans.
-    times : ndarray, shape (L,)
-        Time stamps of the scans [s].
-    stop : int
-        First scan left out, ``1 <= stop <= resume``.
-    resume : int
-        Scan the log resumes at, ``resume < L``.
-
-    Returns
-    -------
-    odom : ndarray, shape (stop + L - resume, 3)
-    ranges : ndarray, shape (stop + L - resume, K)
-    times : ndarray, shape (stop + L - resume,)
-        The spliced log.
-
-    References
-    ----------
-    Thrun, Burgard & Fox (2005), Sec. 8.3.5 (the kidnapped robot problem).
-    """
-    odom = as_array(odom_poses, "odom_poses", (None, 3))
-    L = odom.shape[0]
-    z = as_array(ranges, "ranges", (L, None))
-    t = as_array(times, "times", (L,))
-    stop = as_index(stop, "stop", L, lower=1)
-    resume = as_index(resume, "resume", L, lower=stop)
-    # same relative motion, applied from the last kept pose (Table 5.6 lines 5-7)
-    rel = odometry_from_poses(odom[resume], odom[resume:])
-    tail = odometry_motion(odom[stop - 1], rel)
-    dt = np.median(np.diff(t)) if L > 1 else 0.0
-    t_tail = t[resume:] - t[resume] + t[stop - 1] + dt
-    return (np.concatenate([odom[:stop], tail]), np.concatenate([z[:stop], z[resume:]]),
-            np.concatenate([t[:stop], t_tail]))
 
 
 def mcl_initialize(model, n=None, *, rng, poses=None):
@@ -649,6 +614,17 @@ def _update(state, poses, ll, n_used, model):
     return log_w, log_w_avg
 
 
+def _averages(state, w_avg, aug):
+    if state.w_slow == 0.0 and state.w_fast == 0.0:
+        # first update: start both averages at w_avg (Table 8.3 starts them at 0,
+        # which leaves w_slow lagging w_fast, and injection off, for ~1/alpha_slow steps)
+        return w_avg, w_avg
+    # w_slow += alpha_slow (w_avg - w_slow); w_fast += alpha_fast (w_avg - w_fast)  (Table 8.3 lines 10-11)
+    w_slow = state.w_slow + aug.alpha_slow * (w_avg - state.w_slow)
+    w_fast = state.w_fast + aug.alpha_fast * (w_avg - state.w_fast)
+    return w_slow, w_fast
+
+
 def _resample_mask(log_w, threshold):
     w = np.exp(log_w)
     ess = float(particle.effective_sample_size(w))
@@ -687,7 +663,8 @@ def mcl_step(state, u, ranges, angles, model, *, rng):
     -------
     state : MCLState
         Particles at ``t``: equally weighted if the step resampled, else
-        weighted. ``w_slow`` and ``w_fast`` are carried over unchanged.
+        weighted. ``w_slow`` and ``w_fast`` are updated as in Table 8.3 (but
+        not used), so that Augmented MCL can take over from this state.
     info : MCLStepInfo
         ESS, particle count, whether it resampled.
 
@@ -704,13 +681,16 @@ def mcl_step(state, u, ranges, angles, model, *, rng):
     state, u, ranges, angles, model = _check_step_args(state, u, ranges, angles, model, rng)
     poses, ll, n_used = _predict_and_weight(state, u, ranges, angles, model, rng)
     log_w, log_w_avg = _update(state, poses, ll, n_used, model)
+    summary = _summary(poses, log_w)
     w, ess, do = _resample_mask(log_w, model.params.resample_threshold)
     if do:
         # draw i with probability proportional to w_t^[i]  (Table 8.2 lines 8-11)
         idx = particle.low_variance_resample(w, rng=rng)
         poses, log_w = poses[idx], np.full(idx.size, -np.log(idx.size))
-    new = MCLState(poses=poses, log_weights=log_w, w_slow=state.w_slow, w_fast=state.w_fast)
-    return new, MCLStepInfo(ess, poses.shape[0], bool(do), 0, float(np.exp(log_w_avg)))
+    w_avg = float(np.exp(log_w_avg))
+    w_slow, w_fast = _averages(state, w_avg, model.params.augmented)  # tracked, not used
+    new = MCLState(poses=poses, log_weights=log_w, w_slow=w_slow, w_fast=w_fast)
+    return new, MCLStepInfo(ess, poses.shape[0], bool(do), 0, w_avg, *summary)
 
 
 def augmented_mcl_step(state, u, ranges, angles, model, *, rng):
@@ -764,10 +744,9 @@ def augmented_mcl_step(state, u, ranges, angles, model, *, rng):
     aug = model.params.augmented
     poses, ll, n_used = _predict_and_weight(state, u, ranges, angles, model, rng)
     log_w, log_w_avg = _update(state, poses, ll, n_used, model)
+    summary = _summary(poses, log_w)
     w_avg = float(np.exp(log_w_avg))
-    # w_slow += alpha_slow (w_avg - w_slow); w_fast += alpha_fast (w_avg - w_fast)  (Table 8.3 lines 10-11)
-    w_slow = state.w_slow + aug.alpha_slow * (w_avg - state.w_slow)
-    w_fast = state.w_fast + aug.alpha_fast * (w_avg - state.w_fast)
+    w_slow, w_fast = _averages(state, w_avg, aug)
     p_inject = max(0.0, 1.0 - w_fast / w_slow) if w_slow > 0 else 0.0  # (Table 8.3 line 13)
     w, ess, do = _resample_mask(log_w, model.params.resample_threshold)
     n_inj = 0
@@ -782,7 +761,7 @@ def augmented_mcl_step(state, u, ranges, angles, model, *, rng):
         log_w = np.full(m, -np.log(m))
         do = True
     new = MCLState(poses=poses, log_weights=log_w, w_slow=w_slow, w_fast=w_fast)
-    return new, MCLStepInfo(ess, poses.shape[0], bool(do), n_inj, w_avg)
+    return new, MCLStepInfo(ess, poses.shape[0], bool(do), n_inj, w_avg, *summary)
 
 
 def kld_sample_size(k, epsilon, delta):
@@ -912,11 +891,23 @@ def kld_mcl_step(state, u, ranges, angles, model, *, rng):
     finite = np.isfinite(ll)
     w_avg = float(np.exp(logsumexp(ll[finite] / n_used) - np.log(ll.size))) if np.any(finite) else 0.0
     ess = float(particle.effective_sample_size(np.exp(log_w)))
-    new = MCLState(poses=poses, log_weights=log_w, w_slow=state.w_slow, w_fast=state.w_fast)
-    return new, MCLStepInfo(ess, poses.shape[0], True, 0, w_avg)
+    w_slow, w_fast = _averages(state, w_avg, p.augmented)  # tracked, not used
+    new = MCLState(poses=poses, log_weights=log_w, w_slow=w_slow, w_fast=w_fast)
+    return new, MCLStepInfo(ess, poses.shape[0], True, 0, w_avg, *_summary(poses, log_w))
 
 
 # --------------------------------------------------------------------------- summaries
+def _summary(poses, log_w):
+    w = np.exp(log_w)
+    xy = w @ poses[:, :2]
+    c, s = w @ np.cos(poses[:, 2]), w @ np.sin(poses[:, 2])
+    spread = float(np.sqrt(max(w @ np.sum((poses[:, :2] - xy) ** 2, axis=1), 0.0)))
+    r = min(float(np.hypot(c, s)), 1.0)
+    heading_spread = float(np.sqrt(-2.0 * np.log(r))) if r > 0 else np.inf
+    # circular mean heading atan2(sum w sin, sum w cos); R = |sum w e^{i theta}|
+    return np.array([xy[0], xy[1], circular_mean(poses[:, 2], w)]), spread, heading_spread
+
+
 def particle_summary(poses, log_weights=None):
     """Weighted mean pose and spread of a particle set.
 
@@ -945,18 +936,13 @@ def particle_summary(poses, log_weights=None):
     if poses.shape[0] == 0:
         raise ValueError("poses must hold at least one particle")
     if log_weights is None:
-        w = np.full(poses.shape[0], 1.0 / poses.shape[0])
+        lw = np.full(poses.shape[0], -np.log(poses.shape[0]))
     else:
         lw = as_array(log_weights, "log_weights", (poses.shape[0],), finite=False)
         if np.any(np.isnan(lw)) or np.any(lw == np.inf):
             raise ValueError("log_weights must not hold NaN or +inf")
-        w = np.exp(_safe_normalize(lw))
-    xy = w @ poses[:, :2]
-    th = circular_mean(poses[:, 2], w)
-    spread = float(np.sqrt(w @ np.sum((poses[:, :2] - xy) ** 2, axis=1)))
-    r = np.hypot(w @ np.cos(poses[:, 2]), w @ np.sin(poses[:, 2]))
-    heading_spread = float(np.sqrt(-2.0 * np.log(np.clip(r, 1e-300, 1.0))))
-    return np.array([xy[0], xy[1], th]), spread, heading_spread
+        lw = _safe_normalize(lw)
+    return _summary(poses, lw)
 
 
 def scan_endpoints(pose, ranges, angles, *, z_max=np.inf, sensor_offset=0.25):
@@ -1110,6 +1096,7 @@ def run_mcl(model, odom_poses, ranges, angles, *, rng, variant="mcl", init=None,
     ess = np.empty(S)
     count = np.empty(S, dtype=np.intp)
     injected = np.zeros(S, dtype=np.intp)
+    w_avg = np.empty(S)
     w_slow = np.empty(S)
     w_fast = np.empty(S)
     shots = []
@@ -1117,12 +1104,12 @@ def run_mcl(model, odom_poses, ranges, angles, *, rng, variant="mcl", init=None,
     t0 = time.perf_counter()
     for s in range(S):  # a loop over time steps; every step is vectorised over particles
         state, info = step(state, u[s], z_all[index[s]], ang, model, rng=rng)
-        mean[s], spread[s], hspread[s] = particle_summary(state.poses, state.log_weights)
+        mean[s], spread[s], hspread[s] = info.mean, info.spread, info.heading_spread
         ess[s], count[s], injected[s] = info.ess, info.n_particles, info.n_injected
-        w_slow[s], w_fast[s] = state.w_slow, state.w_fast
+        w_avg[s], w_slow[s], w_fast[s] = info.w_avg, state.w_slow, state.w_fast
         if s in snap_set:
-            shots.append(state.poses.copy())
+            shots.append(state)
     runtime = time.perf_counter() - t0
     return MCLResult(scan_index=index, t=t_all[index], mean=mean, spread=spread, heading_spread=hspread, ess=ess,
-                     n_particles=count, n_injected=injected, w_slow=w_slow, w_fast=w_fast, snapshot_steps=snap,
+                     n_particles=count, n_injected=injected, w_avg=w_avg, w_slow=w_slow, w_fast=w_fast, snapshot_steps=snap,
                      snapshots=shots, final=state, runtime=runtime)

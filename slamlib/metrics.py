@@ -145,7 +145,7 @@ def nees(err, P):
 
     References
     ----------
-    Thrun, Burgard & Fox (2005), Eq. 2.4 (the quadratic form in the
+    Thrun, Burgard & Fox (2005), Sec. 3.2 (the quadratic form in the
     multivariate normal); Bar-Shalom, Li & Kirubarajan (2001), Sec. 5.4.2.
     """
     err = as_array(err, "err", ndim=range(1, 33))
@@ -188,7 +188,7 @@ def nees_band(dof, n_runs, p=0.95):
 
     References
     ----------
-    Thrun, Burgard & Fox (2005), Eq. 2.4 (the normal whose quadratic form is
+    Thrun, Burgard & Fox (2005), Sec. 3.2 (the normal whose quadratic form is
     chi-square); Bar-Shalom, Li & Kirubarajan (2001), Sec. 5.4.2.
     """
     dof = as_index(dof, "dof", lower=1)

@@ -240,15 +240,20 @@ def low_variance_resample(w, *, rng):
     """
     w = _as_weights(w)
     check_rng(rng)
+    r = rng.uniform(0.0, 1.0 / w.size)  # r = rand(0; M^-1)  (Table 4.4 line 3)
+    return _low_variance_indices(w, r)
+
+
+def _low_variance_indices(w, r):
+    """Table 4.4 for normalised weights `w` and the offset ``r`` in ``[0, 1/M)``."""
     M = w.size
-    r = rng.uniform(0.0, 1.0 / M)  # r = rand(0; M^-1)  (Table 4.4 line 3)
     c = np.cumsum(w)  # c = w^[1] + ... + w^[i]  (Table 4.4 lines 4, 10)
 
     def positions():
         return r + np.arange(M) / M  # U = r + (m - 1) M^-1  (Table 4.4 line 7)
 
-    # i = first index with c_i >= U  (Table 4.4 lines 8-11): the positions r + m/M <= c_i
-    # number floor((c_i - r) M) + 1
+    # i = first index with c_i >= U  (Table 4.4 lines 8-11): the pointers r + m/M <= c_i
+    # number floor((c_i - r) M) + 1; particle i receives the difference of successive counts
     x = (c - r) * M
     return _indices_from_counts(c, positions, np.floor(x).astype(np.intp) + 1, x)
 

@@ -453,8 +453,9 @@ def format_score_table(rows):
     -------
     str
         Columns ``method``, ``ATE [m]`` and ``landmark RMSE [m]`` with two
-        decimals, ``heading RMSE [deg]`` with one, and ``landmarks`` as
-        ``matched/in map``; ``-`` where a method has no map.
+        decimals, ``heading [deg]`` (RMSE) with one, and ``matched/mapped``:
+        landmarks matched to true ones over landmarks in the estimated map;
+        ``-`` where a method has no map.
 
     References
     ----------
@@ -464,11 +465,12 @@ def format_score_table(rows):
     if not all(isinstance(r, RunScore) for r in rows):
         raise TypeError("rows must be RunScore tuples (from score_run)")
     width = max([len("method")] + [len(r.name) for r in rows])
-    lines = [f"{'method':<{width}}  {'ATE [m]':>7}  {'heading [deg]':>13}  {'landmark RMSE [m]':>17}  {'landmarks':>9}"]
+    lines = [f"{'method':<{width}}  {'ATE [m]':>7}  {'heading [deg]':>13}  {'landmark RMSE [m]':>17}  "
+             f"{'matched/mapped':>14}"]
     for r in rows:
         lm = "-" if np.isnan(r.landmark_rmse) else f"{r.landmark_rmse:.2f}"
         cnt = "-" if r.n_landmarks == 0 else f"{r.n_matched}/{r.n_landmarks}"
-        lines.append(f"{r.name:<{width}}  {r.ate:>7.2f}  {np.degrees(r.heading_rmse):>13.1f}  {lm:>17}  {cnt:>9}")
+        lines.append(f"{r.name:<{width}}  {r.ate:>7.2f}  {np.degrees(r.heading_rmse):>13.1f}  {lm:>17}  {cnt:>14}")
     return "\n".join(lines)
 
 
@@ -608,7 +610,8 @@ def control_residuals(x_true, u, dt, *, window=1):
     if isinstance(window, bool) or not isinstance(window, (numbers.Integral, np.integer)) or window < 1:
         raise ValueError(f"window must be a positive integer, got {window!r}")
     if x_true.shape[0] != u.shape[0] + 1:
-        raise ValueError(f"x_true must hold T + 1 = {u.shape[0] + 1} poses for u of shape {u.shape}, got {x_true.shape[0]}")
+        raise ValueError(f"x_true must hold T + 1 = {u.shape[0] + 1} poses for u of shape {u.shape}, "
+                         f"got {x_true.shape[0]}")
     w = wrap_angle(x_true[1:, 2] - x_true[:-1, 2]) / dt
     half = 0.5 * w * dt
     d = x_true[1:, :2] - x_true[:-1, :2]

@@ -19,8 +19,7 @@ import numpy as np
 
 from ._checks import as_array, as_covariance, as_index, as_scalar, check_rng
 from .angles import wrap_angle
-from .motion import velocity_motion
-from .sensors import landmark_measurement
+from .motion import _arc
 
 __all__ = ["LandmarkRun", "simulate_landmark_run", "loop_controls", "figure_eight_controls"]
 
@@ -114,9 +113,9 @@ def simulate_landmark_run(landmarks, u, dt, *, x0, M, Q, max_range=np.inf, fov=2
         Total field of view in ``(0, 2 pi]``.
     rng : numpy.random.Generator, keyword-only
         Draws, in order: ``multivariate_normal(0, M, size=T, method="eigh")``
-        for the control noise, then at each step ``t``
-        ``multivariate_normal(0, Q, size=K_t, method="eigh")`` for the
-        measurements in increasing landmark order.
+        for the control noise, then one
+        ``multivariate_normal(0, Q, size=K, method="eigh")`` for all ``K``
+        measurements, ordered by time step and then by landmark index.
 
     Returns
     -------
@@ -143,22 +142,32 @@ def simulate_landmark_run(landmarks, u, dt, *, x0, M, Q, max_range=np.inf, fov=2
     x0[2] = wrap_angle(x0[2])
 
     u_true = u + rng.multivariate_normal(np.zeros(2), M, size=T, method="eigh")
+    # the headings do not depend on the positions: theta_t = theta_0 + sum omega dt, so every
+    # step's displacement (Table 5.3 without noise) is computed at once and accumulated
+    theta = x0[2] + np.concatenate([[0.0], np.cumsum(u_true[:, 1] * dt)])
+    start = np.zeros((T, 3))
+    start[:, 2] = theta[:-1]
+    step = _arc(start, u_true, dt)[0] if T else np.zeros((0, 3))
     x_true = np.empty((T + 1, 3))
-    x_true[0] = x0
-    zs, ids = [], []
-    all_ids = np.arange(landmarks.shape[0])
-    for t in range(T):
-        x_true[t + 1], _, _ = velocity_motion(x_true[t], u_true[t], dt)
-        if landmarks.shape[0]:
-            z_hat, _, _ = landmark_measurement(x_true[t + 1], landmarks)
-            seen = (z_hat[:, 0] <= max_range) & (np.abs(z_hat[:, 1]) <= fov / 2)
-        else:
-            z_hat, seen = np.empty((0, 2)), np.zeros(0, dtype=bool)
-        noise = rng.multivariate_normal(np.zeros(2), Q, size=int(seen.sum()), method="eigh")
-        z = z_hat[seen] + noise
-        z[:, 1] = wrap_angle(z[:, 1])
-        zs.append(_readonly(z))
-        ids.append(_readonly(all_ids[seen]))
+    x_true[:, :2] = x0[:2] + np.concatenate([np.zeros((1, 2)), np.cumsum(step[:, :2], axis=0)])
+    x_true[:, 2] = wrap_angle(theta)
+    N = landmarks.shape[0]
+    if N:
+        d = landmarks[None, :, :] - x_true[1:, None, :2]
+        rng_ = np.hypot(d[..., 0], d[..., 1])
+        bearing = wrap_angle(np.arctan2(d[..., 1], d[..., 0]) - x_true[1:, None, 2])
+        seen = (rng_ <= max_range) & (np.abs(bearing) <= fov / 2)
+        # z = h(x, m) + N(0, Q)  (Eq. 6.40), time-major then landmark order
+        t_idx, j_idx = np.nonzero(seen)
+        z_all = np.stack([rng_[t_idx, j_idx], bearing[t_idx, j_idx]], axis=-1)
+    else:
+        t_idx = j_idx = np.zeros(0, dtype=np.intp)
+        z_all = np.zeros((0, 2))
+    z_all = z_all + rng.multivariate_normal(np.zeros(2), Q, size=z_all.shape[0], method="eigh")
+    z_all[:, 1] = wrap_angle(z_all[:, 1])
+    splits = np.searchsorted(t_idx, np.arange(1, T))
+    zs = [_readonly(z) for z in np.split(z_all, splits)]
+    ids = [_readonly(i) for i in np.split(j_idx.astype(np.int64), splits)]
     return LandmarkRun(
         landmarks=_readonly(landmarks), dt=dt, x0=_readonly(x0), x_true=_readonly(x_true), u=_readonly(u),
         u_true=_readonly(u_true), z=tuple(zs), ids=tuple(ids), M=_readonly(M), Q=_readonly(Q),

@@ -559,3 +559,56 @@ def test_run_rejects_bad_options(world):
         sl.run_fastslam(world, n_particles=3, M=np.eye(2), alpha=np.zeros(6), rng=np.random.default_rng())
     with pytest.raises(ValueError, match="resample_threshold must be non-negative"):
         sl.run_fastslam(world, n_particles=3, resample_threshold=-1.0, rng=np.random.default_rng())
+
+
+# --------------------------------------------------------------------------- the particle set against theory
+def test_map_moments_are_the_mixture_moments():
+    rng = np.random.default_rng(19)
+    st = _state_with_maps(5, 4, rng)
+    slots = np.array([2, 0])
+    mean, cov = sl.fastslam_map_moments(st, slots)
+    w = st.weights
+    # one particle: its own block-diagonal covariance
+    one, _ = sl.fastslam_resample(st, rng=rng, indices=np.full(5, 3))
+    m1, c1 = sl.fastslam_map_moments(one, slots)
+    np.testing.assert_allclose(m1, st.mu[3, slots].ravel())
+    expect = np.zeros((4, 4))
+    expect[:2, :2], expect[2:, 2:] = st.Sigma[3, 2], st.Sigma[3, 0]
+    np.testing.assert_allclose(c1, expect, atol=1e-15)
+    # the mixture: sample a particle by weight, then the landmarks from its Gaussians
+    n = 200_000
+    k = rng.choice(5, size=n, p=w)
+    draws = np.concatenate([st.mu[k, s] + np.einsum("nij,nj->ni", np.linalg.cholesky(st.Sigma[k, s]),
+                                                        rng.standard_normal((n, 2))) for s in slots], axis=1)
+    np.testing.assert_allclose(mean, draws.mean(axis=0), atol=0.05)
+    np.testing.assert_allclose(cov, np.cov(draws.T), atol=0.15, rtol=0.02)
+    with pytest.raises(ValueError, match="seen in every particle"):
+        sl.fastslam_map_moments(st._replace(seen=np.zeros_like(st.seen)), slots)
+
+
+def test_many_particles_reproduce_the_ekf_slam_posterior(world):
+    # Early in a run, where linearisation is good and depletion has not set in, FastSLAM's particle set
+    # (pose moments, and map moments by the law of total covariance) matches EKF SLAM's Gaussian.
+    run = world
+    T = 20
+    ekf = sl.run_ekf_slam(run, snapshots=(T,))
+    state = sl.fastslam_initial_state(run.x0, 5000, 25)
+    rng = np.random.default_rng(20)
+    for t in range(T):
+        state = sl.fastslam_predict(state, run.u[t], run.dt, M=run.M, rng=rng)
+        state = sl.fastslam_update_known(state, run.z[t], run.ids[t], run.Q)
+        if sl.effective_sample_size(state.weights) < 2500 and t < T - 1:
+            state, _ = sl.fastslam_resample(state, rng=rng)
+    pose, _ = sl.fastslam_estimate(state)
+    d = sl.pose_error(state.poses, pose)
+    cov = np.einsum("k,ki,kj->ij", state.weights, d, d)
+    std_ekf = np.sqrt(np.diag(ekf.Sigma_x[T]))
+    np.testing.assert_allclose(np.sqrt(np.diag(cov)), std_ekf, rtol=0.1)
+    assert np.all(np.abs(sl.pose_error(pose, ekf.x[T])) < 0.3 * std_ekf)
+    mu_e, Sigma_e, ids = ekf.snapshots[T]
+    mean, C = sl.fastslam_map_moments(state, ids)
+    E = Sigma_e[3:, 3:]
+    np.testing.assert_allclose(np.sqrt(np.diag(C)), np.sqrt(np.diag(E)), rtol=0.1)
+    assert np.all(np.abs(mean - mu_e[3:]) < 0.3 * np.sqrt(np.diag(E)))
+    rho = lambda A: A / np.sqrt(np.outer(np.diag(A), np.diag(A)))  # noqa: E731
+    np.testing.assert_allclose(rho(C), rho(E), atol=0.15)

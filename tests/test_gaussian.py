@@ -276,14 +276,11 @@ def test_step_functions_equal_predict_then_sequential_updates():
 
 # --------------------------------------------------------------------------- consistency and association
 def test_ekf_localization_nees_inside_chi2_band():
-    n_runs = 25
+    n_runs = 40
     landmarks = _world()
-    nees = []
-    for k in range(n_runs):
-        run, mu0 = _run(1000 + k, landmarks=landmarks)
-        res = sl.ekf_localization_run(run, mu0=mu0, Sigma0=SIGMA0)
-        nees.append(sl.nees(sl.pose_error(res.mu, run.x_true), res.Sigma))
-    nees = np.array(nees)
+    runs, starts = zip(*(_run(1000 + k, landmarks=landmarks) for k in range(n_runs)))
+    res = sl.ekf_localization_batch(runs, mu0=np.array(starts), Sigma0=SIGMA0)
+    nees = sl.nees(sl.pose_error(res.mu, np.array([r.x_true for r in runs])), res.Sigma)
     avg = nees.mean(axis=0)  # average over runs at each time step
     lo, hi = sl.nees_band(3, n_runs, 0.95)
     inside = np.mean((avg >= lo) & (avg <= hi))
@@ -330,6 +327,22 @@ def test_unknown_correspondences_pick_landmarks_and_gate_clutter():
     # the whole run against known correspondences without clutter
     known = sl.ekf_localization_run(run, mu0=mu0, Sigma0=SIGMA0)
     assert np.linalg.norm(mu[:2] - known.mu[-1, :2]) < 0.1
+
+
+def test_batch_equals_run_by_run():
+    landmarks = _world()
+    runs, starts = zip(*(_run(2000 + k, n_steps=30, landmarks=landmarks) for k in range(4)))
+    Q_filter = np.array([[0.02, 0.001], [0.001, 0.003]])
+    res = sl.ekf_localization_batch(runs, mu0=np.array(starts), Sigma0=SIGMA0, Q=Q_filter)
+    assert res.mu.shape == (4, 31, 3) and res.Sigma.shape == (4, 31, 3, 3)
+    for k, (run, start) in enumerate(zip(runs, starts)):
+        one = sl.ekf_localization_run(run, mu0=start, Sigma0=SIGMA0, Q=Q_filter)
+        np.testing.assert_allclose(res.mu[k], one.mu, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(res.Sigma[k], one.Sigma, rtol=1e-12, atol=1e-15)
+    with pytest.raises(ValueError, match="same number of steps"):
+        sl.ekf_localization_batch([runs[0], _run(1, n_steps=5)[0]])
+    with pytest.raises(ValueError, match="mu0"):
+        sl.ekf_localization_batch(runs, mu0=np.zeros((3, 3)))
 
 
 def test_unknown_run_without_clutter_matches_known():

@@ -282,7 +282,8 @@ def plot_density_2d(density, extent, *, ax=None, contour=False, levels=6, cmap="
     """
     density = as_array(density, "density", ndim=2, finite=False)
     extent = as_array(extent, "extent", (4,))
-    ax = _axes(ax, (5, 5))
+    aspect = (extent[3] - extent[2]) / (extent[1] - extent[0])
+    ax = _axes(ax, (6.0, min(max(6.0 * aspect, 2.0), 8.0) + 0.8))
     if contour:
         H, W = density.shape
         xs = extent[0] + (np.arange(W) + 0.5) * (extent[1] - extent[0]) / W
@@ -457,18 +458,27 @@ def plot_motion_samples(samples, *, start, end=None, titles=None, densities=None
     from . import _core
 
     samples = [as_array(s, "samples", (None, 3)) for s in samples]
+    start = as_array(start, "start", (3,))
     n = len(samples)
-    _, axes = plt.subplots(1, n, figsize=(size * n, size + 0.2), sharex=True, sharey=True, layout="constrained",
-                           squeeze=False)
+    # one square window for all panels (axes are not shared: the pose plots fix an equal aspect)
+    pts = np.concatenate([s[:, :2] for s in samples] + [start[None, :2]]
+                         + ([] if end is None else [as_array(end, "end", (3,))[None, :2]]))
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    centre, half = (lo + hi) / 2, 0.55 * float(np.max(hi - lo)) + 0.1
+    _, axes = plt.subplots(1, n, figsize=(size * n, size + 0.2), layout="constrained", squeeze=False)
     axes = axes[0]
     for k, (ax, pts) in enumerate(zip(axes, samples)):
-        _core.plot_particles(pts, ax=ax)
+        ax.set_xlim(centre[0] - half, centre[0] + half)
+        ax.set_ylim(centre[1] - half, centre[1] + half)
+        _core.plot_particles(pts, ax=ax, s=4, alpha=0.5)
         if densities is not None and densities[k] is not None:
             plot_density_2d(densities[k], extent, ax=ax, contour=True)
         _core.plot_pose(start, ax=ax, color="k")
         if end is not None:
             _core.plot_pose(end, ax=ax, color="C3")
-        ax.set_aspect("equal")
+        ax.set_aspect("equal", adjustable="box")  # fixed limits: let the box, not the data limits, adapt
+        ax.set_xlim(centre[0] - half, centre[0] + half)
+        ax.set_ylim(centre[1] - half, centre[1] + half)
         ax.set_xlabel("$x$ [m]")
         ax.set_ylabel("$y$ [m]" if k == 0 else "")
         if titles is not None:
@@ -503,13 +513,16 @@ def plot_likelihood_panels(likelihoods, extent, *, landmarks, pose=None, titles=
     from . import _core
 
     n = len(likelihoods)
-    _, axes = plt.subplots(1, n, figsize=(size * n, size + 0.3), sharey=True, layout="constrained", squeeze=False)
+    _, axes = plt.subplots(1, n, figsize=(size * n, size + 0.3), layout="constrained", squeeze=False)
     axes = axes[0]
     for k, ax in enumerate(axes):
         plot_density_2d(likelihoods[k], extent, ax=ax, title=None if titles is None else titles[k])
         _core.plot_landmarks(as_array(landmarks[k], "landmarks", (None, 2)), ax=ax)
         if pose is not None:
             _core.plot_pose(pose, ax=ax, color="C3")
+        ax.set_aspect("equal", adjustable="box")
+        ax.set_xlim(extent[0], extent[1])
+        ax.set_ylim(extent[2], extent[3])
         if k:
             ax.set_ylabel("")
     return axes
@@ -539,7 +552,7 @@ def plot_map_and_field(grid, field, *, sigma_hit, xlim=None, ylim=None, size=5.5
 
     from . import _core
 
-    _, axes = plt.subplots(1, 2, figsize=(2 * size, size * 0.75), sharey=True, layout="constrained")
+    _, axes = plt.subplots(1, 2, figsize=(2 * size, size * 0.75), layout="constrained")
     _core.plot_grid(grid, ax=axes[0])
     axes[0].set_title("occupancy map", fontsize=10)
     plot_likelihood_field(field, sigma_hit=sigma_hit, ax=axes[1], title="likelihood field")

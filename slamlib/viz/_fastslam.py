@@ -59,8 +59,8 @@ def _finish(ax, title, legend):
     return ax
 
 
-def plot_fastslam_particles(state, *, landmarks=None, x_true=None, n_std=2.0, max_maps=60, ax=None, title=None,
-                            legend=True):
+def plot_fastslam_particles(state, *, landmarks=None, x_true=None, n_std=2.0, max_maps=60, zoom=True, ax=None,
+                            title=None, legend=True):
     """A FastSLAM particle set: every particle's pose and its own map.
 
     Parameters
@@ -77,6 +77,9 @@ def plot_fastslam_particles(state, *, landmarks=None, x_true=None, n_std=2.0, ma
     max_maps : int, keyword-only
         Draw the landmark means of at most this many particles (the most
         likely ones).
+    zoom : bool, keyword-only
+        Limit the axes to the particles and the landmarks they have seen
+        (with a 2 m margin), where the spread of the maps is visible.
     ax : matplotlib.axes.Axes, optional
         Axes to draw on; a new figure if omitted.
     title : str, optional
@@ -90,7 +93,7 @@ def plot_fastslam_particles(state, *, landmarks=None, x_true=None, n_std=2.0, ma
 
     Notes
     -----
-    Pose dots are shaded by weight. Each particle's landmark means form a
+    Pose dots are sized by weight. Each particle's landmark means form a
     small cloud around each landmark: the spread of those clouds is the map
     uncertainty that comes from the path, which FastSLAM keeps in the particle
     set rather than in any one particle's covariances.
@@ -115,13 +118,18 @@ def plot_fastslam_particles(state, *, landmarks=None, x_true=None, n_std=2.0, ma
     pts = np.concatenate([state.mu[k][state.seen[k]] for k in shown]) if shown.size else np.empty((0, 2))
     ax.scatter(pts[:, 0], pts[:, 1], s=3, color=_EST_COLOR, alpha=0.35, lw=0,
                label=f"landmark means of {shown.size} particles")
-    ax.scatter(state.poses[:, 0], state.poses[:, 1], s=6, c=w, cmap="Greys", vmin=-0.3, vmax=1.0, lw=0,
-               label="particle poses (dark: heavy)")
+    _core.plot_particles(state.poses, w, ax=ax, color="0.25", alpha=0.6, label="particle poses (area: weight)")
     best = int(order[0])
     for m, P in zip(state.mu[best][state.seen[best]], state.Sigma[best][state.seen[best]]):
         _core.plot_covariance_ellipse(m, P, n_std=n_std, ax=ax, color=_BEST_COLOR, lw=0.9)
     ax.plot([], [], color=_BEST_COLOR, lw=0.9, label=rf"most likely particle's map, ${n_std:g}\sigma$")
     _core.plot_pose(state.poses[best], ax=ax, color=_BEST_COLOR)
+    if zoom:
+        box = np.vstack([state.poses[:, :2], pts])
+        lo, hi = box.min(axis=0) - 2.0, box.max(axis=0) + 2.0
+        ax.set_xlim(lo[0], hi[0])
+        ax.set_ylim(lo[1], hi[1])
+        ax.set_aspect("equal", adjustable="box")
     return _finish(ax, title, legend)
 
 
@@ -178,7 +186,8 @@ def plot_fastslam_run(run, result, *, n_std=2.0, label="FastSLAM", ax=None, titl
     return _finish(ax, title, legend)
 
 
-def plot_fastslam_diagnostics(results, labels, *, n_particles, dt=1.0, axes=None):
+def plot_fastslam_diagnostics(results, labels, *, n_particles, dt=1.0, panels=("ess", "ancestors"), ess_steps=None,
+                              axes=None):
     """Effective sample size and path diversity over time, for several runs.
 
     Parameters
@@ -188,44 +197,62 @@ def plot_fastslam_diagnostics(results, labels, *, n_particles, dt=1.0, axes=None
     labels : sequence of str
         Legend entries.
     n_particles : int or sequence of int, keyword-only
-        Number of particles of each run (the ESS is shown as a fraction of it).
+        Number of particles of each run (both quantities are shown as a
+        fraction of it).
     dt : float, keyword-only
         Step duration (seconds); ``1`` labels the axis in steps.
-    axes : array of 2 matplotlib.axes.Axes, optional
-        Axes to draw on; a new figure if omitted.
+    panels : sequence of {"ess", "ancestors"}, keyword-only
+        Which panels to draw, in this order.
+    ess_steps : ndarray of int, optional, keyword-only
+        Steps (0-based update indices) at which to show the ESS, e.g. only
+        the steps that had measurements; default all.
+    axes : array of matplotlib.axes.Axes, optional
+        One axes per panel; a new figure if omitted.
 
     Returns
     -------
     ndarray of matplotlib.axes.Axes
-        Left: ESS / M after each update (log scale). Right: the number of
-        distinct ancestors, at each time, of the final particles' paths:
-        going back in time the lineages merge, and the early path (with the
-        map built along it) rests on fewer and fewer hypotheses.
+        ``"ess"``: ESS / M after each update (log scale). ``"ancestors"``: the
+        number of distinct ancestors, at each time, of the final particles'
+        paths: going back in time the lineages merge, and the early path (with
+        the map built along it) rests on fewer and fewer hypotheses.
 
     References
     ----------
     Thrun, Burgard & Fox (2005), Sec. 4.3.4 (particle deprivation) and
     Sec. 13.9 (FastSLAM's loss of path diversity).
     """
-    axes = _panels(axes, 2, (10.0, 3.4))
+    panels = tuple(panels)
+    if not panels or any(p not in ("ess", "ancestors") for p in panels):
+        raise ValueError(f"panels must be a non-empty sequence of 'ess' and 'ancestors', got {panels!r}")
+    axes = _panels(axes, len(panels), (5.0 * len(panels), 3.4))
+    ax_of = dict(zip(panels, axes))
     ns = np.broadcast_to(np.asarray(n_particles), (len(results),))
     unit = "time [s]" if dt != 1.0 else "step"
     for k, (res, lab, n) in enumerate(zip(results, labels, ns)):
         n = as_scalar(n, "n_particles", positive=True)
-        ess = np.asarray(res.ess)
-        t = np.arange(1, ess.size + 1) * dt
-        valid = np.isfinite(ess)
-        axes[0].plot(t[valid], ess[valid] / n, color=f"C{k}", lw=1.0, marker=".", ms=2.5, label=lab)
-        anc = np.asarray(res.n_ancestors)
-        axes[1].step(np.arange(anc.size) * dt, anc / n, where="post", color=f"C{k}", lw=1.4, label=lab)
-    axes[0].set_yscale("log")
-    axes[0].set_xlabel(unit)
-    axes[0].set_ylabel("ESS / M")
-    axes[0].legend(fontsize=8, loc="lower left")
-    axes[1].set_yscale("log")
-    axes[1].set_xlabel(unit)
-    axes[1].set_ylabel("distinct ancestors / M")
-    axes[1].set_title("poses of the final particles' paths", fontsize=9)
+        if "ess" in ax_of:
+            ess = np.asarray(res.ess)
+            steps = np.arange(ess.size) if ess_steps is None else np.asarray(ess_steps)
+            ax_of["ess"].plot((steps + 1) * dt, ess[steps] / n, color=f"C{k}", lw=1.0, marker=".", ms=3,
+                              label=lab)
+        if "ancestors" in ax_of:
+            anc = np.asarray(res.n_ancestors)
+            ax_of["ancestors"].step(np.arange(anc.size) * dt, anc / n, where="post", color=f"C{k}", lw=1.4,
+                                    label=lab)
+    if "ess" in ax_of:
+        ax = ax_of["ess"]
+        ax.set_yscale("log")
+        ax.set_xlabel(unit)
+        ax.set_ylabel("ESS / M")
+        ax.legend(fontsize=8, loc="lower left")
+    if "ancestors" in ax_of:
+        ax = ax_of["ancestors"]
+        ax.set_yscale("log")
+        ax.set_xlabel(unit)
+        ax.set_ylabel("distinct ancestors / M")
+        ax.set_title("poses on the final particles' paths", fontsize=9)
+        ax.legend(fontsize=8, loc="upper left")
     return axes
 
 
@@ -267,7 +294,8 @@ def plot_weight_comparison(pose, mu, w_S, w_Q, *, landmark=None, lam=None, ess_S
     w_Q = as_array(w_Q, "w_Q", (mu.shape[0],))
     pose = as_array(pose, "pose", (3,))
     axes = _panels(axes, 3, (12.0, 3.9))
-    for ax, w, name in ((axes[0], w_S, r"$N(\nu; 0, S)$, $S = H\Sigma H^T + Q$"), (axes[1], w_Q, r"$N(\nu; 0, Q)$ (erratum)")):
+    names = (r"$N(\nu; 0, S)$, $S = H\Sigma H^T + Q$", r"$N(\nu; 0, Q)$ (erratum)")
+    for ax, w, name in zip(axes[:2], (w_S, w_Q), names):
         wn = w / w.max()
         order = np.argsort(wn)
         sc = ax.scatter(mu[order, 0], mu[order, 1], c=wn[order], s=5, cmap="viridis", vmin=0, vmax=1, lw=0)

@@ -21,6 +21,8 @@ __all__ = [
     "plot_linearization",
     "plot_nees",
     "plot_ekf_run",
+    "plot_linearized_motion",
+    "plot_particle_snapshots",
     "plot_importance_sampling",
     "plot_offspring_counts",
     "plot_ess",
@@ -39,7 +41,7 @@ def _axes(ax, figsize):
 
 
 def plot_estimate_band(t, mean, std, *, truth=None, measurements=None, n_std=2.0, label="estimate", color="C0",
-                       ax=None, title=None, ylabel=None):
+                       linestyle="-", ax=None, title=None, ylabel=None):
     """A scalar estimate over time with its ``n_std``-sigma band.
 
     Parameters
@@ -58,6 +60,8 @@ def plot_estimate_band(t, mean, std, *, truth=None, measurements=None, n_std=2.0
         Legend label of the estimate.
     color : str
         Colour of the estimate and its band.
+    linestyle : str
+        Line style of the estimate (the band's edges use it too).
     ax : matplotlib.axes.Axes, optional
         Axes to draw on; a new figure if omitted.
     title, ylabel : str, optional
@@ -78,9 +82,11 @@ def plot_estimate_band(t, mean, std, *, truth=None, measurements=None, n_std=2.0
     if truth is not None:
         truth = as_array(truth, "truth", t.shape)
         ax.plot(t, truth, color=_TRUE_COLOR, lw=1.2, label="truth")
-    ax.fill_between(t, mean - n_std * std, mean + n_std * std, color=color, alpha=0.2, lw=0,
+    ax.fill_between(t, mean - n_std * std, mean + n_std * std, color=color, alpha=0.15, lw=0,
                     label=rf"{label} $\pm{n_std:g}\sigma$")
-    ax.plot(t, mean, color=color, lw=1.5, label=label)
+    for edge in (mean - n_std * std, mean + n_std * std):
+        ax.plot(t, edge, color=color, lw=0.6, ls=linestyle, alpha=0.7)
+    ax.plot(t, mean, color=color, lw=1.5, ls=linestyle, label=label)
     ax.set_xlabel("t")
     if ylabel:
         ax.set_ylabel(ylabel)
@@ -144,7 +150,7 @@ def plot_linearization(f, mean, std, samples, *, slope=None, bins=80, axes=None,
     ax_in.plot(xs, np.exp(-0.5 * ((xs - mean) / std) ** 2) / (std * np.sqrt(2 * np.pi)), color="C0")
     ax_in.hist(samples, bins=bins, density=True, color="C0", alpha=0.25)
     ax_in.set_xlabel(xlabel)
-    ax_in.set_ylabel(f"p({xlabel})")
+    ax_in.set_ylabel("density")
 
     ax_f.plot(xs, f(xs), color="k", lw=1.5, label="f")
     ax_f.plot(xs, y_lin + slope * (xs - mean), color="C3", ls="--", lw=1.2, label="tangent at the mean")
@@ -169,7 +175,7 @@ def plot_linearization(f, mean, std, samples, *, slope=None, bins=80, axes=None,
     ax_out.set_ylim(lo, hi)
     ax_f.set_ylim(lo, hi)
     ax_out.set_ylabel(ylabel)
-    ax_out.set_xlabel(f"p({ylabel.split('=')[0].strip()})")
+    ax_out.set_xlabel("density")
     ax_out.legend(loc="lower left", fontsize="small")
     return axes
 
@@ -302,6 +308,96 @@ def plot_ekf_run(run, mu, Sigma, *, every=10, n_std=2.0, ids=None, z=None, dead_
     return ax
 
 
+def plot_linearized_motion(samples, mean, cov, *, start=None, n_std=2.0, ax=None, title=None):
+    """Monte-Carlo poses after a motion against the EKF's linearised prediction.
+
+    Parameters
+    ----------
+    samples : ndarray, shape (n, 3)
+        Poses sampled from the initial belief and moved through the motion model.
+    mean : ndarray, shape (3,)
+        EKF predicted mean.
+    cov : ndarray, shape (3, 3)
+        EKF predicted covariance; its position block is drawn as an ellipse.
+    start : ndarray, shape (3,), optional
+        Initial mean pose, drawn as an arrow.
+    n_std : float
+        Ellipses at ``n_std`` standard deviations.
+    ax : matplotlib.axes.Axes, optional
+        Axes to draw on; a new figure if omitted.
+    title : str, optional
+        Axes title.
+
+    Returns
+    -------
+    matplotlib.axes.Axes
+    """
+    from . import _core
+
+    samples = as_array(samples, "samples", (None, 3))
+    mean = as_array(mean, "mean", (3,))
+    cov = as_array(cov, "cov", (3, 3))
+    ax = _axes(ax, (6.5, 5))
+    ax.plot(samples[:, 0], samples[:, 1], ".", color="C0", ms=2, alpha=0.25, label="Monte-Carlo samples")
+    mc_mean = samples[:, :2].mean(axis=0)
+    mc_cov = np.cov(samples[:, :2].T)
+    _core.plot_covariance_ellipse(mc_mean, mc_cov, n_std=n_std, ax=ax, color="C0", lw=1.2, ls=":")
+    ax.plot(*mc_mean, "x", color="C0", ms=9, mew=2, label="samples' mean and covariance")
+    _core.plot_covariance_ellipse(mean[:2], cov[:2, :2], n_std=n_std, ax=ax, color="C3", lw=1.5)
+    ax.plot(*mean[:2], "o", color="C3", ms=6, label="EKF prediction")
+    if start is not None:
+        _core.plot_pose(as_array(start, "start", (3,)), ax=ax, color="k")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    if title:
+        ax.set_title(title)
+    ax.legend(loc="best", fontsize="small")
+    return ax
+
+
+def plot_particle_snapshots(run, snapshots, *, estimate=None, ax=None, title=None):
+    """Particle sets at a few time steps of a simulated run.
+
+    Parameters
+    ----------
+    run : LandmarkRun
+        The simulated run (:func:`slamlib.sim.simulate_landmark_run`).
+    snapshots : dict of int to ndarray, shape (n, 3)
+        Particles after the given step (0 is the initial set).
+    estimate : ndarray, shape (T+1, 3), optional
+        The filter's mean poses, drawn dashed.
+    ax : matplotlib.axes.Axes, optional
+        Axes to draw on; a new figure if omitted.
+    title : str, optional
+        Axes title.
+
+    Returns
+    -------
+    matplotlib.axes.Axes
+    """
+    from . import _core
+
+    ax = _axes(ax, (6.5, 6.5))
+    _core.plot_landmarks(run.landmarks, ax=ax)
+    ax.plot(run.x_true[:, 0], run.x_true[:, 1], color=_TRUE_COLOR, lw=1.2, label="true path")
+    if estimate is not None:
+        est = as_array(estimate, "estimate", (None, 3))
+        ax.plot(est[:, 0], est[:, 1], color="C3", lw=1.2, ls="--", label="particle-filter mean")
+    for k, (step, parts) in enumerate(sorted(snapshots.items())):
+        parts = as_array(parts, f"snapshots[{step}]", (None, 3))
+        _core.plot_particles(parts, ax=ax, color=f"C{k % 10}")
+        x = run.x_true[step]
+        ax.annotate(f"t={step}", (x[0], x[1]), textcoords="offset points", xytext=(6, 6), fontsize="small")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    if title:
+        ax.set_title(title)
+    ax.legend(loc="upper right", fontsize="small")
+    return ax
+
+
 def plot_importance_sampling(x, target, proposal, samples, weights, *, ax=None, title=None):
     """Importance sampling in 1-D: target, proposal, samples and their weights.
 
@@ -395,7 +491,7 @@ def plot_offspring_counts(w, counts, *, axes=None):
                  label=r"floor/ceil bound $\sqrt{f(1-f)}$")
     axes[1].set_xlabel("expected count $M w_i$")
     axes[1].set_ylabel("std of the offspring count")
-    axes[1].legend(fontsize="small")
+    axes[1].legend(fontsize="small", loc="upper left")
     return axes
 
 

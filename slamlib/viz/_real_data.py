@@ -16,8 +16,30 @@ __all__ = ["plot_sightings", "plot_real_trajectories", "plot_error_over_time", "
 
 _TRUTH = "0.15"
 _LANDMARK = "C3"
-#: Colours of the methods, in the order they are given.
-_COLORS = ("C1", "C0", "C2", "C4", "C5", "C6", "C7", "C8")
+#: Colours reserved for methods that appear in several figures of a chapter.
+_RESERVED = {"dead reckoning": "C1"}
+#: Colours of the other methods, in the order they are given.
+_CYCLE = ("C0", "C2", "C4", "C5", "C6", "C8", "C9")
+
+
+def _colors(names, colors):
+    """Colour per method: `colors` first, then the reserved ones, then the cycle in order."""
+    if colors is not None and not isinstance(colors, dict):
+        raise TypeError("colors must be a dict mapping a method name to a matplotlib colour")
+    out, k = {}, 0
+    for name in names:
+        if colors and name in colors:
+            out[name] = colors[name]
+        elif name in _RESERVED:
+            out[name] = _RESERVED[name]
+        else:
+            out[name] = _CYCLE[k % len(_CYCLE)]
+            k += 1
+    return out
+
+
+def _legend_outside(ax):
+    ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=8, borderaxespad=0.0)
 
 
 def _axes(ax, figsize=(6.5, 6.0)):
@@ -76,7 +98,7 @@ def plot_sightings(run, *, ax=None, max_rays=400, title=None):
 
     x_true = as_array(run.x_true, "run.x_true", (None, 3))
     landmarks = as_array(run.landmarks, "run.landmarks", (None, 2))
-    ax = _axes(ax)
+    ax = _axes(ax, figsize=(7.0, 6.5))
     counts = [len(i) for i in run.ids]
     n = int(sum(counts))
     ax.plot(x_true[:, 0], x_true[:, 1], color=_TRUTH, lw=0.8, label="Vicon path")
@@ -97,13 +119,14 @@ def plot_sightings(run, *, ax=None, max_rays=400, title=None):
     ax.set_aspect("equal")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
-    ax.legend(loc="best", fontsize=8)
+    _legend_outside(ax)
     if title:
         ax.set_title(title)
     return ax
 
 
-def plot_real_trajectories(x_true, estimates, *, landmarks=None, maps=None, align=True, ax=None, title=None):
+def plot_real_trajectories(x_true, estimates, *, landmarks=None, maps=None, align=True, colors=None, ax=None,
+                           title=None):
     """Estimated paths and maps over the ground-truth path and landmarks.
 
     Parameters
@@ -119,6 +142,10 @@ def plot_real_trajectories(x_true, estimates, *, landmarks=None, maps=None, alig
     align : bool, keyword-only
         Draw each method after the rigid alignment of its path onto
         `x_true` (:func:`slamlib.align_se2`), applied to its map as well.
+    colors : dict of str to colour, optional, keyword-only
+        Colour per method; by default "dead reckoning" is always orange and
+        the other methods take the colour cycle in order, so that the same
+        methods get the same colours in :func:`plot_error_over_time`.
     ax : matplotlib.axes.Axes, optional, keyword-only
         Axes to draw on; a new figure if omitted.
     title : str, optional, keyword-only
@@ -142,9 +169,11 @@ def plot_real_trajectories(x_true, estimates, *, landmarks=None, maps=None, alig
     unknown = set(maps) - set(est)
     if unknown:
         raise ValueError(f"maps has methods without an estimate: {sorted(unknown)}")
-    ax = _axes(ax)
+    col = _colors(list(est), colors)
+    ax = _axes(ax, figsize=(7.0, 6.5))
     ax.plot(x_true[:, 0], x_true[:, 1], color=_TRUTH, lw=1.6, label="Vicon")
-    for c, (name, x) in zip(_COLORS * 4, est.items()):
+    for name, x in est.items():
+        c = col[name]
         if x.shape != x_true.shape:
             raise ValueError(f"estimates[{name!r}] must have the shape of x_true {x_true.shape}, got {x.shape}")
         xa, (R, t) = _aligned(x, x_true, align)
@@ -161,13 +190,13 @@ def plot_real_trajectories(x_true, estimates, *, landmarks=None, maps=None, alig
     ax.set_aspect("equal")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
-    ax.legend(loc="best", fontsize=8)
+    _legend_outside(ax)
     if title:
         ax.set_title(title)
     return ax
 
 
-def plot_error_over_time(t, x_true, estimates, *, align=True, log=False, ax=None, title=None):
+def plot_error_over_time(t, x_true, estimates, *, align=True, log=False, colors=None, ax=None, title=None):
     """Position error of each method over time.
 
     Parameters
@@ -182,6 +211,8 @@ def plot_error_over_time(t, x_true, estimates, *, align=True, log=False, ax=None
         Errors after each method's rigid alignment (as the ATE uses).
     log : bool, keyword-only
         Logarithmic error axis.
+    colors : dict of str to colour, optional, keyword-only
+        Colour per method (default as in :func:`plot_real_trajectories`).
     ax : matplotlib.axes.Axes, optional, keyword-only
         Axes to draw on; a new figure if omitted.
     title : str, optional, keyword-only
@@ -198,8 +229,10 @@ def plot_error_over_time(t, x_true, estimates, *, align=True, log=False, ax=None
     t = as_array(t, "t", (None,))
     x_true = as_array(x_true, "x_true", (t.shape[0], 3))
     est = _estimates(estimates)
+    col = _colors(list(est), colors)
     ax = _axes(ax, figsize=(7.5, 3.2))
-    for c, (name, x) in zip(_COLORS * 4, est.items()):
+    for name, x in est.items():
+        c = col[name]
         if x.shape != x_true.shape:
             raise ValueError(f"estimates[{name!r}] must have the shape of x_true {x_true.shape}, got {x.shape}")
         xa, _ = _aligned(x, x_true, align)
@@ -256,7 +289,7 @@ def plot_residual_histograms(residuals, *, Q=None, axes=None, bins=60):
     lims = [np.quantile(np.abs(np.concatenate([s[:, c] for s in sets.values()])), 0.995) * 1.1 + 1e-9 for c in (0, 1)]
     for c, ax, unit in ((0, axes[0], "range residual [m]"), (1, axes[1], "bearing residual [rad]")):
         edges = np.linspace(-lims[c], lims[c], int(bins) + 1)
-        for col, (name, s) in zip(_COLORS * 4, sets.items()):
+        for col, (name, s) in zip(_CYCLE * 4, sets.items()):
             ax.hist(np.clip(s[:, c], -lims[c], lims[c]), bins=edges, color=col, alpha=0.5,
                     label=f"{name} (std {s[:, c].std():.3g})")
         if Q is not None:

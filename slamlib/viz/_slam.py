@@ -236,10 +236,12 @@ def plot_covariance_matrix(Sigma, *, correlation=True, absolute=False, ax=None, 
     else:
         v = 1.0 if correlation else float(np.abs(A).max()) or 1.0
         img = ax.imshow(A, cmap="RdBu_r", vmin=-v, vmax=v, interpolation="nearest")
-    for b in range(3, n, 2):
-        lw = 0.9 if b == 3 else 0.25
-        ax.axhline(b - 0.5, color="0.35", lw=lw)
-        ax.axvline(b - 0.5, color="0.35", lw=lw)
+    ax.hlines(2.5, -0.5, n - 0.5, color="0.3", lw=0.9)  # robot | landmarks
+    ax.vlines(2.5, -0.5, n - 0.5, color="0.3", lw=0.9)
+    if n > 5:
+        b = np.arange(5, n, 2) - 0.5  # between landmarks
+        ax.hlines(b, -0.5, n - 0.5, color="0.5", lw=0.25)
+        ax.vlines(b, -0.5, n - 0.5, color="0.5", lw=0.25)
     N = (n - 3) // 2
     step = max(1, N // 8)
     ticks = [1] + [3 + 2 * k + 0.5 for k in range(0, N, step)]
@@ -338,7 +340,7 @@ def plot_slam_map(result, run=None, *, n_std=2.0, every=0, ax=None, title=None, 
 
     ax = _axes(ax, (6.0, 6.0))
     if run is not None:
-        _core.plot_landmarks(run.landmarks, ax=ax)
+        _core.plot_landmarks(run.landmarks, ax=ax, label="true landmarks", s=70)
         ax.plot(run.x_true[:, 0], run.x_true[:, 1], color=_TRUE_COLOR, lw=1.2, label="true path")
     x = np.asarray(result.x)
     ax.plot(x[:, 0], x[:, 1], color=_EST_COLOR, lw=1.2, ls="--", label="estimated path")

@@ -38,6 +38,19 @@ def ekf_slam_predict(mu, Sigma, u, dt, M):
     return mu_bar, Sigma_bar
 
 
+def _meas(mu, j):
+    """Expected measurement and full-state Jacobian (private helper of update and association)."""
+    n = len(mu)
+    a = 3 + 2 * j
+    dx, dy = mu[a] - mu[0], mu[a + 1] - mu[1]
+    q = dx * dx + dy * dy
+    r = np.sqrt(q)
+    H = np.zeros((2, n))
+    H[:, :3] = [[-dx / r, -dy / r, 0], [dy / q, -dx / q, -1]]
+    H[:, a:a + 2] = [[dx / r, dy / r], [-dy / q, dx / q]]
+    return np.array([r, wrap(np.arctan2(dy, dx) - mu[2])]), H
+
+
 def ekf_slam_measurement(mu, j):
     n = len(mu)
     a = 3 + 2 * j
@@ -61,7 +74,7 @@ def ekf_slam_init_landmark(mu, z, j):
 
 
 def ekf_slam_update(mu_bar, Sigma_bar, z, j, Q):
-    z_hat, H = ekf_slam_measurement(mu_bar, j)
+    z_hat, H = _meas(mu_bar, j)
     S = H @ Sigma_bar @ H.T + Q
     K = Sigma_bar @ H.T @ np.linalg.inv(S)
     nu = z - z_hat
@@ -75,7 +88,7 @@ def ekf_slam_update(mu_bar, Sigma_bar, z, j, Q):
 def ekf_slam_associate(mu_bar, Sigma_bar, z, n_seen, Q, alpha):
     d = []
     for k in range(n_seen):
-        z_hat, H = ekf_slam_measurement(mu_bar, k)
+        z_hat, H = _meas(mu_bar, k)
         S = H @ Sigma_bar @ H.T + Q
         nu = z - z_hat
         nu[1] = wrap(nu[1])

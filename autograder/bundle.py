@@ -1,0 +1,205 @@
+"""The Gradescope autograder bundle, and what it runs on Gradescope.
+
+``python -m autograder bundle --exercise NAME -o autograder.zip`` writes a zip with
+
+* ``setup.sh`` -- run once by Gradescope when the image is built: finds (or
+  installs) Python >= 3.11, creates ``/autograder/venv``, installs the pinned
+  requirements and the project's wheel from the zip (no access to this
+  repository is needed);
+* ``run_autograder`` -- run for every submission: grades
+  ``$AUTOGRADER_ROOT/submission/*`` (``AUTOGRADER_ROOT`` defaults to
+  ``/autograder``) and writes ``$AUTOGRADER_ROOT/results/results.json``; if the
+  grader cannot even start it still leaves a valid results.json;
+* ``requirements.txt`` -- the runtime dependencies;
+* ``wheels/slamlib-<version>-py3-none-any.whl`` -- this project (``slamlib`` and
+  ``autograder``), built from the source tree by :func:`build_wheel`.
+"""
+
+from __future__ import annotations
+
+import base64
+import hashlib
+import io
+import os
+import stat
+import zipfile
+from pathlib import Path
+
+from .results import fallback_results, write_json_atomic
+from .spec import VISIBILITY
+
+__all__ = ["build_bundle", "build_wheel", "run_gradescope", "project_root"]
+
+PROJECT_ROOT = Path(__file__).resolve().parents[1]
+
+SETUP_SH = r"""#!/usr/bin/env bash
+# Gradescope setup: Python >= 3.11, a virtual environment, the requirements and this project's wheel.
+set -euo pipefail
+cd "$(dirname "$0")"
+ROOT="${AUTOGRADER_ROOT:-/autograder}"
+pick_python() {
+  for py in python3.13 python3.12 python3.11 python3; do
+    if command -v "$py" >/dev/null 2>&1 && "$py" -c 'import sys; sys.exit(sys.version_info < (3, 11))'; then
+      echo "$py"; return 0
+    fi
+  done
+  return 1
+}
+PY=$(pick_python || true)
+if [ -z "$PY" ]; then
+  apt-get update
+  apt-get install -y python3.11 python3.11-venv
+  PY=python3.11
+fi
+if ! "$PY" -m venv --help >/dev/null 2>&1; then
+  apt-get update && apt-get install -y python3-venv
+fi
+"$PY" -m venv "$ROOT/venv"
+"$ROOT/venv/bin/python" -m pip install --upgrade pip
+"$ROOT/venv/bin/python" -m pip install -r requirements.txt
+"$ROOT/venv/bin/python" -m pip install --no-deps wheels/*.whl
+"$ROOT/venv/bin/python" -m autograder list >/dev/null
+"""
+
+RUN_AUTOGRADER = r"""#!/usr/bin/env bash
+# Gradescope entry point: grade $AUTOGRADER_ROOT/submission into $AUTOGRADER_ROOT/results/results.json.
+ROOT="${AUTOGRADER_ROOT:-/autograder}"
+PY="${AUTOGRADER_PYTHON:-$ROOT/venv/bin/python}"
+if [ ! -x "$PY" ]; then PY=python3; fi
+mkdir -p "$ROOT/results"
+cd "$ROOT" || exit 0
+"$PY" -m autograder gradescope --root "$ROOT" --exercise "@EXERCISE@"
+status=$?
+if [ ! -s "$ROOT/results/results.json" ]; then
+  printf '{"score": 0.0, "execution_time": 0, "output": "The autograder could not run (exit status %s); please tell the course staff.", "tests": []}\n' "$status" > "$ROOT/results/results.json"
+fi
+exit 0
+"""
+
+
+def project_root():
+    """The source checkout this package lives in (it must hold pyproject.toml)."""
+    if not (PROJECT_ROOT / "pyproject.toml").is_file():
+        raise RuntimeError("building a bundle needs the project's source tree (pyproject.toml not found next to the "
+                           "autograder package)")
+    return PROJECT_ROOT
+
+
+def _project_meta(root):
+    import tomllib
+
+    data = tomllib.loads((root / "pyproject.toml").read_text(encoding="utf-8"))
+    return data["project"]
+
+
+def _package_files(root):
+    for pkg in ("slamlib", "autograder"):
+        for path in sorted((root / pkg).rglob("*")):
+            rel = path.relative_to(root)
+            if path.is_file() and "__pycache__" not in rel.parts and path.suffix not in (".pyc", ".pyo"):
+                yield rel.as_posix(), path.read_bytes()
+
+
+def _record_line(name, data):
+    digest = base64.urlsafe_b64encode(hashlib.sha256(data).digest()).rstrip(b"=").decode()
+    return f"{name},sha256={digest},{len(data)}"
+
+
+def build_wheel(root=None):
+    """A pure-Python wheel of the project (``slamlib`` + ``autograder``): ``(filename, bytes)``."""
+    root = Path(root) if root else project_root()
+    meta = _project_meta(root)
+    name, version = meta["name"], meta["version"]
+    dist = f"{name}-{version}.dist-info"
+    metadata = [
+        "Metadata-Version: 2.1",
+        f"Name: {name}",
+        f"Version: {version}",
+        f"Summary: {meta.get('description', '')}",
+        f"Requires-Python: {meta.get('requires-python', '>=3.11')}",
+    ]
+    metadata += [f"Requires-Dist: {d}" for d in meta.get("dependencies", [])]
+    files = list(_package_files(root))
+    extra = {
+        f"{dist}/METADATA": ("\n".join(metadata) + "\n").encode(),
+        f"{dist}/WHEEL": b"Wheel-Version: 1.0\nGenerator: autograder.bundle\nRoot-Is-Purelib: true\nTag: py3-none-any\n",
+        f"{dist}/top_level.txt": b"autograder\nslamlib\n",
+        f"{dist}/entry_points.txt": ("[console_scripts]\n" + "".join(
+            f"{k} = {v}\n" for k, v in meta.get("scripts", {}).items())).encode(),
+    }
+    buf = io.BytesIO()
+    record = []
+    with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zf:
+        for arcname, data in files + list(extra.items()):
+            info = zipfile.ZipInfo(arcname, date_time=(2020, 1, 1, 0, 0, 0))
+            info.external_attr = 0o644 << 16
+            info.compress_type = zipfile.ZIP_DEFLATED
+            zf.writestr(info, data)
+            record.append(_record_line(arcname, data))
+        record.append(f"{dist}/RECORD,,")
+        info = zipfile.ZipInfo(f"{dist}/RECORD", date_time=(2020, 1, 1, 0, 0, 0))
+        info.external_attr = 0o644 << 16
+        zf.writestr(info, "\n".join(record) + "\n")
+    return f"{name}-{version}-py3-none-any.whl", buf.getvalue()
+
+
+def build_bundle(exercise, output="autograder.zip"):
+    """Write the Gradescope autograder zip for ``exercise``; returns its path."""
+    from .exercises import get_exercise
+
+    ex = get_exercise(exercise)
+    root = project_root()
+    meta = _project_meta(root)
+    wheel_name, wheel = build_wheel(root)
+    reqs = "\n".join(meta.get("dependencies", [])) + "\n"
+    output = Path(output)
+    output.parent.mkdir(parents=True, exist_ok=True)
+    entries = {
+        "setup.sh": (SETUP_SH.encode(), 0o755),
+        "run_autograder": (RUN_AUTOGRADER.replace("@EXERCISE@", ex.name).encode(), 0o755),
+        "requirements.txt": (reqs.encode(), 0o644),
+        f"wheels/{wheel_name}": (wheel, 0o644),
+        "README.txt": (f"Gradescope autograder for exercise {ex.name} ({ex.notebook}).\n"
+                       "Upload this zip as the autograder of a programming assignment; students submit "
+                       f"{ex.notebook}.\n".encode(), 0o644),
+    }
+    tmp = output.with_name(f".{output.name}.tmp")
+    with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as zf:
+        for name, (data, mode) in entries.items():
+            info = zipfile.ZipInfo(name, date_time=(2020, 1, 1, 0, 0, 0))
+            info.external_attr = (stat.S_IFREG | mode) << 16
+            info.compress_type = zipfile.ZIP_DEFLATED
+            zf.writestr(info, data)
+    os.replace(tmp, output)
+    return output
+
+
+def run_gradescope(root, exercise, *, limits=None):
+    """Grade ``root/submission`` into ``root/results/results.json`` (always written)."""
+    from .batch import pick_submission_file
+    from .engine import grade
+    from .exercises import get_exercise
+
+    root = Path(root)
+    results = root / "results" / "results.json"
+    try:
+        ex = get_exercise(exercise)
+        path, why = pick_submission_file(root / "submission", ex.notebook)
+        if path is None:
+            msg = f"Nothing to grade: {why}. Submit {ex.notebook}."
+            tests = [{"name": t.name, "score": 0.0, "max_score": t.weight, "status": "failed", "output": msg,
+                      "visibility": VISIBILITY[t.visibility]} for t in ex.tests]
+            write_json_atomic(results, {**fallback_results(msg), "tests": tests})
+            print(msg)
+            return 0
+        result = grade(path, ex.name, limits=limits)
+        write_json_atomic(results, result.to_gradescope())
+        print(result.text_report())
+        return 0
+    except Exception:  # noqa: BLE001 - always leave a valid results.json
+        import traceback
+
+        msg = "The autograder failed internally; please tell the course staff.\n" + traceback.format_exc(limit=5)
+        write_json_atomic(results, fallback_results(msg))
+        print(msg)
+        return 1
