@@ -498,6 +498,21 @@ def _install_audit_hook(blocked_modules, blocked_paths, attempts, processes=True
 
     sys.addaudithook(hook)
 
+    class _BlockedFinder:
+        """First on sys.meta_path: importlib.import_module raises no audit event, so refuse here too."""
+
+        @staticmethod
+        def find_spec(name, path=None, target=None):
+            if name.partition(".")[0] in roots:
+                record(f"import {name}")
+                raise ImportError(f"{name} is not available while grading: graded functions must be your own code")
+            return None
+
+    sys.meta_path.insert(0, _BlockedFinder)
+    for name in list(sys.modules):
+        if name.partition(".")[0] in roots:
+            del sys.modules[name]
+
 
 class _Unit:
     __slots__ = ("source", "filename", "line0", "label")

@@ -154,7 +154,7 @@ def main():
     rng = np.random.default_rng(SEED)
     rows = []
     t_start = time.perf_counter()
-    for N, reps, plain_reps in ((100, 200, 10), (400, 60, 3)):
+    for N, reps, plain_reps in ((100, 400, 10), (400, 160, 3)):
         fast = bench_fast(N, rng, reps // CYCLE)
         forced = bench_fast(N, rng, reps, refresh_every_step=True)
         base = bench_numpy(N, rng, reps)

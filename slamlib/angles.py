@@ -28,10 +28,21 @@ def wrap_angle(a):
     float or ndarray, same shape as `a`
         ``(a + pi) mod 2 pi - pi``; ``pi`` itself maps to ``-pi``.
     """
-    arr = as_array(a, "a", ndim=range(0, 33))
-    out = np.mod(arr + np.pi, _TWO_PI) - np.pi
-    # np.mod can round up to exactly 2 pi for tiny negative inputs
-    out = np.where(out >= np.pi, out - _TWO_PI, out)
+    arr = np.asarray(a)
+    if arr.dtype.kind not in "biuf":
+        raise TypeError(f"a must hold real angles in radians, got dtype {arr.dtype}")
+    arr = arr.astype(np.float64, copy=False)
+    if not np.isfinite(arr).all():
+        raise ValueError("a must be finite (no NaN or inf)")
+    # a - 2 pi floor((a + pi) / 2 pi): a new array, never a view of the input
+    out = np.add(arr, np.pi, out=np.empty_like(arr))
+    out *= 1.0 / _TWO_PI
+    np.floor(out, out=out)
+    out *= -_TWO_PI
+    out += arr
+    # rounding near odd multiples of pi can land a hair outside [-pi, pi): fold it back
+    np.subtract(out, _TWO_PI, out=out, where=out >= np.pi)
+    np.add(out, _TWO_PI, out=out, where=out < -np.pi)
     return float(out) if out.ndim == 0 else out
 
 

@@ -1,7 +1,7 @@
 """EKF SLAM: known correspondences (Algorithm 1) and unknown ones (Algorithm 2).
 
 The state is the robot pose followed by the landmark positions,
-``mu = [x, y, theta, m1x, m1y, ..., mNx, mNy]`` of shape ``(3+2N,)``, with a
+``mu = [x, y, theta, m0x, m0y, ..., m(N-1)x, m(N-1)y]`` of shape ``(3+2N,)``, with a
 full ``(3+2N, 3+2N)`` covariance ``Sigma``.
 
 Two implementations of the same mathematics live here.
@@ -16,11 +16,11 @@ Two implementations of the same mathematics live here.
   the three robot rows and columns (``O(N)``); an update uses only the five
   non-zero columns of ``H`` and applies the covariance correction
   ``Sigma -= K S K^T = (Sigma H^T) S^-1 (Sigma H^T)^T`` as a symmetric rank-2
-  term (``O(N^2)``). The rank-2 terms of one time step are accumulated and
-  applied to the dense covariance together, once per step (the pending terms
-  enter every read of the covariance, so each update still sees the exact
-  sequential posterior). The buffers are preallocated and doubled when full,
-  so a new landmark does not copy the covariance.
+  term (``O(N^2)``). The rank-2 terms of up to 32 updates are held back and
+  applied to the dense covariance together (every read in between subtracts
+  them from what it needs, so each update still sees the exact sequential
+  posterior). The buffers are preallocated and doubled when full, so a new
+  landmark does not copy the covariance.
 
 :func:`run_ekf_slam` runs either version over a simulated
 :class:`~slamlib.sim.LandmarkRun`, with known or unknown correspondences and an
@@ -81,7 +81,7 @@ _PENDING_COLS = 64  # columns of pending rank-2 terms (32 updates) before the de
 def _check_mu(mu, name="mu"):
     mu = as_array(mu, name, ndim=1)
     if mu.shape[0] < 3 or (mu.shape[0] - 3) % 2:
-        raise ValueError(f"{name} must have shape (3+2N,) = [x, y, theta, m1x, m1y, ...], got {mu.shape}")
+        raise ValueError(f"{name} must have shape (3+2N,) = [x, y, theta, m0x, m0y, ...], got {mu.shape}")
     return mu
 
 
@@ -145,7 +145,7 @@ def ekf_slam_predict(mu, Sigma, u, dt, M):
     Parameters
     ----------
     mu : ndarray, shape (3+2N,)
-        State mean ``[x, y, theta, m1x, m1y, ...]``.
+        State mean ``[x, y, theta, m0x, m0y, ...]``.
     Sigma : ndarray, shape (3+2N, 3+2N)
         State covariance.
     u : ndarray, shape (2,)
@@ -364,14 +364,14 @@ def ekf_slam_associate(mu_bar, Sigma_bar, z, n_seen, Q, alpha):
     Q = as_covariance(Q, "Q", 2)
     alpha = _check_alpha(alpha)
     best, best_d = n_seen, np.inf
-    for k in range(n_seen):  # for k = 1 to N_t  (Algorithm 2)
+    for k in range(n_seen):  # for k = 0, ..., N_t - 1  (Algorithm 2 line 4)
         z_hat, H = _measurement(mu_bar, k)  # z_hat_k, H_k  (Eqs. 17.2, 17.3)
-        S = H @ Sigma_bar @ H.T + Q  # Psi_k = H_k Sigma_bar H_k^T + Q  (Table 10.2 line 15)
+        S = H @ Sigma_bar @ H.T + Q  # S_k = H_k Sigma_bar H_k^T + Q  (Table 10.2 line 15)
         nu = _innovation(z, z_hat)
-        d = float(nu @ np.linalg.solve(S, nu))  # pi_k = nu^T Psi_k^-1 nu  (Table 10.2 line 16)
+        d = float(nu @ np.linalg.solve(S, nu))  # d_k = nu^T S_k^-1 nu  (Table 10.2 line 16)
         if d < best_d:  # strict: ties keep the smallest index
             best, best_d = k, d
-    # pi_{N+1} = alpha; j = argmin_k pi_k  (Table 10.2 lines 17-18); equality counts as a match
+    # d_{N_t} = alpha; j = argmin_k d_k  (Algorithm 2 lines 5-6); a distance equal to alpha is a match
     return best if best_d <= alpha else n_seen
 
 
@@ -463,7 +463,7 @@ class EKFSLAM:
       ``K S_innov K^T = (Sigma H^T) S_innov^-1 (Sigma H^T)^T = W W^T``
       (``W = Sigma H^T L^-T``, ``S_innov = L L^T``) as two new columns of
       ``P``: a symmetric rank-2 update that costs ``O(N)`` now.
-    * :meth:`predict` changes only the robot rows: ``S_xx <- G_x S_xx G_x^T
+    * :meth:`predict` changes only the robot rows and columns: ``S_xx <- G_x S_xx G_x^T
       + R``, ``S_xm <- G_x S_xm`` and ``P_x <- G_x P_x`` (``O(N)``; since
       ``G = I + F_x^T (G_x - I) F_x``, ``G (S - P P^T) G^T = G S G^T - (G P)
       (G P)^T``).
@@ -827,13 +827,13 @@ class EKFSLAM:
             Pl = Pt[:, 3:].reshape(k, N, 2)
             Smm -= np.einsum("kni,knj->nij", Pl, Pl)
         cross = Hx @ Sxm @ Hm.transpose(0, 2, 1)
-        # Psi_k = H_k Sigma H_k^T + Q on the 5 non-zero columns  (Table 10.2 line 15)
-        Psi = Hx @ Sxx @ Hx.transpose(0, 2, 1) + cross + cross.transpose(0, 2, 1) + Hm @ Smm @ Hm.transpose(0, 2, 1) + Q
+        # S_k = H_k Sigma H_k^T + Q on the 5 non-zero columns  (Table 10.2 line 15)
+        Sk = Hx @ Sxx @ Hx.transpose(0, 2, 1) + cross + cross.transpose(0, 2, 1) + Hm @ Smm @ Hm.transpose(0, 2, 1) + Q
         nu = _innovation(z, z_hat)
-        det = Psi[:, 0, 0] * Psi[:, 1, 1] - Psi[:, 0, 1] * Psi[:, 1, 0]
-        # pi_k = nu^T Psi_k^-1 nu with the 2 x 2 inverse written out  (Table 10.2 line 16)
-        return (Psi[:, 1, 1] * nu[:, 0] ** 2 - (Psi[:, 0, 1] + Psi[:, 1, 0]) * nu[:, 0] * nu[:, 1]
-                + Psi[:, 0, 0] * nu[:, 1] ** 2) / det
+        det = Sk[:, 0, 0] * Sk[:, 1, 1] - Sk[:, 0, 1] * Sk[:, 1, 0]
+        # d_k = nu^T S_k^-1 nu with the 2 x 2 inverse written out  (Table 10.2 line 16)
+        return (Sk[:, 1, 1] * nu[:, 0] ** 2 - (Sk[:, 0, 1] + Sk[:, 1, 0]) * nu[:, 0] * nu[:, 1]
+                + Sk[:, 0, 0] * nu[:, 1] ** 2) / det
 
     def associate(self, z, Q, alpha):
         """Data association of Algorithm 2, vectorised over landmarks.
@@ -966,9 +966,9 @@ class _ProvisionalList:
         P_new = Jz @ Q @ Jz.T  # J_z Q J_z^T: the robot's own uncertainty is shared by both sightings
         if self.m.shape[0]:
             zc, _, Hmc = landmark_measurement(x, self.m)
-            Psi = Hmc @ self.P @ Hmc.transpose(0, 2, 1) + Q
+            Sc = Hmc @ self.P @ Hmc.transpose(0, 2, 1) + Q
             nu = _innovation(z, zc)
-            d = np.einsum("ki,ki->k", nu, np.linalg.solve(Psi, nu[..., None])[..., 0])
+            d = np.einsum("ki,ki->k", nu, np.linalg.solve(Sc, nu[..., None])[..., 0])
             best = int(np.argmin(d))
             if d[best] <= alpha:
                 self.count[best] += 1
@@ -1091,7 +1091,8 @@ def run_ekf_slam(run, *, known=True, fast=True, alpha=DEFAULT_ALPHA, confirm=1, 
     dt = as_scalar(run.dt, "run.dt", positive=True)
     T = u.shape[0]
     if len(run.z) != T or len(run.ids) != T:
-        raise ValueError(f"run.z and run.ids must hold one entry per control ({T}), got {len(run.z)} and {len(run.ids)}")
+        raise ValueError(f"run.z and run.ids must hold one entry per control ({T}), "
+                         f"got {len(run.z)} and {len(run.ids)}")
     M = as_covariance(run.M if M is None else M, "M", 2)
     Q = as_covariance(run.Q if Q is None else Q, "Q", 2)
     Sigma0 = np.zeros((3, 3)) if Sigma0 is None else as_covariance(Sigma0, "Sigma0", 3)

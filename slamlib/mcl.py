@@ -86,8 +86,8 @@ class AugmentedParams:
         likelihood, ``0 <= alpha_slow << alpha_fast <= 1``.
     """
 
-    alpha_slow: float = 0.01
-    alpha_fast: float = 0.3
+    alpha_slow: float = 0.05
+    alpha_fast: float = 0.5
 
     def __post_init__(self):
         a_s = as_scalar(self.alpha_slow, "alpha_slow", nonnegative=True)

@@ -284,7 +284,7 @@ class Sneaky(np.ndarray):
     ("np.float64(1.0)", "must have shape"),
     ("np.ones(len(log_w), dtype=bool)", "real floating dtype"),
     ("np.zeros(10**7)", "too large"),
-    ("'weights'", "real floating dtype"),
+    ("'weights'", "has dtype <U7"),
 ])
 def test_garbage_results(tmp_path, ret, message):
     (s, _), out, _, _ = attack(tmp_path, f"def normalize_log_weights(log_w):\n    return {ret}\n")

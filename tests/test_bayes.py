@@ -441,3 +441,46 @@ def test_simulate_grid_bad_inputs():
         sl.simulate_grid(free, [1, 1], [1, 0], sigma=0.1, range_sigma=0.1, rng=rng)
     with pytest.raises(TypeError, match="rng"):
         sl.simulate_grid(free, [1, 1], [[1, 0]], sigma=0.1, range_sigma=0.1, rng=None)
+
+
+# --------------------------------------------------------------------------- plots
+
+
+def test_plot_helpers_draw_what_they_are_given():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    doors = sl.corridor_doors(20, [2, 11], door_width=2)
+    bel = np.full(20, 0.05)
+    ax = sl.viz.plot_belief_1d(bel, doors=doors, true_x=4, predicted=bel, legend=True)
+    assert ax.get_xlim() == (-0.5, 19.5)
+    axes = sl.viz.plot_belief_sequence(np.tile(bel, (3, 1)), doors=doors, true_x=[1, 2, 3], titles=list("abc"))
+    assert len(axes) == 3 and axes[2].get_title(loc="left") == "c"
+    free = _floor_plan()
+    grid = free / free.sum()
+    assert len(sl.viz.plot_belief_2d_sequence(np.stack([grid] * 4), free=free, true_xy=[[1, 1]] * 4, ncols=3)) == 4
+    ax = sl.viz.plot_belief_2d(grid, free=free, true_xy=[1, 1], path=[[1, 1], [2, 1]], colorbar=True)
+    assert ax.get_xlim() == (-0.5, 19.5)
+    ax = sl.viz.plot_beam_model(4.0, z_max=8.0, sigma_hit=0.3, lambda_short=0.5, w_hit=0.7, w_short=0.1,
+                                w_max=0.05, w_rand=0.15)
+    assert len(ax.get_lines()) >= 4
+    ax = sl.viz.plot_range_histogram(np.array([0.5, 1.0, 8.0, 8.0]), max_range=8.0)
+    assert ax.patches[-1].get_height() == pytest.approx(0.5)  # half the readings are "no return"
+    samples = sl.sample_motion_model_odometry(np.zeros((50, 3)), [0.1, 1.0, 0.1], [0.01] * 4,
+                                              rng=np.random.default_rng(0))
+    axes = sl.viz.plot_motion_samples([samples, samples], start=np.zeros(3), end=[1.0, 0.1, 0.2],
+                                      densities=[np.ones((4, 4)), None], extent=(0, 2, -1, 1))
+    assert len(axes) == 2
+    axes = sl.viz.plot_likelihood_panels([np.ones((5, 5))], (0, 1, 0, 1), landmarks=[[[0.5, 0.5]]],
+                                         pose=[0.2, 0.2, 0.0])
+    assert axes[0].get_xlim() == (0, 1)
+    occ = np.zeros((30, 40))
+    occ[0, :] = occ[:, 0] = 1.0
+    m = sl.OccupancyGrid(occ, 0.1)
+    axes = sl.viz.plot_map_and_field(m, sl.likelihood_field(m, max_dist=1.0), sigma_hit=0.2, xlim=(0, 4))
+    assert axes[1].get_xlim() == (0, 4)
+    with pytest.raises(ValueError, match="belief"):
+        sl.viz.plot_belief_1d(np.ones((2, 2)))
+    plt.close("all")

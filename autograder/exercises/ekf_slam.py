@@ -319,7 +319,9 @@ def _(ctx):
     for _ in range(3):
         mu, Sigma, z, Q = _clear_assoc(ctx.rng, N=6)
         mu = mu.copy()
-        mu[3 + 2 * 5:5 + 2 * 5] = sl.landmark_from_measurement(mu[:3], z)  # slot 5 matches z perfectly
+        m = sl.landmark_from_measurement(mu[:3], z)
+        mu[3 + 2 * 4:5 + 2 * 4] = m  # slots 4 = n_seen and 5 match z perfectly but are not in the map yet
+        mu[3 + 2 * 5:5 + 2 * 5] = m
         got = _assoc(ctx, mu, Sigma, z, 4, Q, 1e6)
         want = sl.ekf_slam_associate(mu, Sigma, z, 4, Q, 1e6)
         if got != want:

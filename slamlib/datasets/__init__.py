@@ -6,7 +6,7 @@ Each data set keeps its attribution in ``slamlib/data/<name>/ATTRIBUTION.md``.
 from importlib import resources
 from pathlib import Path
 
-__all__ = ["data_path"]
+__all__ = ["data_path", "CmuLog", "load_cmu_map", "load_cmu_log", "MRCLAMRun", "load_mrclam"]
 
 
 def data_path(*parts: str) -> Path:
@@ -17,3 +17,7 @@ def data_path(*parts: str) -> Path:
     if not path.exists():
         raise FileNotFoundError(f"no data file {path} in the installed slamlib package")
     return path
+
+
+from .cmu import CmuLog, load_cmu_log, load_cmu_map  # noqa: E402
+from .mrclam import MRCLAMRun, load_mrclam  # noqa: E402

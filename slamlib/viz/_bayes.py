@@ -86,11 +86,12 @@ def plot_belief_1d(belief, *, doors=None, true_x=None, predicted=None, ax=None, 
         doors = as_array(doors, "doors", (n,))
         _draw_doors(ax, doors)
         ax.plot([], [], color=_DOOR_COLOR, lw=6, label="door")
-    cells = np.arange(n)
-    ax.bar(cells, belief, width=0.9, color=color, label=r"$bel(x)$")
+    edges = np.arange(n + 1) - 0.5
+    # one filled staircase (one artist) instead of n bars: same picture, much faster to draw
+    ax.stairs(belief, edges, fill=True, color=color, label=r"$bel(x)$")
     if predicted is not None:
         predicted = as_array(predicted, "predicted", (n,))
-        ax.step(cells, predicted, where="mid", color="0.3", lw=1.2, label=r"$\overline{bel}(x)$")
+        ax.stairs(predicted, edges, color="0.3", lw=1.2, label=r"$\overline{bel}(x)$")
     if true_x is not None:
         ax.plot([true_x], [0], marker="^", ms=9, color=_TRUE_COLOR, clip_on=False, zorder=5,
                 transform=ax.get_xaxis_transform(), label="true position")

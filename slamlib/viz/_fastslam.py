@@ -59,8 +59,8 @@ def _finish(ax, title, legend):
     return ax
 
 
-def plot_fastslam_particles(state, *, landmarks=None, x_true=None, n_std=2.0, max_maps=60, zoom=True, ax=None,
-                            title=None, legend=True):
+def plot_fastslam_particles(state, *, landmarks=None, x_true=None, n_std=2.0, max_maps=60, n_ellipses=1, zoom=True,
+                            ax=None, title=None, legend=True):
     """A FastSLAM particle set: every particle's pose and its own map.
 
     Parameters
@@ -72,14 +72,17 @@ def plot_fastslam_particles(state, *, landmarks=None, x_true=None, n_std=2.0, ma
     x_true : ndarray, shape (T+1, 3), optional
         True path.
     n_std : float, keyword-only
-        The most likely particle's landmark ellipses enclose `n_std` standard
-        deviations.
+        Landmark ellipses enclose `n_std` standard deviations.
     max_maps : int, keyword-only
         Draw the landmark means of at most this many particles (the most
         likely ones).
-    zoom : bool, keyword-only
-        Limit the axes to the particles and the landmarks they have seen
-        (with a 2 m margin), where the spread of the maps is visible.
+    n_ellipses : int, keyword-only
+        Draw the landmark ellipses of this many particles (the most likely
+        ones, the first in green, the others in grey).
+    zoom : bool or tuple (x, y, half_width), keyword-only
+        ``True``: limit the axes to the particles and the landmarks they have
+        seen (with a 2 m margin). A tuple: show the square of half-width
+        `half_width` around ``(x, y)``. ``False``: automatic limits.
     ax : matplotlib.axes.Axes, optional
         Axes to draw on; a new figure if omitted.
     title : str, optional
@@ -115,18 +118,24 @@ def plot_fastslam_particles(state, *, landmarks=None, x_true=None, n_std=2.0, ma
         xt = as_array(x_true, "x_true", (None, 3))
         ax.plot(xt[:, 0], xt[:, 1], color=_TRUE_COLOR, lw=1.0, label="true path")
     shown = order[:max(int(max_maps), 1)]
-    pts = np.concatenate([state.mu[k][state.seen[k]] for k in shown]) if shown.size else np.empty((0, 2))
-    ax.scatter(pts[:, 0], pts[:, 1], s=3, color=_EST_COLOR, alpha=0.35, lw=0,
+    pts = np.concatenate([state.mu[k][state.seen[k]] for k in shown])
+    ax.scatter(pts[:, 0], pts[:, 1], s=4, color=_EST_COLOR, alpha=0.5, lw=0, zorder=3,
                label=f"landmark means of {shown.size} particles")
     _core.plot_particles(state.poses, w, ax=ax, color="0.25", alpha=0.6, label="particle poses (area: weight)")
-    best = int(order[0])
-    for m, P in zip(state.mu[best][state.seen[best]], state.Sigma[best][state.seen[best]]):
-        _core.plot_covariance_ellipse(m, P, n_std=n_std, ax=ax, color=_BEST_COLOR, lw=0.9)
-    ax.plot([], [], color=_BEST_COLOR, lw=0.9, label=rf"most likely particle's map, ${n_std:g}\sigma$")
-    _core.plot_pose(state.poses[best], ax=ax, color=_BEST_COLOR)
-    if zoom:
+    for rank, k in enumerate(order[:max(int(n_ellipses), 1)]):
+        color, lw = (_BEST_COLOR, 1.0) if rank == 0 else ("0.5", 0.6)
+        for m, P in zip(state.mu[k][state.seen[k]], state.Sigma[k][state.seen[k]]):
+            _core.plot_covariance_ellipse(m, P, n_std=n_std, ax=ax, color=color, lw=lw, zorder=2 if rank else 3)
+    ax.plot([], [], color=_BEST_COLOR, lw=1.0, label=rf"most likely particle's map, ${n_std:g}\sigma$")
+    if n_ellipses > 1:
+        ax.plot([], [], color="0.5", lw=0.6, label=f"maps of the next {int(n_ellipses) - 1} particles")
+    if zoom is True:
         box = np.vstack([state.poses[:, :2], pts])
         lo, hi = box.min(axis=0) - 2.0, box.max(axis=0) + 2.0
+    elif zoom:
+        cx, cy, half = (float(v) for v in zoom)
+        lo, hi = np.array([cx - half, cy - half]), np.array([cx + half, cy + half])
+    if zoom:
         ax.set_xlim(lo[0], hi[0])
         ax.set_ylim(lo[1], hi[1])
         ax.set_aspect("equal", adjustable="box")

@@ -197,7 +197,7 @@ def plot_covariance_matrix(Sigma, *, correlation=True, absolute=False, ax=None, 
     Parameters
     ----------
     Sigma : ndarray, shape (3+2N, 3+2N)
-        Covariance of ``[x, y, theta, m1x, m1y, ...]``.
+        Covariance of ``[x, y, theta, m0x, m0y, ...]``.
     correlation : bool, keyword-only
         Show correlation coefficients ``Sigma_ij / sqrt(Sigma_ii Sigma_jj)``
         (default) instead of raw covariances.

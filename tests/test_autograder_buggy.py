@@ -1,0 +1,121 @@
+"""Realistic bugs lose points on the buggy function, and only there.
+
+Each variant is an independent solution (``autograder_fixtures/solutions``) with
+one textual change inside one contract function.
+"""
+
+from __future__ import annotations
+
+import sys
+from functools import lru_cache
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent / "autograder_fixtures"))
+
+from agtest import variant  # noqa: E402
+
+from autograder.engine import grade  # noqa: E402
+from autograder.exercises import get_exercise  # noqa: E402
+
+VARIANTS = [
+    # ---------------------------------------------------------------- exercise 1
+    ("motion_sensor_models", "velocity_motion", "sign error in the Jacobian G",
+     [("[[1.0, 0.0, -r * np.cos(th) + r * np.cos(th2)],", "[[1.0, 0.0, r * np.cos(th) - r * np.cos(th2)],")]),
+    ("motion_sensor_models", "velocity_motion", "heading not wrapped",
+     [("py + r * np.cos(th) - r * np.cos(th2), wrap(th2)])", "py + r * np.cos(th) - r * np.cos(th2), th2])")]),
+    ("motion_sensor_models", "sample_motion_model_odometry", "standard deviation used as the variance",
+     [("rng.normal(0.0, np.sqrt(a1 * rot1**2 + a2 * trans**2), size=M)",
+       "rng.normal(0.0, a1 * rot1**2 + a2 * trans**2, size=M)")]),
+    ("motion_sensor_models", "motion_model_odometry", "variances evaluated at the control, not the hypothesis",
+     [("p1 = _normal(wrap(u[0] - rot1_h), a1 * rot1_h**2 + a2 * trans_h**2)",
+       "p1 = _normal(wrap(u[0] - rot1_h), a1 * u[0]**2 + a2 * u[1]**2)")]),
+    ("motion_sensor_models", "landmark_measurement", "sign error in the bearing row of Hx",
+     [("Hx = np.array([[-dx / r, -dy / r, 0.0], [dy / q, -dx / q, -1.0]])",
+       "Hx = np.array([[-dx / r, -dy / r, 0.0], [-dy / q, dx / q, -1.0]])")]),
+    ("motion_sensor_models", "landmark_from_measurement", "robot heading forgotten",
+     [("np.array([x[0] + z[0] * np.cos(x[2] + z[1]), x[1] + z[0] * np.sin(x[2] + z[1])])",
+       "np.array([x[0] + z[0] * np.cos(z[1]), x[1] + z[0] * np.sin(z[1])])")]),
+    ("motion_sensor_models", "beam_range_finder_model", "truncated normal not renormalised",
+     [("_normal(z - z_star, sigma_hit**2) / eta", "_normal(z - z_star, sigma_hit**2)")]),
+    # ---------------------------------------------------------------- exercise 2
+    ("ekf_localization", "ekf_predict", "Jacobian G at the predicted mean (wrong linearisation point)",
+     [("    mu_bar, G, V = _motion(mu, u, dt)\n", "    mu_bar, _, V = _motion(mu, u, dt)\n    _, G, _ = _motion(mu_bar, u, dt)\n")]),
+    ("ekf_localization", "ekf_predict", "control noise M added without V",
+     [("return mu_bar, G @ Sigma @ G.T + V @ M @ V.T", "return mu_bar, G @ Sigma @ G.T + np.pad(M, ((0, 1), (0, 1)))")]),
+    ("ekf_localization", "ekf_update", "Q^-1 instead of S^-1 in the gain",
+     [("K = Sigma_bar @ H.T @ np.linalg.inv(S)", "K = Sigma_bar @ H.T @ np.linalg.inv(Q)")]),
+    ("ekf_localization", "ekf_update", "bearing innovation not wrapped",
+     [("    nu[1] = wrap(nu[1])\n    mu = mu_bar + K @ nu", "    mu = mu_bar + K @ nu")]),
+    ("ekf_localization", "associate_ml", "maximum likelihood (det S) instead of nearest neighbour",
+     [("d = nu @ np.linalg.solve(S, nu)", "d = nu @ np.linalg.solve(S, nu) + np.log(np.linalg.det(S))")]),
+    ("ekf_localization", "associate_ml", "a distance equal to the gate rejected",
+     [("return best if best_d <= gate else -1", "return best if best_d < gate else -1")]),
+    # ---------------------------------------------------------------- exercise 3
+    ("particle_filter", "normalize_log_weights", "no shift by the maximum (overflow)",
+     [("a = log_w - np.max(log_w)", "a = log_w")]),
+    ("particle_filter", "effective_sample_size", "1 / sum(w^2) for unnormalised weights",
+     [("return float(w.sum() ** 2 / np.sum(w**2))", "return float(1.0 / np.sum(w**2))")]),
+    ("particle_filter", "low_variance_resample", "off-by-one pointer r + (m + 1) / M",
+     [("U = r + m / M", "U = r + (m + 1) / M")]),
+    ("particle_filter", "landmark_likelihood", "bearing difference not wrapped",
+     [("    nu[:, 1] = (nu[:, 1] + np.pi) % (2 * np.pi) - np.pi\n", "")]),
+    ("particle_filter", "landmark_likelihood", "normalising constant missing",
+     [("return np.exp(-0.5 * d) / (2 * np.pi * np.sqrt(np.linalg.det(Q)))", "return np.exp(-0.5 * d)")]),
+    # ---------------------------------------------------------------- exercise 4
+    ("ekf_slam", "ekf_slam_predict", "cross-covariances not propagated (robot block only)",
+     [("    Sigma_bar = G @ Sigma @ G.T + F.T @ (V @ M @ V.T) @ F\n",
+       "    Sigma_bar = Sigma.copy()\n    Sigma_bar[:3, :3] = Gx @ Sigma[:3, :3] @ Gx.T + V @ M @ V.T\n")]),
+    ("ekf_slam", "ekf_slam_measurement", "sign error in the landmark columns of H",
+     [("h = np.array([[-dx / r, -dy / r, 0, dx / r, dy / r], [dy / q, -dx / q, -1, -dy / q, dx / q]])",
+       "h = np.array([[-dx / r, -dy / r, 0, -dx / r, -dy / r], [dy / q, -dx / q, -1, dy / q, -dx / q]])")]),
+    ("ekf_slam", "ekf_slam_init_landmark", "robot heading forgotten",
+     [("out[a] = mu[0] + z[0] * np.cos(z[1] + mu[2])", "out[a] = mu[0] + z[0] * np.cos(z[1])"),
+      ("out[a + 1] = mu[1] + z[0] * np.sin(z[1] + mu[2])", "out[a + 1] = mu[1] + z[0] * np.sin(z[1])")]),
+    ("ekf_slam", "ekf_slam_update", "Q^-1 instead of S^-1 in the gain",
+     [("K = Sigma_bar @ H.T @ np.linalg.inv(S)", "K = Sigma_bar @ H.T @ np.linalg.inv(Q)")]),
+    ("ekf_slam", "ekf_slam_associate", "off-by-one: slot n_seen considered",
+     [("for k in range(n_seen):", "for k in range(min(n_seen + 1, (len(mu_bar) - 3) // 2)):")]),
+    # ---------------------------------------------------------------- exercise 5
+    ("fastslam", "fastslam_update_landmark", "weight with Q instead of S (the course text's erratum)",
+     [("w[k] = np.exp(-0.5 * nu @ np.linalg.solve(S, nu)) / (2 * np.pi * np.sqrt(np.linalg.det(S)))",
+       "w[k] = np.exp(-0.5 * nu @ np.linalg.solve(Q, nu)) / (2 * np.pi * np.sqrt(np.linalg.det(Q)))")]),
+    ("fastslam", "fastslam_update_landmark", "bearing innovation not wrapped",
+     [("        nu[1] = wrap(nu[1])\n        mu_new[k]", "        mu_new[k]")]),
+    ("fastslam", "fastslam_init_landmark", "H instead of H^-1",
+     [("Hi = np.linalg.inv(H)", "Hi = H")]),
+    ("fastslam", "fastslam_init_landmark", "missing transpose: H^-1 Q H^-1",
+     [("Sigma[k] = Hi @ Q @ Hi.T", "Sigma[k] = Hi @ Q @ Hi")]),
+]
+
+
+@lru_cache(maxsize=None)
+def _full(exercise):
+    return get_exercise(exercise)
+
+
+def test_at_least_four_variants_per_exercise():
+    counts = {}
+    for ex, *_ in VARIANTS:
+        counts[ex] = counts.get(ex, 0) + 1
+    assert set(counts) == {"motion_sensor_models", "ekf_localization", "particle_filter", "ekf_slam", "fastslam"}
+    assert min(counts.values()) >= 4
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("exercise, function, bug, replacements", VARIANTS,
+                         ids=[f"{v[1]}: {v[2]}" for v in VARIANTS])
+def test_buggy_variant_loses_points_only_on_its_function(exercise, function, bug, replacements, tmp_path):
+    path = variant(exercise, replacements, tmp_path / f"{exercise}.py")
+    result = grade(path, exercise)
+    scores = result.by_function()
+    ex = _full(exercise)
+    for fn in ex.functions:
+        got, top = scores[fn]
+        if fn == function:
+            assert got < top, f"{bug}: {fn} kept all its points\n{result.text_report()}"
+        else:
+            assert got == top, f"{bug}: {fn} lost points\n{result.text_report()}"
+    failed = [t for t in result.tests if t.status == "failed"]
+    assert all("Hint:" in t.output and "grader could not complete" not in t.output for t in failed)

@@ -1,0 +1,225 @@
+"""Parts of the autograder tested in isolation: wire format, output rules, static checks, statistics, loops."""
+
+from __future__ import annotations
+
+import json
+import struct
+
+import numpy as np
+import pytest
+
+import slamlib as sl
+from autograder import _runner, loops
+from autograder._runner import ProtocolError, decode_result, encode_args, encode_result, pack_frame, parse_frame
+from autograder.calibrate import calibrate, summarize
+from autograder.context import Ctx, Fail, Out
+from autograder.results import write_json_atomic
+from autograder.sandbox import Limits, describe_isolation, isolation_report
+from autograder.stats import P_THRESHOLD, wrapped_normal_cdf
+from autograder.submission import forbidden_usage
+
+
+# --------------------------------------------------------------------------- wire format
+def _roundtrip(obj):
+    desc, payload = encode_result(obj, np)
+    header, body, used = parse_frame(pack_frame({"result": desc}, payload))
+    return decode_result(header["result"], body, np)
+
+
+def test_frames_roundtrip_and_reject_garbage():
+    frame = pack_frame({"a": 1}, b"xyz")
+    assert parse_frame(frame) == ({"a": 1}, b"xyz", len(frame))
+    assert parse_frame(frame[:-1]) is None
+    with pytest.raises(ProtocolError):
+        parse_frame(b"EVIL" + frame[4:])
+    with pytest.raises(ProtocolError):
+        parse_frame(struct.pack("<4sII", b"AGW1", 1 << 30, 0))
+    with pytest.raises(ProtocolError):
+        parse_frame(struct.pack("<4sII", b"AGW1", 3, 0) + b"[1]")
+
+
+@pytest.mark.parametrize("desc", [
+    {"t": "item", "value": {"t": "arr", "dtype": "|O8", "shape": [1], "off": 0, "len": 8}},
+    {"t": "item", "value": {"t": "arr", "dtype": "<f8", "shape": [2], "off": 0, "len": 8}},
+    {"t": "item", "value": {"t": "arr", "dtype": "<f8", "shape": [1], "off": 4, "len": 8}},
+    {"t": "item", "value": {"t": "arr", "dtype": "<f8", "shape": [-1], "off": 0, "len": 8}},
+    {"t": "item", "value": {"t": "arr", "dtype": "V8", "shape": [1], "off": 0, "len": 8}},
+    {"t": "item", "value": {"t": "pickle"}},
+    {"t": "seq", "kind": "tuple", "n": 1, "items": "x", "whole": None},
+    {"t": "nope"},
+    ["not", "a", "dict"],
+])
+def test_decoder_rejects_malformed_descriptors(desc):
+    with pytest.raises(ProtocolError):
+        decode_result(desc, b"\0" * 8, np)
+
+
+def test_results_become_plain_arrays():
+    class Sub(np.ndarray):
+        pass
+
+    r = _roundtrip(np.arange(3.0).view(Sub))
+    assert type(r.value.array) is np.ndarray and r.value.subclass == "Sub"
+    r = _roundtrip((np.zeros(2), 3, [1.0, 2.0]))
+    assert r.seq_kind == "tuple" and r.n == 3 and r.items[1].int_like and r.items[2].array.shape == (2,)
+    r = _roundtrip([1.0, 2.0])
+    assert r.seq_kind == "list" and r.whole.array.shape == (2,)
+    assert _roundtrip(object()).value.problem.startswith("numpy.asarray() of the result has dtype object")
+    big_endian = np.arange(3, dtype=">f8")
+    assert np.array_equal(_roundtrip(big_endian).value.array, np.arange(3.0))
+
+
+def test_args_encoding():
+    header, payload = encode_args((np.eye(2), 3, 0.5, None, True), {"rng": _runner.RngSeed(7)}, np)
+    args, kwargs = _runner.decode_args(header, payload, np)
+    assert np.array_equal(args[0], np.eye(2)) and args[1:] == [3, 0.5, None, True]
+    assert kwargs["rng"].random() == np.random.default_rng(7).random()
+
+
+# --------------------------------------------------------------------------- output rules
+class _Fake:
+    def __init__(self, value):
+        self.value = value
+
+    def call(self, fn, args, kwargs, **kw):
+        from autograder.sandbox import CallOutcome
+
+        return CallOutcome("ok", returned=_roundtrip(self.value))
+
+
+def _expect(value, *outs):
+    ctx = Ctx(_Fake(value), "f", ["x"], 1.0, np.random.default_rng(0), 0)
+    return ctx.expect(ctx.call(np.zeros(1)), *outs)
+
+
+def test_output_rules():
+    A, B = Out("a", (2,)), Out("b", (2, 2))
+    a, b = _expect((np.ones(2), np.eye(2)), A, B)
+    assert a.dtype == np.float64 and b.shape == (2, 2)
+    _expect([np.ones(2), np.eye(2)], A, B)  # a list is accepted
+    _expect([1.0, 2.0], A)  # a list for one array result: numpy.asarray(result)
+    assert _expect(np.int64(3), Out("j", (), "index")) == 3
+    assert _expect(np.float32(2.5), Out("e", ())) == 2.5
+    for bad, outs, msg in [
+        (np.ones(2), (A, B), "must return a tuple"),
+        ((np.ones(2),), (A, B), "tuple of 2 items"),
+        ((np.ones(2), np.eye(2), 1), (A, B), "tuple of 2 items"),
+        (np.ones((1, 2)), (A,), "must have shape (2,)"),
+        (np.ones(1), (A,), "must have shape (2,)"),
+        (np.array([1, 2]), (A,), "real floating dtype"),
+        (np.array([True, False]), (A,), "real floating dtype"),
+        (np.array([1j, 2]), (A,), "complex"),
+        (np.array([np.inf, 0.0]), (A,), "NaN or inf"),
+        (3.0, (Out("j", (), "index"),), "Python int or NumPy integer"),
+        (True, (Out("j", (), "index"),), "Python int or NumPy integer"),
+        (np.array(3), (Out("j", (), "index"),), "Python int or NumPy integer"),
+        ((3,), (Out("j", (), "index"),), "single integer"),
+        (np.ones(3, dtype=np.float64), (Out("i", (3,), "int"),), "integer dtype"),
+    ]:
+        with pytest.raises(Fail, match=msg.replace("(", r"\(").replace(")", r"\)")):
+            _expect(bad, *outs)
+
+
+def test_comparisons_never_broadcast_and_wrap_angles():
+    ctx = Ctx(_Fake(0.0), "f", [], 1.0, np.random.default_rng(0), 0)
+    with pytest.raises(Fail, match="shape"):
+        ctx.close("v", np.ones(3), np.ones((1, 3)))
+    ctx.close("angle", np.array([np.pi - 1e-12]), np.array([-np.pi]), atol=1e-9, angles=True)
+    with pytest.raises(Fail):
+        ctx.close("angle", np.array([np.pi - 1e-12]), np.array([-np.pi]), atol=1e-9)
+    with pytest.raises(Fail, match="wrapped"):
+        ctx.wrapped("h", np.array([np.pi]))
+    with pytest.raises(Fail, match="symmetric"):
+        ctx.symmetric("S", np.array([[1.0, 0.1], [0.0, 1.0]]))
+
+
+# --------------------------------------------------------------------------- static checks
+def test_forbidden_usage_follows_helpers_and_aliases():
+    src = """
+import numpy as np
+import slamlib as sl
+from slamlib.particle import normalize_log_weights as nlw
+try:
+    import autograder.selfcheck as ag
+except ImportError:
+    pass
+def helper(x):
+    return sl.wrap_angle(x)
+alias = nlw
+def a(x): return helper(x)
+def b(x): return alias(x)
+def c(x):
+    import importlib
+    return importlib.import_module("slamlib").f(x)
+def d(x, sl=None): return sl
+def e(x): return np.sin(x)
+def f(x): return ag.run_public_tests
+def g(x):
+    from autograder import engine
+"""
+    found = forbidden_usage([{"source": src, "filename": "s.py", "label": "s.py"}], list("abcdefg") + ["nlw"])
+    assert set(found) == {"a", "b", "c", "f", "g", "nlw"}
+    assert "calls `helper`, which uses `sl` (import slamlib" in found["a"]
+
+
+# --------------------------------------------------------------------------- statistics
+def test_wrapped_normal_cdf():
+    rng = np.random.default_rng(1)
+    for sigma in (0.1, 1.0, 3.0):
+        e = np.mod(rng.normal(0, sigma, 200000) + np.pi, 2 * np.pi) - np.pi
+        q = np.linspace(-np.pi, np.pi, 9)
+        emp = np.array([np.mean(e <= v) for v in q])
+        np.testing.assert_allclose(wrapped_normal_cdf(q, sigma), emp, atol=5e-3)
+    assert wrapped_normal_cdf(np.array([-np.pi]), 1.0)[0] == pytest.approx(0.0, abs=1e-12)
+    assert wrapped_normal_cdf(np.array([np.pi]), 1.0)[0] == pytest.approx(1.0, abs=1e-12)
+
+
+@pytest.mark.slow
+def test_statistical_checks_calibrated_on_the_reference():
+    """Reduced calibration (the full one: python -m autograder calibrate --seeds 2000)."""
+    res = calibrate(40, first_seed=1000)
+    for name, p in res.items():
+        s = summarize(p)
+        assert s["below_threshold"] == 0, name
+        assert all(r["ok"] for r in s["levels"]), (name, s)
+        assert p.min() > P_THRESHOLD
+    # the KS p-values are uniform under the null; the chi-square one is conservative
+    ks = np.concatenate([res[n] for n in res if "KS" in n])
+    assert summarize(ks)["ks_uniform_p"] > 1e-3
+
+
+# --------------------------------------------------------------------------- end-to-end loops against slamlib's own runners
+def test_loops_reproduce_slamlib_runners():
+    run = loops.scenario("localization")
+    traj = loops.reference("ekf_known")
+    np.testing.assert_allclose(traj, sl.ekf_localization_run(run, known=True).mu, atol=1e-9)
+    traj, ids = loops.reference("ekf_unknown")
+    ref = sl.ekf_localization_run(run, known=False, gate=loops.GATE)
+    np.testing.assert_allclose(traj, ref.mu, atol=1e-9)
+    assert list(ids) == [int(i) for step in ref.ids for i in step]
+    srun = loops.scenario("slam")
+    traj, lm = loops.reference("ekf_slam")
+    ref = sl.run_ekf_slam(srun, known=True, fast=False, prior_var=1e4)
+    np.testing.assert_allclose(traj, ref.mu[:, :3] if ref.mu.ndim == 2 else ref.x, atol=1e-6)
+    for name in ("pf", "fastslam"):
+        assert loops.ate(loops.reference(name), run if name == "pf" else srun) < 0.5
+
+
+# --------------------------------------------------------------------------- isolation and results files
+def test_isolation_report_lists_every_mechanism():
+    iso = isolation_report(Limits())
+    text = "\n".join(describe_isolation(iso))
+    assert "RLIMIT" not in text and "NPROC=0" in text and "AS=2147483648" in text
+    assert "audit hook: imports of slamlib" in text
+    if iso.get("root"):
+        assert iso.get("uid", 0) != 0 and "dropped from root" in text
+
+
+def test_results_json_written_atomically(tmp_path):
+    path = tmp_path / "r" / "results.json"
+    write_json_atomic(path, {"score": 1.0, "tests": []})
+    assert json.loads(path.read_text())["score"] == 1.0
+    with pytest.raises(ValueError):
+        write_json_atomic(path, {"score": float("nan")})
+    assert json.loads(path.read_text())["score"] == 1.0  # the old file is intact
+    assert [p.name for p in path.parent.iterdir()] == ["results.json"]
