@@ -25,7 +25,7 @@ single-threaded (``OPENBLAS_NUM_THREADS=1`` and friends unless set already).
 References
 ----------
 Course text, Algorithm 3; Thrun, Burgard & Fox, *Probabilistic Robotics*
-(2005), Table 13.1 and Sec. 13.8 (efficient implementation).
+(2005), Table 13.1 and Chapter 13 (efficient implementation).
 """
 
 from __future__ import annotations

@@ -98,6 +98,6 @@ def as_index(value, name, upper=None, *, lower=0):
         raise TypeError(f"{name} must be an integer, got {type(value).__name__}")
     out = int(value)
     if out < lower or (upper is not None and out >= upper):
-        hi = "" if upper is None else f", {upper}"
-        raise ValueError(f"{name} must be in [{lower}{hi}), got {out}")
+        want = f">= {lower}" if upper is None else f"in [{lower}, {upper})"
+        raise ValueError(f"{name} must be {want}, got {out}")
     return out

@@ -2,8 +2,8 @@
 
 Each particle ``k`` carries a sampled robot pose ``x^[k]`` and, for every
 landmark ``j`` it has seen, a 2-D Gaussian ``N(mu_j^[k], Sigma_j^[k])``. The
-factorisation of the SLAM posterior (course text Eq. 17.4; Thrun et al.
-Eq. 13.2)
+factorisation of the SLAM posterior (course text Eq. 17.4; Thrun et al.,
+Chapter 13)
 
 ``p(x_{1:t}, m | z_{1:t}, u_{1:t}) = p(x_{1:t} | z_{1:t}, u_{1:t}) prod_j p(m_j | x_{1:t}, z_{1:t})``
 
@@ -29,8 +29,8 @@ for demonstrations only.
 References
 ----------
 Course text, Eq. 17.4 and Algorithm 3 (FastSLAM 1.0).
-Thrun, Burgard & Fox, *Probabilistic Robotics* (2005), Sec. 13.2-13.3
-(Eq. 13.2), Table 13.1 (known correspondences), Table 13.2 (unknown
+Thrun, Burgard & Fox, *Probabilistic Robotics* (2005), Chapter 13 (the
+factored posterior), Table 13.1 (known correspondences), Table 13.2 (unknown
 correspondences). Montemerlo et al. (2002), FastSLAM.
 """
 
@@ -318,7 +318,7 @@ class FastSLAMState(NamedTuple):
 
     References
     ----------
-    Thrun, Burgard & Fox (2005), Eq. 13.1 (a particle: path sample and N
+    Thrun, Burgard & Fox (2005), Chapter 13 (a particle: path sample and N
     landmark Gaussians), Table 13.2 (counters).
     """
 
@@ -376,7 +376,8 @@ def fastslam_initial_state(x0, n_particles, capacity):
 
     References
     ----------
-    Thrun, Burgard & Fox (2005), Sec. 13.3 (initialisation of the particle set).
+    Course text, Algorithm 3. Thrun, Burgard & Fox (2005), Table 13.1 (the
+    particle set it starts from).
     """
     x0 = as_array(x0, "x0", (3,))
     M = _as_count(n_particles, "n_particles")
@@ -821,7 +822,7 @@ def fastslam_estimate(state):
 
     References
     ----------
-    Thrun, Burgard & Fox (2005), Sec. 13.3 (the particle set represents the
+    Thrun, Burgard & Fox (2005), Chapter 13 (the particle set represents the
     posterior; a point estimate is read off it).
     """
     _check_state(state)
@@ -859,7 +860,7 @@ def fastslam_map_moments(state, slots):
 
     References
     ----------
-    Thrun, Burgard & Fox (2005), Sec. 13.2-13.3 (the factored posterior:
+    Course text, Eq. 17.4. Thrun, Burgard & Fox (2005), Chapter 13 (the factored posterior:
     correlations live in the particle set).
     """
     _check_state(state)

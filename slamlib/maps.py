@@ -96,6 +96,10 @@ class OccupancyGrid:
         ndarray of int64, shape (..., 2)
             ``(row, col) = (floor((y - oy) / res), floor((x - ox) / res))``;
             may lie outside the grid (see :meth:`in_bounds`).
+
+        References
+        ----------
+        Thrun, Burgard & Fox (2005), Sec. 9.1 (grid cells ``m_i``).
         """
         xy = as_array(xy, "xy", ndim=range(1, 33))
         if xy.shape[-1] != 2:
@@ -105,7 +109,22 @@ class OccupancyGrid:
         return np.stack([row, col], axis=-1).astype(np.int64)
 
     def cell_to_world(self, rc):
-        """World coordinates ``(x, y)`` (..., 2) of the centres of cells ``rc = (row, col)`` (..., 2)."""
+        """World coordinates of cell centres.
+
+        Parameters
+        ----------
+        rc : ndarray, shape (..., 2)
+            Cell indices ``(row, col)``.
+
+        Returns
+        -------
+        ndarray, shape (..., 2)
+            ``(x, y) = (ox + (col + 1/2) res, oy + (row + 1/2) res)``.
+
+        References
+        ----------
+        Thrun, Burgard & Fox (2005), Sec. 9.1 (grid cells ``m_i``).
+        """
         rc = as_array(rc, "rc", ndim=range(1, 33))
         if rc.shape[-1] != 2:
             raise ValueError(f"rc must have shape (..., 2), got {rc.shape}")
@@ -114,7 +133,22 @@ class OccupancyGrid:
         return np.stack([x, y], axis=-1)
 
     def in_bounds(self, rc):
-        """Whether cells ``rc = (row, col)`` (..., 2) lie in the grid -> bool (...,)."""
+        """Whether cells lie in the grid.
+
+        Parameters
+        ----------
+        rc : ndarray of int, shape (..., 2)
+            Cell indices ``(row, col)``.
+
+        Returns
+        -------
+        ndarray of bool, shape (...,)
+            ``0 <= row < H and 0 <= col < W``.
+
+        References
+        ----------
+        Thrun, Burgard & Fox (2005), Sec. 9.1 (grid cells ``m_i``).
+        """
         rc = np.asarray(rc)
         if rc.ndim < 1 or rc.shape[-1] != 2:
             raise ValueError(f"rc must have shape (..., 2), got {rc.shape}")
@@ -123,7 +157,24 @@ class OccupancyGrid:
 
     # ------------------------------------------------------------------ occupancy
     def occupied_mask(self, threshold=0.5, *, unknown_occupied=False):
-        """Boolean (H, W) mask of cells with occupancy ``>= threshold`` (unknown cells per `unknown_occupied`)."""
+        """Cells that block beams.
+
+        Parameters
+        ----------
+        threshold : float
+            Smallest occupancy probability counted as occupied.
+        unknown_occupied : bool, keyword-only
+            Count unknown (NaN) cells as occupied.
+
+        Returns
+        -------
+        ndarray of bool, shape (H, W)
+            ``occupancy >= threshold`` (plus unknown cells if asked).
+
+        References
+        ----------
+        Thrun, Burgard & Fox (2005), Sec. 9.1 (grid cells ``m_i``).
+        """
         threshold = as_scalar(threshold, "threshold")
         occ = self.occupancy
         with np.errstate(invalid="ignore"):
@@ -133,7 +184,22 @@ class OccupancyGrid:
         return mask
 
     def free_mask(self, threshold=0.2):
-        """Boolean (H, W) mask of known cells with occupancy ``<= threshold``."""
+        """Known cells that count as free.
+
+        Parameters
+        ----------
+        threshold : float
+            Largest occupancy probability counted as free.
+
+        Returns
+        -------
+        ndarray of bool, shape (H, W)
+            ``occupancy <= threshold``; False in unknown cells.
+
+        References
+        ----------
+        Thrun, Burgard & Fox (2005), Sec. 9.1 (grid cells ``m_i``).
+        """
         threshold = as_scalar(threshold, "threshold")
         occ = self.occupancy
         with np.errstate(invalid="ignore"):
@@ -153,6 +219,10 @@ class OccupancyGrid:
         -------
         ndarray of bool, shape (...,)
             False outside the grid and in unknown cells.
+
+        References
+        ----------
+        Thrun, Burgard & Fox (2005), Sec. 9.1 (grid cells ``m_i``).
         """
         rc = self.world_to_cell(xy)
         ok = self.in_bounds(rc)
@@ -162,7 +232,22 @@ class OccupancyGrid:
         return out
 
     def free_cells(self, threshold=0.2):
-        """World ``(x, y)`` of the centres of the free cells (occupancy ``<= threshold``) -> (F, 2)."""
+        """Centres of the free cells.
+
+        Parameters
+        ----------
+        threshold : float
+            Largest occupancy probability counted as free.
+
+        Returns
+        -------
+        ndarray, shape (F, 2)
+            World ``(x, y)`` of every cell with occupancy ``<= threshold``.
+
+        References
+        ----------
+        Thrun, Burgard & Fox (2005), Sec. 9.1 (grid cells ``m_i``).
+        """
         rc = np.argwhere(self.free_mask(threshold))
         return self.cell_to_world(rc).reshape(-1, 2)
 

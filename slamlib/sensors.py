@@ -50,7 +50,7 @@ def _last_axis(arr, name, n):
     return arr
 
 
-def _broadcast(a, b, na, nb, name_a, name_b):
+def _broadcast(a, b, name_a, name_b):
     try:
         return np.broadcast_shapes(a.shape[:-1], b.shape[:-1])
     except ValueError:
@@ -90,7 +90,7 @@ def landmark_measurement(x, m):
     """
     x = _last_axis(as_array(x, "x", ndim=range(1, 33)), "x", 3)
     m = _last_axis(as_array(m, "m", ndim=range(1, 33)), "m", 2)
-    shape = _broadcast(x, m, 3, 2, "x", "m")
+    shape = _broadcast(x, m, "x", "m")
     dx = m[..., 0] - x[..., 0]
     dy = m[..., 1] - x[..., 1]
     q = dx**2 + dy**2
@@ -137,7 +137,7 @@ def landmark_from_measurement(x, z):
     """
     x = _last_axis(as_array(x, "x", ndim=range(1, 33)), "x", 3)
     z = _last_axis(as_array(z, "z", ndim=range(1, 33)), "z", 2)
-    shape = _broadcast(x, z, 3, 2, "x", "z")
+    shape = _broadcast(x, z, "x", "z")
     ang = x[..., 2] + z[..., 1]
     m = np.empty(shape + (2,))
     # mu_j = (x + r cos(phi + theta), y + r sin(phi + theta))  (Table 10.1 line 10)
@@ -406,7 +406,23 @@ class LikelihoodField:
     max_dist: float
 
     def distance_at(self, xy):
-        """Distance to the nearest obstacle at world points ``xy (..., 2)`` -> ``(...,)``; ``inf`` outside the grid."""
+        """Distance to the nearest obstacle at world points.
+
+        Parameters
+        ----------
+        xy : ndarray, shape (..., 2)
+            World points.
+
+        Returns
+        -------
+        ndarray, shape (...,)
+            Distance (metres) stored for the cell holding each point; ``inf``
+            outside the grid and in unknown cells.
+
+        References
+        ----------
+        Thrun, Burgard & Fox (2005), Table 6.3 line 7.
+        """
         xy = _last_axis(as_array(xy, "xy", ndim=range(1, 33)), "xy", 2)
         return self._lookup(xy)
 

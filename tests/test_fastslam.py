@@ -612,3 +612,27 @@ def test_many_particles_reproduce_the_ekf_slam_posterior(world):
     assert np.all(np.abs(mean - mu_e[3:]) < 0.3 * np.sqrt(np.diag(E)))
     rho = lambda A: A / np.sqrt(np.outer(np.diag(A), np.diag(A)))  # noqa: E731
     np.testing.assert_allclose(rho(C), rho(E), atol=0.15)
+
+
+def test_update_unknown_batched_equals_per_particle():
+    # each particle associates on its own: the vectorised update equals updating the particles one by one
+    # (weights compared through pairs with particle 0, since a one-particle set always normalises to 0)
+    rng = np.random.default_rng(21)
+    n = 8
+    st = _state_with_maps(n, 6, rng)
+    st = st._replace(poses=st.poses * 0.1, Sigma=np.tile(0.05 * np.eye(2), (n, 6, 1, 1)),
+                     seen=np.tile(np.arange(6) < 4, (n, 1)), counts=np.tile(np.arange(6) < 4, (n, 1)).astype(np.int64))
+    truth = np.zeros(3)
+    z = sl.landmark_measurement(truth, np.vstack([st.mu[0, [2, 0]], [[6.0, 6.0]]]))[0]
+    z = z + rng.normal(scale=0.02, size=z.shape)
+    both = sl.fastslam_update_unknown(st, z, Q, max_range=30.0)
+    for k in range(n):
+        pair = sl.FastSLAMState(*(a[[0, k]] for a in st))
+        pair = pair._replace(log_weights=st.log_weights[[0, k]] - logsumexp(st.log_weights[[0, k]]))
+        one = sl.fastslam_update_unknown(pair, z, Q, max_range=30.0)
+        for field in ("mu", "Sigma", "seen", "counts"):
+            np.testing.assert_allclose(getattr(one, field)[1], getattr(both, field)[k], rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(one.log_weights[1] - one.log_weights[0],
+                                   both.log_weights[k] - both.log_weights[0], rtol=1e-10, atol=1e-9)
+    # the measurement of the far point started a new landmark everywhere; the others matched slots 2 and 0
+    assert both.seen[:, 4].all() and (both.counts[:, [0, 2]] == 2).all()

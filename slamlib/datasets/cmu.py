@@ -22,7 +22,8 @@ convention (row = y, column = x) the occupancy is therefore the transposed
 array. Drawn with ``origin="lower"`` this reproduces the assignment's
 ``wean.gif`` (long corridor along the bottom, the two square rooms top right),
 and the log's laser scans, which run counter-clockwise from the robot's right,
-line up with the walls in this frame but not in its mirror image (checked in
+line up with the walls in this frame (placed by odometry from
+``CMU_LOG_START``) but not in its mirror image (checked in
 ``tests/test_cmu.py``).
 
 References
@@ -44,12 +45,16 @@ from ..maps import OccupancyGrid
 from ..angles import wrap_angle
 from ..motion import odometry_from_poses
 
-__all__ = ["CmuLog", "load_cmu_map", "load_cmu_log", "CMU_SENSOR_OFFSET", "CMU_MAX_RANGE"]
+__all__ = ["CmuLog", "load_cmu_map", "load_cmu_log", "CMU_SENSOR_OFFSET", "CMU_MAX_RANGE", "CMU_LOG_START"]
 
 #: The laser sits 25 cm ahead of the robot centre (metres).
 CMU_SENSOR_OFFSET = 0.25
 #: Largest reading of the log's laser (8183 cm), its "no return" value (metres).
 CMU_MAX_RANGE = 81.83
+#: Pose (map frame, metres/radians) of the log's first scan: in the doorway of the room north of the
+#: long corridor, facing south. Found by scoring the first 240 scans, placed by odometry, with the
+#: likelihood field over a grid of poses; a scan-matching estimate, not ground truth.
+CMU_LOG_START = (40.0, 41.5, -1.6755)
 _RESOLUTION = 0.1
 _N_BEAMS = 180
 

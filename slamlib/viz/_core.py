@@ -191,7 +191,7 @@ def plot_particles(particles, weights=None, ax=None, *, arrows=False, **kw):
         if np.any(w < 0):
             raise ValueError("weights must be non-negative")
         total = w.sum()
-        sizes = 4.0 + 60.0 * (w / total * M if total > 0 else np.ones(M)) / max(1.0, np.sqrt(M) / 4)
+        sizes = 3.0 + 30.0 * (w / total * M if total > 0 else np.ones(M)) / max(1.0, np.sqrt(M) / 4)
         kw.setdefault("s", sizes)
     else:
         kw.setdefault("s", 4.0 if M > 200 else 10.0)

@@ -103,8 +103,8 @@ def plot_fastslam_particles(state, *, landmarks=None, x_true=None, n_std=2.0, ma
 
     References
     ----------
-    Thrun, Burgard & Fox (2005), Sec. 13.3, Fig. 13.4 (particles, each with
-    its own map).
+    Thrun, Burgard & Fox (2005), Chapter 13 (particles, each with its own
+    map); course text, Eq. 17.4.
     """
     from . import _core
 
@@ -175,7 +175,7 @@ def plot_fastslam_run(run, result, *, n_std=2.0, label="FastSLAM", ax=None, titl
 
     References
     ----------
-    Thrun, Burgard & Fox (2005), Sec. 13.3 and 13.9.
+    Thrun, Burgard & Fox (2005), Chapter 13; course text, Algorithm 3.
     """
     from . import _core
 
@@ -228,8 +228,8 @@ def plot_fastslam_diagnostics(results, labels, *, n_particles, dt=1.0, panels=("
 
     References
     ----------
-    Thrun, Burgard & Fox (2005), Sec. 4.3.4 (particle deprivation) and
-    Sec. 13.9 (FastSLAM's loss of path diversity).
+    Thrun, Burgard & Fox (2005), Sec. 4.3 (particle deprivation) and
+    Chapter 13 (FastSLAM's loss of path diversity).
     """
     panels = tuple(panels)
     if not panels or any(p not in ("ess", "ancestors") for p in panels):
@@ -363,7 +363,8 @@ def plot_fastslam_vs_ekf(run, fastslam, ekf, *, labels=("FastSLAM", "EKF SLAM"),
 
     References
     ----------
-    Thrun, Burgard & Fox (2005), Sec. 10.2 and 13.3.
+    Thrun, Burgard & Fox (2005), Table 10.1 and Table 13.1; course text,
+    Algorithms 1 and 3.
     """
     from . import _core
 
