@@ -53,7 +53,25 @@ def _build_finished(app, exception):
             shutil.copy2(s, d)
 
 
+def _dedupe_scripts(app, pagename, templatename, context, doctree):
+    """Drop repeated ``<script>`` entries.
+
+    sphinx-thebe registers its inline configuration (``const THEBE_JS_URL = ...``)
+    once per read of the sources; a build that reads twice gets two copies, and
+    the second ``const`` declaration is a JavaScript error on every page.
+    """
+    seen, unique = set(), []
+    for script in context.get("script_files", []):
+        key = (str(getattr(script, "filename", script) or ""), getattr(script, "attributes", {}).get("body", ""))
+        if key in seen:
+            continue
+        seen.add(key)
+        unique.append(script)
+    context["script_files"] = unique
+
+
 def setup(app):
     app.connect("builder-inited", _builder_inited)
+    app.connect("html-page-context", _dedupe_scripts, priority=999)  # after every other handler
     app.connect("build-finished", _build_finished)
     return {"parallel_read_safe": True, "parallel_write_safe": True}

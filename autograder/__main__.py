@@ -22,7 +22,6 @@ from __future__ import annotations
 import argparse
 import sys
 import traceback
-from pathlib import Path
 
 __all__ = ["main"]
 

@@ -10,9 +10,11 @@ format helpers (:func:`pack_frame`, :func:`encode_args`, :func:`decode_result`
 Order of events in the child:
 
 1. read the job (JSON) and import NumPy while still privileged;
-2. isolate: a new network namespace (``unshare``), an unprivileged uid/gid when
-   running as root, ``no_new_privs``, a parent-death signal, resource limits
-   (CPU, address space, file size, number of processes, core dumps);
+2. isolate: new network and PID namespaces (``unshare``; with the PID namespace
+   the runner forks and its child, process 1 of the namespace, carries on), an
+   unprivileged uid/gid when running as root, ``no_new_privs``, a parent-death
+   signal, resource limits (CPU, address space, file size, number of processes,
+   core dumps);
 3. install an audit hook that refuses imports of the blocked packages
    (``slamlib``, ``autograder``), reads of their files, new processes, sockets
    and ``ctypes`` symbol lookups, and records every refusal;
@@ -388,6 +390,67 @@ def _libc():
     return ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
 
 
+def _namespaces(job, iso, libc, root):
+    """New network and PID namespaces (and a user namespace when not root).
+
+    With a new PID namespace the process forks: the child is process 1 of the
+    namespace and goes on to run the submission; it cannot see or signal any
+    process outside, and everything in the namespace dies with it. The parent
+    (still outside) only waits and then ends the way the child ended, so the
+    grader sees the child's exit status or signal.
+    """
+    import ctypes
+
+    NEWNET, NEWUSER, NEWPID = 0x40000000, 0x10000000, 0x20000000
+    net = NEWNET if job.get("netns", True) else 0
+    user = 0 if root else NEWUSER
+    tries = [net | NEWPID, net, NEWPID, 0] if net else [NEWPID, 0]
+    got, err = 0, None
+    for flags in tries:
+        if libc.unshare(flags | (user if flags else 0)) == 0:
+            got = flags
+            break
+        err = err or os.strerror(ctypes.get_errno())
+    iso["netns"] = bool(got & NEWNET)
+    iso["pidns"] = bool(got & NEWPID)
+    iso["userns"] = bool(got) and not root
+    if err and got != tries[0]:
+        iso["netns_error" if not got & NEWNET else "pidns_error"] = err
+    if got & NEWPID:
+        pid = os.fork()
+        if pid:
+            _mirror_child(pid)
+
+
+def _mirror_child(pid):
+    """Outside the PID namespace: wait for its process 1, then end as it ended."""
+    import signal
+
+    for fd in range(3, 1024):  # keep only stdio: the pipes' other ends must see the child's EOF
+        try:
+            os.close(fd)
+        except OSError:
+            pass
+    while True:
+        try:
+            _, status = os.waitpid(pid, 0)
+            break
+        except InterruptedError:
+            continue
+    if os.WIFSIGNALED(status):
+        sig = os.WTERMSIG(status)
+        try:
+            import resource
+
+            resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
+            signal.signal(sig, signal.SIG_DFL)
+            os.kill(os.getpid(), sig)
+        except (OSError, ValueError):
+            pass
+        os._exit(128 + sig)
+    os._exit(os.WEXITSTATUS(status) if os.WIFEXITED(status) else 1)
+
+
 def _isolate(job, iso, np):
     """Network namespace, uid drop, prctl and rlimits; fills ``iso`` with what held."""
     import ctypes
@@ -395,18 +458,8 @@ def _isolate(job, iso, np):
 
     libc = _libc()
     root = os.geteuid() == 0
-    CLONE_NEWNET, CLONE_NEWUSER = 0x40000000, 0x10000000
     iso["root"] = root
-    if job.get("netns", True):
-        flags = CLONE_NEWNET if root else (CLONE_NEWUSER | CLONE_NEWNET)
-        ok = libc.unshare(flags) == 0
-        iso["netns"] = ok
-        if not ok:
-            iso["netns_error"] = os.strerror(ctypes.get_errno())
-        elif not root:
-            iso["userns"] = True
-    else:
-        iso["netns"] = False
+    _namespaces(job, iso, libc, root)
     if root and job.get("uid") is not None:
         # keep the interpreter's own files reachable: directories only root can
         # traverse (a Python installed under /root) are reopened as fd paths
@@ -512,10 +565,6 @@ def _install_audit_hook(blocked_modules, blocked_paths, attempts, processes=True
     for name in list(sys.modules):
         if name.partition(".")[0] in roots:
             del sys.modules[name]
-
-
-class _Unit:
-    __slots__ = ("source", "filename", "line0", "label")
 
 
 def _load_submission(job, attempts):
@@ -672,11 +721,6 @@ def main(argv):
     import ast, ctypes, ctypes.util, inspect, linecache, random, resource, stat, time, traceback, types  # noqa: E401,F401
 
     npx = frozen_numpy(np)
-    for name in job.get("preload", []):
-        try:
-            __import__(name)
-        except Exception:  # noqa: BLE001 - optional
-            pass
     iso = {}
     if job.get("isolate", True):
         _isolate(job, iso, np)

@@ -123,7 +123,7 @@ def _test_seed(exercise, test_name, base):
     return [int(base), int(zlib.crc32(f"{exercise}/{test_name}".encode()))]
 
 
-def _zero_all(ex, message, visibility_of=None):
+def _zero_all(ex, message):
     return [TestResult(t.name, t.function, 0.0, t.weight, message, VISIBILITY[t.visibility]) for t in ex.tests]
 
 
@@ -174,7 +174,7 @@ class _GroupCaller:
         return out
 
 
-def run_tests(ex, fn, caller, *, seed=None, limits=None, group_state=None):
+def run_tests(ex, fn, caller, *, seed=None, limits=None):
     """Run every test of ``fn`` through ``caller``; return TestResults and blocked attempts."""
     results = []
     blocked = []
@@ -220,7 +220,7 @@ def run_tests(ex, fn, caller, *, seed=None, limits=None, group_state=None):
     return results, blocked
 
 
-def _grade_function(ex, fn, sub, limits, seed, forbidden, state):
+def _grade_function(ex, fn, sub, limits, seed, forbidden):
     tests = ex.tests_for(fn)
     vis = {t.name: VISIBILITY[t.visibility] for t in tests}
 
@@ -349,12 +349,11 @@ def grade(path, exercise=None, *, limits=None, workers=None, seed=None, function
     else:
         functions = list(ex.functions)
     workers = workers or min(len(functions), os.cpu_count() or 2)
-    state = {}
     if workers <= 1:
-        outs = [_grade_function(ex, fn, sub, limits, seed, forbidden, state) for fn in functions]
+        outs = [_grade_function(ex, fn, sub, limits, seed, forbidden) for fn in functions]
     else:
         with ThreadPoolExecutor(max_workers=workers) as pool:
-            outs = list(pool.map(lambda fn: _grade_function(ex, fn, sub, limits, seed, forbidden, state), functions))
+            outs = list(pool.map(lambda fn: _grade_function(ex, fn, sub, limits, seed, forbidden), functions))
     load_notes = None
     for results, ready in outs:
         result.tests.extend(results)

@@ -21,8 +21,9 @@ first line of submission code runs; see ``_runner.py``):
 * when the grader runs as root: a unique unprivileged uid/gid per child (so
   ``RLIMIT_NPROC`` applies and one child cannot signal another); otherwise the
   caller's own uid inside a new user namespace;
-* a new network namespace (no interfaces but a down loopback) where the kernel
-  allows it;
+* new network and PID namespaces where the kernel allows them (no interface but a
+  down loopback; the submission is process 1 of its own PID namespace and cannot
+  see or signal anything outside it);
 * an audit hook refusing imports of ``slamlib``/``autograder``, reads of their
   files, new processes, sockets and ``ctypes`` symbol lookups.
 
@@ -211,7 +212,6 @@ class Child:
         self._out = bytearray()
         self._res = bytearray()
         self._out_total = 0
-        self.restarts = 0
 
     # ------------------------------------------------------------------ lifecycle
     def start(self):
@@ -498,6 +498,11 @@ def describe_isolation(iso):
         return [f"isolation: the probe child failed: {iso['error']}"]
     lines = ["separate process per function (own session, scratch directory, scrubbed environment, stdin closed, "
              "wall-clock deadline per call, output cap)"]
+    if iso.get("pidns"):
+        lines.append("processes: new PID namespace (the submission cannot see or signal processes outside it; "
+                     "everything in it dies with it)")
+    else:
+        lines.append("processes: NO PID namespace (" + str(iso.get("pidns_error", "unavailable")) + ")")
     if iso.get("netns"):
         lines.append("network: new network namespace" + (" (inside a user namespace)" if iso.get("userns") else ""))
     else:

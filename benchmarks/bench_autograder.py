@@ -70,6 +70,17 @@ def make_submissions(folder, exercise, n):
     return folder
 
 
+def cold(exercise):
+    """Wall seconds of ``python -m autograder grade`` in a fresh process (imports and reference runs included)."""
+    import subprocess
+    import sys
+
+    t0 = time.perf_counter()
+    subprocess.run([sys.executable, "-m", "autograder", "grade", str(SOLUTIONS / f"{exercise}.py"), "-e", exercise],
+                   check=True, capture_output=True, cwd=ROOT)
+    return time.perf_counter() - t0
+
+
 def single(exercise):
     """(wall seconds with sandboxed children, in-process baseline seconds, score)."""
     from autograder.engine import grade, run_tests
@@ -117,7 +128,7 @@ def main():
         for ex in NOTEBOOKS:
             wall, base, score = single(ex)
             print(f"  {ex:22s} {wall:6.2f} s   in-process baseline {base:5.2f} s   ratio {wall / base:5.1f}x   "
-                  f"score {score:g}")
+                  f"score {score:g}   command line, fresh process: {cold(ex):5.2f} s")
     wall, rows = batch(args.exercise, args.n, args.jobs)
     scores = sorted({r["score"] for r in rows})
     print(f"\nbatch of {args.n} {args.exercise} submissions, --jobs {args.jobs} (target <= 600 s): {wall:.1f} s "

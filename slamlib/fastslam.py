@@ -432,7 +432,8 @@ def fastslam_predict(state, u, dt, *, rng, M=None, alpha=None):
     Returns
     -------
     FastSLAMState
-        New poses; maps and weights unchanged (shared read-only with `state`).
+        New poses; the maps and weights are those of `state` (shared, never
+        written: every step builds new arrays for what it changes).
 
     References
     ----------

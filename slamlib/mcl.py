@@ -991,20 +991,20 @@ def endpoint_distances(model, pose, ranges, angles):
     Parameters
     ----------
     model : MCLModel
-        Map and its likelihood field (``params.z_max``, ``params.sensor_offset``
-        and ``params.beam_step`` are used).
+        Map and its likelihood field (``params.z_max`` and
+        ``params.sensor_offset`` are used).
     pose : ndarray, shape (3,)
         Robot pose.
     ranges : ndarray, shape (K,)
-        The full scan [m].
+        A scan [m]; every beam is used (no subsampling).
     angles : ndarray, shape (K,)
         Beam angles [rad].
 
     Returns
     -------
     ndarray, shape (K',)
-        Distances [m] (clipped at ``params.max_dist``) of the used beams shorter
-        than ``z_max``.
+        Distances [m] (clipped at ``params.max_dist``; ``inf`` in unknown
+        cells or outside the map) of the beams shorter than ``z_max``.
 
     References
     ----------
@@ -1013,8 +1013,7 @@ def endpoint_distances(model, pose, ranges, angles):
     model = _check_model(model)
     p = model.params
     ranges, angles = _check_scan(ranges, angles)
-    z, a = ranges[:: p.beam_step], angles[:: p.beam_step]
-    pts = scan_endpoints(pose, z, a, z_max=p.z_max, sensor_offset=p.sensor_offset)
+    pts = scan_endpoints(pose, ranges, angles, z_max=p.z_max, sensor_offset=p.sensor_offset)
     return model.field.distance_at(pts)
 
 

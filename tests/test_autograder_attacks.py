@@ -119,7 +119,7 @@ def test_sys_exit_in_function_and_at_top_level(tmp_path):
 
 
 def test_segfault(tmp_path):
-    body = "def normalize_log_weights(log_w):\n    import signal\n    os.kill(os.getpid(), signal.SIGSEGV)\n"
+    body = "def normalize_log_weights(log_w):\n    import ctypes\n    return ctypes.string_at(0)\n"
     (s, _), out, _, _ = attack(tmp_path, body, limits=Limits(call_timeout=2.5, audit=False, block_processes=False))
     assert s == 0 and "killed by signal SIGSEGV" in out
 
@@ -182,14 +182,25 @@ def test_fork_bomb_is_refused_by_the_os_limits(tmp_path):
 
 
 def test_signalling_the_grader_is_refused(tmp_path):
-    body = "def normalize_log_weights(log_w):\n    os.kill(os.getppid(), 9)\n    os.kill(1, 9)\n"
+    body = f"def normalize_log_weights(log_w):\n    os.kill({os.getpid()}, 9)\n"
     (s, _), out, _, _ = attack(tmp_path, body)
     assert s == 0 and "os.kill is not allowed" in out
     iso = isolation_report(Limits(audit=False))
-    if iso.get("root") and "uid_error" not in iso:  # without the hook, the uid drop stops it
+    if iso.get("pidns") or (iso.get("root") and "uid_error" not in iso):
+        # without the hook: the grader's pid does not exist in the child's PID namespace, and its uid differs
         (s, _), out, _, _ = attack(tmp_path, body, limits=Limits(call_timeout=2.5, audit=False,
                                                                   block_processes=False))
-        assert s == 0 and "PermissionError" in out
+        assert s == 0 and ("ProcessLookupError" in out or "PermissionError" in out), out
+
+
+def test_signals_cannot_leave_the_pid_namespace(tmp_path):
+    iso = isolation_report(Limits(audit=False))
+    if not iso.get("pidns"):
+        pytest.skip("no PID namespace on this machine")
+    body = ("def normalize_log_weights(log_w):\n    import signal\n"
+            f"    fd = os.pidfd_open({os.getpid()})\n    signal.pidfd_send_signal(fd, signal.SIGKILL)\n")
+    (s, _), out, _, _ = attack(tmp_path, body, limits=Limits(call_timeout=2.5, audit=False, block_processes=False))
+    assert s == 0 and ("No such process" in out or "Invalid argument" in out or "ProcessLookupError" in out), out
 
 
 def test_no_network(tmp_path):
@@ -345,3 +356,84 @@ def test_self_check_cell_importing_the_autograder_is_harmless(tmp_path):
     result = grade(path, "particle_filter", limits=LIMITS, functions=[TARGET, OTHER])
     assert result.score == 35
     assert any("refused while loading: import autograder" in n for n in result.notes)
+
+
+# --------------------------------------------------------------------------- the grader run by an unprivileged user
+NOBODY_DRIVER = """
+import json, sys
+sys.path[:0] = {paths!r}
+from autograder.engine import grade
+from autograder.sandbox import Limits
+result = grade({sub!r}, "particle_filter", functions=["normalize_log_weights", "effective_sample_size"],
+               limits=Limits(call_timeout=3.0, audit={audit}, block_processes={audit}))
+print(json.dumps({{"scores": result.by_function(), "isolation": result.isolation,
+                  "outputs": [t.output for t in result.tests]}}))
+"""
+
+
+def _nobody_python():
+    """An interpreter the user nobody can run with this environment's packages, or None."""
+    import shutil
+    import subprocess
+    import numpy
+
+    setpriv = shutil.which("setpriv")
+    if os.geteuid() != 0 or not setpriv:
+        return None, None
+    paths = [str(Path(__file__).resolve().parents[1]), str(Path(numpy.__file__).resolve().parents[1])]
+    minor = f"python{sys.version_info[0]}.{sys.version_info[1]}"
+    for py in dict.fromkeys([sys.executable, shutil.which(minor), f"/usr/bin/{minor}", f"/usr/local/bin/{minor}"]):
+        if not py:
+            continue
+        cmd = [setpriv, "--reuid=65534", "--regid=65534", "--clear-groups", py, "-c",
+               f"import sys; sys.path[:0] = {paths!r}; import numpy, scipy, nbformat, autograder.engine; "
+               f"assert sys.version_info[:2] == {tuple(sys.version_info[:2])!r}; "
+               "import subprocess; subprocess.run([sys.executable, '-c', 'pass'], check=True)"]
+        if subprocess.run(cmd, capture_output=True, cwd="/").returncode == 0:
+            return [setpriv, "--reuid=65534", "--regid=65534", "--clear-groups", py], paths
+    return None, None
+
+
+@pytest.mark.parametrize("audit", [True, False])
+def test_grading_as_an_unprivileged_user(audit):
+    """Run as nobody: the layers that do not need root still contain a fork, the network and signals."""
+    import subprocess
+    import tempfile
+
+    prefix, paths = _nobody_python()
+    if prefix is None:
+        pytest.skip("needs root, setpriv and a Python interpreter the user nobody can run")
+    work = Path(tempfile.mkdtemp(prefix="ag-nobody-"))
+    try:
+        os.chmod(work, 0o755)
+        # first try to kill the grader (found through /proc) with kill() and pidfd_send_signal(), then fork
+        hunt = ("    import signal\n    for d in os.listdir('/proc'):\n        try:\n"
+                "            if b'autograder.engine' in open(f'/proc/{d}/cmdline', 'rb').read():\n"
+                "                signal.pidfd_send_signal(os.pidfd_open(int(d)), signal.SIGKILL)\n"
+                "        except Exception:\n            pass\n        try:\n"
+                "            if b'autograder.engine' in open(f'/proc/{d}/cmdline', 'rb').read():\n"
+                "                os.kill(int(d), signal.SIGKILL)\n"
+                "        except Exception:\n            pass\n")
+        body = FORK.replace("    pids = []\n", hunt + "    pids = []\n")
+        text = replace_function(solution_text("particle_filter"), TARGET, body)
+        sub = work / "attack.py"
+        sub.write_text("import os\nimport numpy as np\n" + text)
+        os.chmod(sub, 0o644)
+        driver = NOBODY_DRIVER.format(paths=paths, sub=str(sub), audit=audit)
+        p = subprocess.run(prefix + ["-c", driver], capture_output=True, text=True, cwd="/tmp",
+                           env={"PATH": "/usr/bin:/bin", "HOME": "/tmp"}, timeout=120)
+        assert p.returncode == 0, p.stderr
+        data = json.loads(p.stdout.strip().splitlines()[-1])
+    finally:
+        import shutil
+
+        shutil.rmtree(work, ignore_errors=True)
+    assert data["scores"]["normalize_log_weights"][0] == 0
+    assert data["scores"]["effective_sample_size"] == [15.0, 15.0]
+    iso = data["isolation"]
+    assert iso["root"] is False and iso["rlimits"]["RLIMIT_NPROC"] == 0
+    out = "\n".join(data["outputs"])
+    if audit:
+        assert "os.fork is not allowed" in out
+    else:
+        assert "Resource temporarily unavailable" in out or "BlockingIOError" in out, out

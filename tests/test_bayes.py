@@ -8,7 +8,7 @@ import pytest
 import slamlib as sl
 
 
-# --------------------------------------------------------------------------- helpers
+# --------------------------------------------------------------------------- reference constructions
 
 
 def _circulant(kernel, n):
@@ -446,7 +446,7 @@ def test_simulate_grid_bad_inputs():
 # --------------------------------------------------------------------------- plots
 
 
-def test_plot_helpers_draw_what_they_are_given():
+def test_plot_functions_draw_what_they_are_given():
     import matplotlib
 
     matplotlib.use("Agg")

@@ -124,3 +124,17 @@ def test_student_and_instructor_pages():
     for needle in ("python -m autograder grade", "python -m autograder batch", "python -m autograder bundle",
                    "run_autograder", "AUTOGRADER_ROOT", "autograder/exercises", "RLIMIT_NPROC", "calibrate"):
         assert needle in instructors, needle
+
+
+def test_equation_references_exist_in_the_chapters():
+    """Every {eq} label an exercise cites is defined by a labelled equation of a chapter."""
+    labels = set()
+    for path in (ROOT / "chapters").glob("*.ipynb"):
+        src = "\n".join(c.source for c in nbformat.read(path, as_version=4).cells if c.cell_type == "markdown")
+        labels |= set(re.findall(r"\$\$\s*\(([\w-]+)\)", src))
+    cited = set()
+    for exercise in EXERCISES:
+        text = "\n".join(c.source for c in _nb(exercise).cells if c.cell_type == "markdown")
+        cited |= set(re.findall(r"\{eq\}`([\w-]+)`", text))
+    assert cited, "the exercises cite no chapter equation"
+    assert cited <= labels, f"undefined equation labels: {sorted(cited - labels)}"

@@ -620,8 +620,10 @@ def test_update_unknown_batched_equals_per_particle():
     rng = np.random.default_rng(21)
     n = 8
     st = _state_with_maps(n, 6, rng)
-    st = st._replace(poses=st.poses * 0.1, Sigma=np.tile(0.05 * np.eye(2), (n, 6, 1, 1)),
-                     seen=np.tile(np.arange(6) < 4, (n, 1)), counts=np.tile(np.arange(6) < 4, (n, 1)).astype(np.int64))
+    first4 = np.tile(np.arange(6) < 4, (n, 1))
+    st = st._replace(poses=rng.normal(scale=[0.03, 0.03, 0.003], size=(n, 3)),
+                     mu=st.mu[:1] + rng.normal(scale=0.05, size=(n, 6, 2)),
+                     Sigma=np.tile(0.05 * np.eye(2), (n, 6, 1, 1)), seen=first4, counts=first4.astype(np.int64))
     truth = np.zeros(3)
     z = sl.landmark_measurement(truth, np.vstack([st.mu[0, [2, 0]], [[6.0, 6.0]]]))[0]
     z = z + rng.normal(scale=0.02, size=z.shape)

@@ -1,0 +1,339 @@
+"""Monte Carlo localization: MCL, Augmented MCL and KLD-sampling (slamlib.mcl).
+
+Simulated runs on a small asymmetric map check accuracy against the truth; the
+CMU Wean Hall log has no ground truth, so its run is checked for consistency
+with the map (scan end points on walls, the estimate in free space).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+import slamlib as sl
+from slamlib import mcl
+
+ANGLES = np.linspace(-np.pi / 2, np.pi / 2, 180, endpoint=False)
+Z_MAX = 8.0
+
+
+# --------------------------------------------------------------------------- a simulated world
+def _grid():
+    """12 m x 8 m, 10 cm cells: outer walls, two partial walls, three blocks (no symmetry)."""
+    occ = np.zeros((80, 120))
+    occ[0, :] = occ[-1, :] = 1.0
+    occ[:, 0] = occ[:, -1] = 1.0
+    occ[30:80, 40] = 1.0  # wall from the top at x = 4 m
+    occ[0:45, 80] = 1.0  # wall from the bottom at x = 8 m
+    occ[55:65, 10:25] = 1.0
+    occ[15:22, 55:70] = 1.0
+    occ[60:80, 95:100] = 1.0
+    return sl.OccupancyGrid(occ, 0.1)
+
+
+def _path(waypoints, n):
+    wp = np.asarray(waypoints, dtype=float)
+    seg = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(wp, axis=0).T))])
+    s = np.linspace(0.0, seg[-1], n)
+    xy = np.column_stack([np.interp(s, seg, wp[:, 0]), np.interp(s, seg, wp[:, 1])])
+    d = np.gradient(xy, axis=0)
+    return np.column_stack([xy, np.arctan2(d[:, 1], d[:, 0])])
+
+
+ROUTE_A = [[1.5, 1.5], [3.5, 2.0], [5.0, 1.0], [7.3, 1.0], [7.3, 5.5], [10.5, 5.5], [10.5, 2.0]]
+ROUTE_B = [[10.5, 1.0], [10.0, 5.2], [6.0, 5.2], [5.0, 2.5], [2.5, 2.5], [2.0, 4.5]]
+
+
+def _simulate(truth, *, rng, kidnap_at=None, sigma_z=0.03, drift=0.02):
+    """Scans by ray casting from the true poses (+ noise) and drifting odometry.
+
+    At step `kidnap_at` the odometry reports no motion although the true pose jumps.
+    """
+    grid = _grid()
+    z = sl.ray_cast(grid, truth, ANGLES, Z_MAX, sensor_offset=0.25)
+    z = np.clip(z + rng.normal(0.0, sigma_z, z.shape), 0.0, Z_MAX)
+    u = sl.odometry_from_poses(truth[:-1], truth[1:])
+    u = u * (1.0 + drift * rng.standard_normal(u.shape))
+    if kidnap_at is not None:
+        u[kidnap_at - 1] = 0.0
+    odom = np.empty_like(truth)
+    odom[0] = [0.0, 0.0, 0.0]  # the odometry frame is not the map frame
+    for k in range(1, truth.shape[0]):
+        odom[k] = sl.odometry_motion(odom[k - 1], u[k - 1])
+    return grid, odom, z
+
+
+SIM_PARAMS = dict(n_particles=2000, z_max=Z_MAX, sigma_hit=0.2, likelihood_exponent=0.3, min_translation=0.1,
+                  min_rotation=0.1, sensor_offset=0.25, occupied_threshold=0.5, free_threshold=0.2)
+
+
+def _error(result, truth):
+    return np.hypot(*(result.mean[:, :2] - truth[result.scan_index, :2]).T)
+
+
+@pytest.fixture(scope="module")
+def sim():
+    truth = _path(ROUTE_A, 80)
+    grid, odom, z = _simulate(truth, rng=np.random.default_rng(7))
+    return grid, truth, odom, z
+
+
+def test_simulated_route_is_in_free_space(sim):
+    grid, truth, _, _ = sim
+    assert grid.is_free(truth[:, :2]).all()
+
+
+def test_mcl_converges_from_a_uniform_cloud(sim):
+    grid, truth, odom, z = sim
+    model = mcl.prepare_mcl(grid, mcl.MCLParams(**SIM_PARAMS))
+    res = mcl.run_mcl(model, odom, z, ANGLES, rng=np.random.default_rng(0), snapshots=2)
+    err = _error(res, truth)
+    assert res.spread[0] > 2.0  # starts spread over the whole map
+    assert err[-1] < 0.3, err
+    assert np.all(err[len(err) // 2:] < 0.3)
+    assert res.spread[-1] < 0.3
+    assert abs(sl.angle_diff(res.mean[-1, 2], truth[res.scan_index[-1], 2])) < 0.1
+    assert len(res.snapshots) == 2 and res.snapshots[0].poses.shape == (2000, 3)
+
+
+def test_beam_model_converges_too(sim):
+    grid, truth, odom, z = sim
+    params = mcl.MCLParams(**{**SIM_PARAMS, "n_particles": 1000, "model": "beam"})
+    res = mcl.run_mcl(mcl.prepare_mcl(grid, params), odom, z, ANGLES, rng=np.random.default_rng(0))
+    assert _error(res, truth)[-1] < 0.3
+
+
+def test_batched_likelihood_equals_looped(sim):
+    grid, truth, _, z = sim
+    rng = np.random.default_rng(3)
+    poses = np.vstack([truth[10] + [0.05, -0.05, 0.02], sl.sample_free_poses(grid, 6, rng=rng)])
+    for model_name in ("likelihood_field", "beam"):
+        model = mcl.prepare_mcl(grid, mcl.MCLParams(**{**SIM_PARAMS, "model": model_name}))
+        batch = mcl.scan_log_likelihood(model, poses, z[10], ANGLES)
+        loop = np.array([mcl.scan_log_likelihood(model, p[None], z[10], ANGLES)[0] for p in poses])
+        np.testing.assert_allclose(batch, loop, rtol=1e-12)
+        assert np.argmax(batch) == 0  # the pose near the truth explains the scan best
+
+
+def test_odometry_steps_merge_without_losing_motion():
+    rng = np.random.default_rng(4)
+    inc = np.column_stack([rng.normal(0, 0.02, 200), np.abs(rng.normal(0.03, 0.02, 200)), rng.normal(0, 0.02, 200)])
+    inc[50:80] = 0.0  # the robot stands still: those scans must be skipped
+    odom = np.zeros((201, 3))
+    for k in range(200):
+        odom[k + 1] = sl.odometry_motion(odom[k], inc[k])
+    index, u = mcl.odometry_steps(odom, min_translation=0.2, min_rotation=0.2)
+    assert index[0] == 0 and np.all(u[0] == 0.0) and np.all(np.diff(index) > 0)
+    assert not np.any((index > 51) & (index <= 80))
+    # composing the merged controls lands on the odometry of the used scans
+    x = odom[0]
+    for k in range(1, index.size):
+        x = sl.odometry_motion(x, u[k])
+        np.testing.assert_allclose(x[:2], odom[index[k], :2], atol=1e-9)
+        assert abs(sl.angle_diff(x[2], odom[index[k], 2])) < 1e-9
+    # every used step moved enough
+    moved = np.hypot(*np.diff(odom[index, :2], axis=0).T)
+    turned = np.abs(sl.angle_diff(odom[index[1:], 2], odom[index[:-1], 2]))
+    assert np.all((moved >= 0.2) | (turned >= 0.2))
+
+
+# --------------------------------------------------------------------------- kidnapping
+@pytest.fixture(scope="module")
+def kidnapped():
+    truth = np.vstack([_path(ROUTE_A, 80)[:40], _path(ROUTE_B, 60)])
+    grid, odom, z = _simulate(truth, rng=np.random.default_rng(11), kidnap_at=40)
+    return grid, truth, odom, z
+
+
+def test_augmented_mcl_recovers_from_kidnapping_plain_mcl_does_not(kidnapped):
+    grid, truth, odom, z = kidnapped
+    model = mcl.prepare_mcl(grid, mcl.MCLParams(**SIM_PARAMS))
+    runs = {v: mcl.run_mcl(model, odom, z, ANGLES, rng=np.random.default_rng(5), variant=v)
+            for v in ("mcl", "augmented")}
+    after = {v: r.scan_index >= 40 for v, r in runs.items()}
+    err = {v: _error(r, truth) for v, r in runs.items()}
+
+    def recovered_at(v):  # first scan from which the error stays below 0.3 m
+        bad = runs[v].scan_index[after[v] & (err[v] >= 0.3)]
+        return bad.max() + 1 if bad.size else 40
+
+    for v in runs:  # both were localized before the kidnapping
+        before = (runs[v].scan_index >= 25) & (runs[v].scan_index < 40)
+        assert np.all(err[v][before] < 0.3), v
+    aug = runs["augmented"]
+    assert aug.n_injected[after["augmented"]].sum() > 0
+    assert err["augmented"][-1] < 0.3
+    # plain MCL has no particle near the new pose: it stays lost, or finds its way back much later
+    assert recovered_at("augmented") < 60
+    assert recovered_at("mcl") > recovered_at("augmented") + 10
+    assert np.all(err["mcl"][(runs["mcl"].scan_index >= 40) & (runs["mcl"].scan_index < 60)] > 1.0)
+    # before the kidnapping the averages agree and (almost) nothing is injected
+    assert aug.n_injected[(aug.scan_index > 10) & (aug.scan_index < 40)].sum() < 0.05 * 2000
+
+
+# --------------------------------------------------------------------------- KLD-sampling
+def test_kld_sample_size_matches_chi_square_quantile():
+    k = np.array([2, 10, 100, 1000])
+    approx = mcl.kld_sample_size(k, 0.05, 0.01)
+    exact = chi2.ppf(0.99, k - 1) / (2 * 0.05)
+    np.testing.assert_allclose(approx, exact, rtol=0.02)
+    assert mcl.kld_sample_size(1, 0.05, 0.01) == 0.0
+    assert mcl.kld_sample_size(0, 0.05, 0.01) == 0.0
+    assert np.all(np.diff(mcl.kld_sample_size(np.arange(2, 50), 0.05, 0.01)) > 0)
+
+
+def test_kld_particle_count_drops_after_convergence(sim):
+    grid, truth, odom, z = sim
+    kld = mcl.KLDParams(n_min=100, n_max=5000, epsilon=0.05, delta=0.01)
+    params = mcl.MCLParams(**{**SIM_PARAMS, "n_particles": 5000, "kld": kld})
+    res = mcl.run_mcl(mcl.prepare_mcl(grid, params), odom, z, ANGLES, rng=np.random.default_rng(1), variant="kld")
+    assert res.n_particles[0] == 5000  # a uniform cloud fills many bins
+    late = res.n_particles[len(res) // 2:]
+    assert np.all(late >= 100) and late.max() < 0.1 * 5000
+    assert _error(res, truth)[-1] < 0.3
+
+
+def test_kld_stops_where_the_one_at_a_time_loop_would(sim):
+    # Chunks of 1 are Table 8.4's loop; the count must not depend on the chunk size.
+    grid, truth, odom, z = sim
+    state = mcl.mcl_initialize(mcl.prepare_mcl(grid, mcl.MCLParams(**SIM_PARAMS)), rng=np.random.default_rng(2),
+                               poses=truth[5] + np.random.default_rng(2).normal(0, 0.4, (300, 3)))
+    counts = []
+    for chunk in (1, 7, 1000):
+        params = mcl.MCLParams(**{**SIM_PARAMS, "kld": mcl.KLDParams(n_min=10, n_max=3000, chunk=chunk)})
+        model = mcl.prepare_mcl(grid, params)
+        rng = np.random.default_rng(9)
+        # the draws of a chunked run differ from the one-at-a-time loop, so compare the rule instead
+        new, info = mcl.kld_mcl_step(state, np.zeros(3), z[5], ANGLES, model, rng=rng)
+        bins = np.floor(new.poses / np.asarray(params.kld.bin_size)).astype(np.int64)
+        _, first = np.unique(bins, axis=0, return_index=True)
+        k_after = np.cumsum(np.isin(np.arange(new.poses.shape[0]), first))
+        bound = mcl.kld_sample_size(k_after, params.kld.epsilon, params.kld.delta)
+        n = np.arange(1, new.poses.shape[0] + 1)
+        done = (n >= bound) & (n >= params.kld.n_min)
+        assert done[-1] and not np.any(done[:-1]), chunk  # stops at the first draw satisfying the rule
+        counts.append(info.n_particles)
+    assert min(counts) > 10
+
+
+# --------------------------------------------------------------------------- weights and steps
+def test_weights_stay_normalised_for_huge_log_likelihoods(sim):
+    grid, truth, _, z = sim
+    params = mcl.MCLParams(**{**SIM_PARAMS, "likelihood_exponent": 50.0, "resample_threshold": 0.0})
+    model = mcl.prepare_mcl(grid, params)
+    state = mcl.mcl_initialize(model, 500, rng=np.random.default_rng(0))
+    new, info = mcl.mcl_step(state, np.zeros(3), z[0], ANGLES, model, rng=np.random.default_rng(1))
+    w = new.weights
+    assert np.all(np.isfinite(new.log_weights[w > 0])) and abs(w.sum() - 1.0) < 1e-12
+    assert 1.0 <= info.ess < 5.0 and not info.resampled
+    # every particle inside a wall: zero likelihood everywhere falls back to equal weights
+    walls = np.tile([0.05, 4.0, 0.0], (50, 1))
+    state = mcl.mcl_initialize(model, rng=np.random.default_rng(0), poses=walls)
+    new, info = mcl.mcl_step(state, np.zeros(3), z[0], ANGLES, model, rng=np.random.default_rng(1))
+    np.testing.assert_allclose(new.weights, 1.0 / 50)
+    assert info.w_avg == 0.0
+
+
+def test_steps_do_not_modify_their_arguments(sim):
+    grid, _, _, z = sim
+    model = mcl.prepare_mcl(grid, mcl.MCLParams(**SIM_PARAMS))
+    state = mcl.mcl_initialize(model, 300, rng=np.random.default_rng(0))
+    poses, lw, scan, u = state.poses.copy(), state.log_weights.copy(), z[3].copy(), np.array([0.1, 0.2, -0.1])
+    for step in (mcl.mcl_step, mcl.augmented_mcl_step, mcl.kld_mcl_step):
+        step(state, u, z[3], ANGLES, model, rng=np.random.default_rng(0))
+        np.testing.assert_array_equal(state.poses, poses)
+        np.testing.assert_array_equal(state.log_weights, lw)
+        np.testing.assert_array_equal(z[3], scan)
+
+
+def test_particle_summary():
+    poses = np.array([[1.0, 0.0, np.pi - 0.1], [3.0, 0.0, -np.pi + 0.1]])
+    mean, spread, hs = mcl.particle_summary(poses)
+    np.testing.assert_allclose(mean[:2], [2.0, 0.0])
+    assert abs(abs(mean[2]) - np.pi) < 1e-9 and abs(spread - 1.0) < 1e-12 and 0.09 < hs < 0.11
+    mean, spread, _ = mcl.particle_summary(poses, np.log([1.0, 3.0]))
+    np.testing.assert_allclose(mean[:2], [2.5, 0.0])
+
+
+def test_scan_endpoints_geometry():
+    pts = mcl.scan_endpoints([1.0, 2.0, np.pi / 2], [1.0, 2.0, 9.0], [0.0, -np.pi / 2, 0.0], z_max=8.0,
+                             sensor_offset=0.25)
+    np.testing.assert_allclose(pts, [[1.0, 3.25], [3.0, 2.25]], atol=1e-12)
+
+
+# --------------------------------------------------------------------------- bad input
+def test_bad_inputs_raise(sim):
+    grid, _, odom, z = sim
+    model = mcl.prepare_mcl(grid, mcl.MCLParams(**SIM_PARAMS))
+    state = mcl.mcl_initialize(model, 10, rng=np.random.default_rng(0))
+    rng = np.random.default_rng(0)
+    with pytest.raises(ValueError, match="model"):
+        mcl.MCLParams(model="sonar")
+    with pytest.raises(ValueError, match="alpha"):
+        mcl.MCLParams(alpha=(0.1, -0.1, 0.1, 0.1))
+    with pytest.raises(ValueError, match="n_particles"):
+        mcl.MCLParams(n_particles=0)
+    with pytest.raises(ValueError, match="resample_threshold"):
+        mcl.MCLParams(resample_threshold=1.5)
+    with pytest.raises(ValueError, match="alpha_slow"):
+        mcl.AugmentedParams(alpha_slow=0.5, alpha_fast=0.1)
+    with pytest.raises(ValueError, match="n_max"):
+        mcl.KLDParams(n_min=100, n_max=10)
+    with pytest.raises(ValueError, match="delta"):
+        mcl.KLDParams(delta=1.0)
+    with pytest.raises(TypeError, match="grid"):
+        mcl.prepare_mcl(np.zeros((10, 10)))
+    with pytest.raises(TypeError, match="params"):
+        mcl.prepare_mcl(grid, {"n_particles": 10})
+    with pytest.raises(TypeError, match="rng"):
+        mcl.mcl_step(state, np.zeros(3), z[0], ANGLES, model, rng=0)
+    with pytest.raises(ValueError, match="u"):
+        mcl.mcl_step(state, np.zeros(2), z[0], ANGLES, model, rng=rng)
+    with pytest.raises(ValueError, match="angles"):
+        mcl.mcl_step(state, np.zeros(3), z[0], ANGLES[:-1], model, rng=rng)
+    with pytest.raises(ValueError, match="ranges"):
+        mcl.mcl_step(state, np.zeros(3), -z[0], ANGLES, model, rng=rng)
+    with pytest.raises(TypeError, match="state"):
+        mcl.mcl_step(state.poses, np.zeros(3), z[0], ANGLES, model, rng=rng)
+    with pytest.raises(TypeError, match="model"):
+        mcl.augmented_mcl_step(state, np.zeros(3), z[0], ANGLES, grid, rng=rng)
+    with pytest.raises(ValueError, match="variant"):
+        mcl.run_mcl(model, odom, z, ANGLES, rng=rng, variant="fast")
+    with pytest.raises(ValueError, match="ranges"):
+        mcl.run_mcl(model, odom, z[:-1], ANGLES, rng=rng)
+    with pytest.raises(ValueError, match="odom_poses"):
+        mcl.odometry_steps(odom[:, :2])
+    with pytest.raises(ValueError, match="poses"):
+        mcl.scan_log_likelihood(model, np.zeros((4, 2)), z[0], ANGLES)
+    with pytest.raises(ValueError, match="k"):
+        mcl.kld_sample_size(-1, 0.05, 0.01)
+    with pytest.raises(ValueError, match="epsilon"):
+        mcl.kld_sample_size(5, 0.0, 0.01)
+    with pytest.raises(ValueError, match="log_weights"):
+        mcl.particle_summary(np.zeros((2, 3)), [np.nan, 0.0])
+
+
+# --------------------------------------------------------------------------- the CMU Wean Hall log
+@pytest.mark.slow
+def test_cmu_log_global_localization_converges_and_matches_the_map():
+    from slamlib.datasets import cmu
+
+    grid, log = cmu.load_cmu_map(), cmu.load_cmu_log()
+    params = mcl.MCLParams(sensor_offset=log.sensor_offset, z_max=log.max_range)
+    model = mcl.prepare_mcl(grid, params)
+    res = mcl.run_mcl(model, log.laser_pose, log.ranges, log.angles, rng=np.random.default_rng(2), times=log.laser_t)
+    assert 150 < len(res) < log.n_scans  # scans without motion are merged
+    spread_high = np.flatnonzero(res.spread >= 0.5)
+    conv = spread_high.max() + 1 if spread_high.size else 0
+    assert res.spread[0] > 5.0  # global: the cloud starts over the whole building
+    assert res.t[conv] - res.t[0] < 30.0, "the cloud did not converge within 30 s"
+    after = np.arange(conv, len(res))
+    # no ground truth: the estimate must sit in free space and the scans must land on walls
+    assert grid.is_free(res.mean[after, :2], params.free_threshold).all()
+    dist = [mcl.endpoint_distances(model, res.mean[s], log.ranges[res.scan_index[s]], log.angles) for s in after]
+    median = np.array([np.median(d) for d in dist])
+    near = np.array([np.mean(d < 0.2) for d in dist])
+    assert median.max() <= 0.15, median.max()
+    assert near.mean() > 0.8 and near.min() > 0.5, (near.mean(), near.min())
+    assert np.all(res.heading_spread[after] < 0.5)
