@@ -1,7 +1,8 @@
 """Plotting for the book: the only part of slamlib that imports matplotlib.
 
 Functions live in private submodules by topic (``_core``: poses, ellipses,
-particles, landmarks, grids, animations; ``_localization``; ``_slam``) and are
+particles, landmarks, grids, animations; ``_bayes``; ``_filters``; ``_mcl``;
+``_slam``; ``_fastslam``; ``_real_data``) and are
 re-exported here. Every function takes an optional ``ax`` and returns it.
 """
 

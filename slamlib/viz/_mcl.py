@@ -7,7 +7,8 @@ matplotlib is imported inside the functions only (through ``_core``).
 References
 ----------
 Thrun, Burgard & Fox, *Probabilistic Robotics* (2005), Ch. 8 (Figs. 8.11-8.13:
-MCL on a real map; Fig. 8.15: KLD-sampling's sample set size).
+MCL on a real map; Fig. 8.15: KLD-sampling's sample set size); Ch. 6 (beam
+model and likelihood field compared along pose offsets).
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ __all__ = [
     "plot_mcl_run",
     "plot_augmented_averages",
     "plot_position_error",
+    "plot_likelihood_profiles",
     "animate_mcl",
 ]
 
@@ -79,6 +81,9 @@ def plot_mcl_particles(grid, particles, ax=None, *, mean=None, center=None, half
     plot_grid(grid, ax)
     step = max(1, int(np.ceil(poses.shape[0] / max(1, int(max_points)))))
     plot_particles(poses[::step], ax=ax, color=color, s=3.0, alpha=0.5, zorder=3)
+    # plot_particles leaves adjustable="datalim", with which matplotlib overrides (and warns about)
+    # limits set on both axes, as a zoom window does; "box" keeps the map's aspect and the limits
+    ax.set_aspect("equal", adjustable="box")
     if mean is not None:
         plot_pose(as_array(mean, "mean", (3,)), ax=ax, color="C0", zorder=4)
     if center is None and half_width is not None:
@@ -253,6 +258,61 @@ def plot_position_error(t, errors, ax=None, *, ylabel="distance [m]", log=True):
     ax.set_ylabel(ylabel)
     ax.legend()
     return ax
+
+
+def plot_likelihood_profiles(offsets, profiles, axes=None, *, xlabels=None, titles=None):
+    """Scan log-likelihood along pose offsets, one panel per offset direction.
+
+    Every curve is shifted so that its maximum is 0, which compares the shapes
+    (width, smoothness, local maxima) of several measurement models.
+
+    Parameters
+    ----------
+    offsets : sequence of ndarray, shape (N_p,)
+        Offsets of each panel ``p`` (e.g. along-track [m], cross-track [m],
+        heading [deg]).
+    profiles : dict of str to sequence of ndarray, shape (N_p,)
+        Log-likelihoods of each model (key: legend label), one array per
+        panel, evaluated at the offsets.
+    axes : sequence of matplotlib.axes.Axes, optional
+        One axes per panel; a new row of panels if omitted.
+    xlabels, titles : sequence of str, keyword-only, optional
+        Axis label and title of each panel.
+
+    Returns
+    -------
+    ndarray of matplotlib.axes.Axes, shape (P,)
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Sec. 6.4 (the likelihood field is smooth in
+    the pose, the beam model is not).
+    """
+    import matplotlib.pyplot as plt
+
+    offs = [as_array(o, "offsets", ndim=1) for o in offsets]
+    n = len(offs)
+    if axes is None:
+        _, axes = plt.subplots(1, n, figsize=(3.4 * n, 3.0), layout="constrained")
+    axes = np.atleast_1d(np.asarray(axes, dtype=object))
+    if axes.size != n:
+        raise ValueError(f"axes must hold one axes per panel ({n}), got {axes.size}")
+    for k, (label, curves) in enumerate(profiles.items()):
+        curves = list(curves)
+        if len(curves) != n:
+            raise ValueError(f"profiles[{label!r}] must hold one curve per panel ({n}), got {len(curves)}")
+        for p, (ax, o, c) in enumerate(zip(axes, offs, curves)):
+            c = as_array(c, "profiles", o.shape, finite=False)
+            ax.plot(o, c - np.max(c), color=f"C{k}", label=label if p == 0 else None)
+    for p, ax in enumerate(axes):
+        ax.axvline(0.0, color="k", lw=0.6, ls=":")
+        if xlabels is not None:
+            ax.set_xlabel(xlabels[p])
+        if titles is not None:
+            ax.set_title(titles[p], fontsize=10)
+    axes[0].set_ylabel("log-likelihood - max")
+    axes[0].legend(fontsize=8)
+    return axes
 
 
 def animate_mcl(grid, result, *, scans=None, angles=None, sensor_offset=0.25, z_max=np.inf, window=None,
