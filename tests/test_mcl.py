@@ -138,6 +138,29 @@ def test_odometry_steps_merge_without_losing_motion():
     assert np.all((moved >= 0.2) | (turned >= 0.2))
 
 
+def test_odometry_steps_turn_in_place_keeps_the_turn_in_rot2():
+    # a 30 degree turn in place with 2.5 mm of backward wheel slip, then a straight metre
+    odom = np.array([[1.0, 2.0, 0.3], [1.0 - 0.0025 * np.cos(0.3), 2.0 - 0.0025 * np.sin(0.3), 0.3 + np.pi / 6],
+                     [0.0, 0.0, 0.0]])
+    odom[2] = sl.odometry_motion(odom[1], [0.0, 1.0, 0.0])
+    index, u = mcl.odometry_steps(odom)
+    np.testing.assert_array_equal(index, [0, 1, 2])
+    np.testing.assert_allclose(u[1], [0.0, 0.0025, np.pi / 6], atol=1e-12)
+    np.testing.assert_allclose(u[2], [0.0, 1.0, 0.0], atol=1e-12)
+    # Table 5.5's increments take rot1 from the slip: two opposite turns of about 180 degrees
+    raw = mcl.odometry_steps(odom, turn_in_place=0.0)[1]
+    assert abs(raw[1, 0]) > 2.5 and abs(raw[1, 2]) > 2.5
+    np.testing.assert_allclose(raw[2], u[2], atol=1e-12)
+    # the Table 5.6 heading noise of the step is then far larger than the turn-in-place one
+    alpha = np.array([0.05, 0.05, 0.05, 0.05])
+    x = np.tile(odom[0], (4000, 1))
+    spread = [np.std(sl.angle_diff(sl.sample_motion_model_odometry(x, c, alpha, rng=np.random.default_rng(1))[:, 2],
+                                   odom[1, 2])) for c in (u[1], raw[1])]
+    assert spread[1] > 5 * spread[0], spread
+    with pytest.raises(ValueError, match="turn_in_place must be non-negative"):
+        mcl.odometry_steps(odom, turn_in_place=-1.0)
+
+
 # --------------------------------------------------------------------------- kidnapping
 @pytest.fixture(scope="module")
 def kidnapped():
