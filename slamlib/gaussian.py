@@ -300,10 +300,10 @@ def ekf_predict(mu, Sigma, u, dt, M):
 
 def _innovation(mu_bar, Sigma_bar, z, m, Q):
     """Innovation ``nu`` (bearing wrapped), its covariance ``S`` and ``H``."""
-    z_hat, H, _ = landmark_measurement(mu_bar, m)  # (Table 7.2 lines 12-14)
+    z_hat, H, _ = landmark_measurement(mu_bar, m)  # (Table 7.2 lines 11-13)
     nu = z - z_hat
     nu[..., 1] = wrap_angle(nu[..., 1])  # bearing innovation wrapped to [-pi, pi)
-    # S = H Sigma_bar H^T + Q  (Table 7.2 line 15)
+    # S = H Sigma_bar H^T + Q  (Table 7.2 line 14)
     S = _sym(H @ Sigma_bar @ _T(H) + Q)
     return nu, S, H
 
@@ -311,12 +311,12 @@ def _innovation(mu_bar, Sigma_bar, z, m, Q):
 def _ekf_update(mu_bar, Sigma_bar, z, m, Q):
     nu, S, H = _innovation(mu_bar, Sigma_bar, z, m, Q)
     SigHt = Sigma_bar @ _T(H)
-    # K = Sigma_bar H^T S^-1  (Table 7.2 line 16)
+    # K = Sigma_bar H^T S^-1  (Table 7.2 line 15)
     K = _T(np.linalg.solve(S, _T(SigHt)))
-    # mu = mu_bar + K (z - z_hat)  (Table 7.2 line 17)
+    # mu = mu_bar + K (z - z_hat)  (Table 7.2 line 16)
     mu = mu_bar + _mv(K, nu)
     mu[..., 2] = wrap_angle(mu[..., 2])
-    # Sigma = (I - K H) Sigma_bar  (Table 7.2 line 18)
+    # Sigma = (I - K H) Sigma_bar  (Table 7.2 line 17)
     Sigma = Sigma_bar - K @ H @ Sigma_bar
     return Gaussian(mu, _sym(Sigma))
 
@@ -353,7 +353,7 @@ def ekf_update(mu_bar, Sigma_bar, z, m, Q):
 
     References
     ----------
-    Thrun, Burgard & Fox (2005), Table 7.2 lines 10-18.
+    Thrun, Burgard & Fox (2005), Table 7.2 lines 10-17.
     """
     mu_bar = _as_vec(mu_bar, "mu_bar", 3)
     Sigma_bar = _as_cov(Sigma_bar, "Sigma_bar", 3)
@@ -369,7 +369,7 @@ def _mahalanobis(mu_bar, Sigma_bar, z, landmarks, Q):
     if landmarks.shape[0] == 0:
         return np.zeros(0)
     nu, S, _ = _innovation(mu_bar, Sigma_bar, z, landmarks, Q)
-    # d = nu^T S^-1 nu  (squared Mahalanobis distance, cf. Table 7.3 line 15)
+    # d = nu^T S^-1 nu  (squared Mahalanobis distance: the exponent of Table 7.3 line 16)
     return np.einsum("...i,...i->...", nu, np.linalg.solve(S, nu[..., None])[..., 0])
 
 
@@ -486,7 +486,7 @@ def _step_inputs(mu, Sigma, u, z, landmarks, dt, M, Q):
 
 def _known_step(mu, Sigma, u, z, ids, landmarks, dt, M, Q):
     mu, Sigma = _ekf_predict(mu, Sigma, u, dt, M)
-    for zi, j in zip(z, ids):  # for all observed features  (Table 7.2 line 10)
+    for zi, j in zip(z, ids):  # for all observed features  (Table 7.2 line 9)
         mu, Sigma = _ekf_update(mu, Sigma, zi, landmarks[j], Q)
     return Gaussian(mu, Sigma)
 

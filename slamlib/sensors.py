@@ -86,7 +86,7 @@ def landmark_measurement(x, m):
 
     References
     ----------
-    Thrun, Burgard & Fox (2005), Eq. 6.40 and Table 7.2 lines 12-14.
+    Thrun, Burgard & Fox (2005), Eq. 6.40 and Table 7.2 lines 11-13.
     """
     x = _last_axis(as_array(x, "x", ndim=range(1, 33)), "x", 3)
     m = _last_axis(as_array(m, "m", ndim=range(1, 33)), "m", 2)
@@ -98,10 +98,10 @@ def landmark_measurement(x, m):
     if np.any(r < MIN_RANGE):
         raise ValueError("m coincides with the pose x (range 0): bearing and Jacobians are undefined")
     z_hat = np.empty(shape + (2,))
-    # z_hat = [sqrt(q), atan2(dy, dx) - theta]  (Eq. 6.40, Table 7.2 lines 12-13)
+    # z_hat = [sqrt(q), atan2(dy, dx) - theta]  (Eq. 6.40, Table 7.2 lines 11-12)
     z_hat[..., 0] = r
     z_hat[..., 1] = wrap_angle(np.arctan2(dy, dx) - x[..., 2])
-    # H = d h / d x  (Table 7.2 line 14)
+    # H = d h / d x  (Table 7.2 line 13)
     Hx = np.zeros(shape + (2, 3))
     Hx[..., 0, 0] = -dx / r
     Hx[..., 0, 1] = -dy / r

@@ -135,7 +135,7 @@ def _check_update(ctx, mu_bar, Sigma_bar, z, m, Q):
 
 @EX.test("ekf_update", "mean and covariance on random beliefs", weight=12,
          hint="S = H Sigma_bar H^T + Q, K = Sigma_bar H^T S^-1, mu = mu_bar + K (z - z_hat), "
-              "Sigma = (I - K H) Sigma_bar, with z_hat and H at mu_bar (Table 7.2 lines 10-18).")
+              "Sigma = (I - K H) Sigma_bar, with z_hat and H at mu_bar (Table 7.2 lines 10-17).")
 def _(ctx):
     for _ in range(6):
         mu_bar, Sigma_bar = _belief(ctx.rng)

@@ -295,7 +295,7 @@ def _(ctx):
 
 
 @EX.test("landmark_measurement", "Jacobian Hx with respect to the pose", weight=4,
-         hint="Hx = [[-dx/r, -dy/r, 0], [dy/q, -dx/q, -1]] (Table 7.2 line 14).")
+         hint="Hx = [[-dx/r, -dy/r, 0], [dy/q, -dx/q, -1]] (Table 7.2 line 13).")
 def _(ctx):
     for x, m in _lm_cases(ctx.rng, 6):
         _, Hx, _ = _lm(ctx, x, m)
