@@ -89,6 +89,10 @@ def test_animate_returns_html_with_controls():
     assert text.count("data:image/png;base64") == 4  # one embedded image per frame
     assert len(plt.get_fignums()) == n_before - 1  # the figure was closed
     assert len(text) < 300_000
+    # the book reads offline: nothing is fetched from the network, every button has a visible glyph
+    assert "http://" not in text and "https://" not in text, "the animation links to a remote resource"
+    assert '<i class="fa' not in text
+    assert text.count('class="anim-glyph"') == text.count("<button") == 9
     with pytest.raises(TypeError, match="update"):
         viz.animate(plt.figure(), None, 3)
 

@@ -287,6 +287,36 @@ def plot_grid(grid, ax=None, *, unknown_color="#c8d8e8", **kw):
     return ax
 
 
+#: Glyphs for the buttons of matplotlib's animation controls, which otherwise are Font Awesome
+#: icons whose stylesheet comes from a CDN: the book must read offline.
+_BUTTON_GLYPHS = {
+    "fa fa-minus": "\u2212",
+    "fa fa-fast-backward": "\u23ee",
+    "fa fa-step-backward": "\u23ea",
+    "fa fa-play fa-flip-horizontal": "\u25c0",
+    "fa fa-pause": "\u23f8",
+    "fa fa-play": "\u25b6",
+    "fa fa-step-forward": "\u23e9",
+    "fa fa-fast-forward": "\u23ed",
+    "fa fa-plus": "+",
+}
+
+
+def _offline_controls(html):
+    """Drop the CDN stylesheet of ``to_jshtml`` and draw its buttons with Unicode glyphs."""
+    import re
+
+    html = re.sub(r'<link rel="stylesheet"\s+href="https?://[^"]*font-awesome[^"]*">\s*', "", html)
+
+    def glyph(match):
+        cls = match.group(1)
+        if cls not in _BUTTON_GLYPHS:
+            raise RuntimeError(f"unknown animation button icon {cls!r}: update slamlib.viz._core._BUTTON_GLYPHS")
+        return f'<span class="anim-glyph" aria-hidden="true">{_BUTTON_GLYPHS[cls]}</span>'
+
+    return re.sub(r'<i class="(fa [^"]*)"></i>', glyph, html)
+
+
 def animate(fig, update, frames, *, interval=100, embed_limit_mb=30.0, dpi=None):
     """Render a matplotlib animation to self-contained HTML for the static book.
 
@@ -310,7 +340,10 @@ def animate(fig, update, frames, *, interval=100, embed_limit_mb=30.0, dpi=None)
     Returns
     -------
     IPython.display.HTML
-        ``FuncAnimation(...).to_jshtml()``: frames plus play/step controls.
+        ``FuncAnimation(...).to_jshtml()``: frames plus play/step controls,
+        whose buttons are drawn with Unicode glyphs instead of matplotlib's
+        Font Awesome icons (a stylesheet from a CDN), so that the page needs
+        no network.
 
     References
     ----------
@@ -338,4 +371,4 @@ def animate(fig, update, frames, *, interval=100, embed_limit_mb=30.0, dpi=None)
     finally:
         fig.set_dpi(old_dpi)
         plt.close(fig)
-    return HTML(html)
+    return HTML(_offline_controls(html))
