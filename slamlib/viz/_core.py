@@ -289,16 +289,16 @@ def plot_grid(grid, ax=None, *, unknown_color="#c8d8e8", **kw):
 
 #: Glyphs for the buttons of matplotlib's animation controls, which otherwise are Font Awesome
 #: icons whose stylesheet comes from a CDN: the book must read offline.
-_BUTTON_GLYPHS = {
-    "fa fa-minus": "\u2212",
-    "fa fa-fast-backward": "\u23ee",
-    "fa fa-step-backward": "\u23ea",
-    "fa fa-play fa-flip-horizontal": "\u25c0",
-    "fa fa-pause": "\u23f8",
-    "fa fa-play": "\u25b6",
-    "fa fa-step-forward": "\u23e9",
-    "fa fa-fast-forward": "\u23ed",
-    "fa fa-plus": "+",
+_BUTTON_GLYPHS = {  # characters common fonts have (DejaVu, Liberation, the system UI fonts)
+    "fa fa-minus": "\u2212",  # slower
+    "fa fa-fast-backward": "\u21e4",  # first frame: leftwards arrow to bar
+    "fa fa-step-backward": "\u2039",  # previous frame
+    "fa fa-play fa-flip-horizontal": "\u25c0",  # play backwards
+    "fa fa-pause": "\u25ae\u25ae",  # pause
+    "fa fa-play": "\u25b6",  # play
+    "fa fa-step-forward": "\u203a",  # next frame
+    "fa fa-fast-forward": "\u21e5",  # last frame: rightwards arrow to bar
+    "fa fa-plus": "+",  # faster
 }
 
 
