@@ -448,7 +448,8 @@ def odometry_steps(odom_poses, *, min_translation=0.2, min_rotation=0.2, turn_in
     merged into the next step's control, so no odometry is lost.
 
     A step that translates less than `turn_in_place` is a turn in place: its
-    control is ``[0, trans, rot]`` with the whole turn in ``rot2``. Table 5.5
+    control is ``[0, trans, rot]`` with the whole turn in ``rot2`` (its few
+    millimetres of translation are then applied straight ahead). Table 5.5
     would take ``rot1`` from the direction of the few millimetres of wheel
     slip (a slip of 2 mm backwards makes ``rot1`` and ``rot2`` two opposite
     turns of nearly 180 degrees), and the noise of Table 5.6, which grows with
