@@ -162,7 +162,8 @@ def mcl_figures():
     duration = float(log.laser_t[-1] - log.laser_t[0])
     out = {}
     for name, max_steps in (("likelihood_field", None), ("beam", 100)):
-        params = sl.MCLParams(sensor_offset=log.sensor_offset, z_max=log.max_range, model=name)
+        params = sl.MCLParams(n_particles=10_000, sensor_offset=log.sensor_offset, z_max=log.max_range,
+                              model=name)
         model = sl.prepare_mcl(grid, params)
         res = sl.run_mcl(model, log.laser_pose, log.ranges, log.angles, rng=np.random.default_rng(0),
                          times=log.laser_t, max_steps=max_steps)
