@@ -178,14 +178,18 @@ def _numbers(text, word):
     return out
 
 
+def _slamlib_object(name):
+    """The object ``sl.a.b`` names, or None when slamlib has no such attribute."""
+    obj = sl
+    for part in name.removeprefix("sl.").split("."):
+        if not hasattr(obj, part):
+            return None
+        obj = getattr(obj, part)
+    return obj
+
+
 def _slamlib_objects(cell):
-    objs = []
-    for name in CODE.findall(cell):
-        obj = sl
-        for part in name.removeprefix("sl.").split("."):
-            obj = getattr(obj, part)
-        objs.append(obj)
-    return objs
+    return [_slamlib_object(name) for name in CODE.findall(cell)]
 
 
 def _cited_by(obj):
@@ -255,10 +259,7 @@ def test_slamlib_names_exist(row):
     assert names, f"{row['Algorithm']!r}: no `sl.name` in the slamlib column"
     for name in names:
         assert name.startswith("sl."), f"{row['Algorithm']!r}: write slamlib names as `sl.{name}`"
-        obj = sl
-        for part in name.removeprefix("sl.").split("."):
-            assert hasattr(obj, part), f"{row['Algorithm']!r}: slamlib has no {name}"
-            obj = getattr(obj, part)
+        assert _slamlib_object(name) is not None, f"{row['Algorithm']!r}: slamlib has no {name}"
 
 
 @pytest.mark.parametrize("row", ROWS, ids=_row_id)
@@ -274,15 +275,21 @@ def test_source_agrees_with_the_implementation(row):
                        f"{CODE.findall(row['slamlib'])} cites in its docstring or code")
 
 
+def _chapter(row, target):
+    """The chapter file a link of `row` points to; fails when it is missing or not a chapter."""
+    path = _doc_path(target)
+    assert path is not None, f"{row['Algorithm']!r}: {target} does not exist"
+    assert path.parent == ROOT / "chapters", f"{row['Algorithm']!r}: {target} is not a chapter"
+    return path
+
+
 @pytest.mark.parametrize("row", ROWS, ids=_row_id)
 def test_chapter_section_resolves(row):
     cell = row["Chapter section"]
     links, roles = LINK.findall(cell), ROLE.findall(cell)
     assert links or roles, f"{row['Algorithm']!r}: the chapter cell links nowhere"
     for text, target, anchor in links:
-        path = _doc_path(target)
-        assert path is not None, f"{row['Algorithm']!r}: {target} does not exist"
-        assert path.parent == ROOT / "chapters", f"{row['Algorithm']!r}: {target} is not a chapter"
+        path = _chapter(row, target)
         if anchor:
             anchors = _anchors(path)
             assert anchor in anchors, f"{row['Algorithm']!r}: {target} has no heading or label {anchor!r}"
@@ -290,9 +297,7 @@ def test_chapter_section_resolves(row):
     for role, target in roles:
         _, target = _target_text(target)
         if role == "doc":
-            path = _doc_path(target)
-            assert path is not None, f"{row['Algorithm']!r}: document {target} does not exist"
-            assert path.parent == ROOT / "chapters", f"{row['Algorithm']!r}: {target} is not a chapter"
+            _chapter(row, target)
         else:
             assert target in _labels(), f"{row['Algorithm']!r}: no label ({target})= in the book"
 

@@ -14,6 +14,8 @@ sets) and Ch. 9 (occupancy grids).
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 
 from .._checks import as_array, as_scalar
@@ -304,8 +306,6 @@ _BUTTON_GLYPHS = {  # characters common fonts have (DejaVu, Liberation, the syst
 
 def _offline_controls(html):
     """Drop the CDN stylesheet of ``to_jshtml`` and draw its buttons with Unicode glyphs."""
-    import re
-
     html = re.sub(r'<link rel="stylesheet"\s+href="https?://[^"]*font-awesome[^"]*">\s*', "", html)
 
     def glyph(match):
