@@ -6,6 +6,8 @@ through :func:`wrap_angle`, so it lies in ``[-pi, pi)``.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ._checks import as_array
@@ -44,6 +46,12 @@ def wrap_angle(a):
     np.subtract(out, _TWO_PI, out=out, where=out >= np.pi)
     np.add(out, _TWO_PI, out=out, where=out < -np.pi)
     return float(out) if out.ndim == 0 else out
+
+
+def _wrap1(a):
+    """``wrap_angle`` of one Python float, without the array checks (the scalar hot path of the filters)."""
+    w = (float(a) + math.pi) % _TWO_PI - math.pi
+    return w - _TWO_PI if w >= math.pi else w
 
 
 def angle_diff(a, b):

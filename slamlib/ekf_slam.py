@@ -48,9 +48,9 @@ from typing import NamedTuple
 import numpy as np
 
 from ._checks import as_array, as_covariance, as_index, as_scalar, check_rng
-from .angles import wrap_angle
-from .motion import STRAIGHT_LINE_OMEGA, velocity_motion
-from .sensors import landmark_from_measurement, landmark_measurement
+from .angles import _wrap1, wrap_angle
+from .motion import STRAIGHT_LINE_OMEGA, _arc1, velocity_motion
+from .sensors import _range_bearing1, landmark_from_measurement, landmark_measurement
 
 __all__ = [
     "ekf_slam_predict",
@@ -638,7 +638,7 @@ class EKFSLAM:
 
     def _predict(self, u, dt, M):
         n, k, S = self._n, self._k, self._S
-        x_next, G, V = _velocity_motion(self._mu[:3], u, dt)
+        x_next, G, V = _arc1(self._mu[:3], u, dt)
         self._mu[:3] = x_next  # mu_bar = mu + F_x^T g(u, mu)  (Algorithm 1 line 3)
         R = V @ M @ V.T  # R = V M V^T  (Table 7.2 line 5)
         Sxx = G @ S[:3, :3] @ G.T + R  # robot block of G Sigma G^T + F_x^T R F_x  (Algorithm 1 line 5)
@@ -722,7 +722,7 @@ class EKFSLAM:
         n, k, mu = self._n, self._k, self._mu
         a = 3 + 2 * j
         idx = np.array([0, 1, 2, a, a + 1])
-        r_hat, phi_hat, h = _range_bearing(mu, a)  # z_hat, h_t^j  (Eqs. 17.2, 17.3; Algorithm 1 lines 12-16)
+        r_hat, phi_hat, h = _range_bearing1(mu, a)  # z_hat, h_t^j  (Eqs. 17.2, 17.3; Algorithm 1 lines 12-16)
         R = self._S[idx, :n]  # Sigma[idx, :] = (Sigma F_{x,j}^T)^T, the 5 rows H touches
         if k:
             Pt = self._Pt[:k]
@@ -737,9 +737,9 @@ class EKFSLAM:
         l11 = math.sqrt(rest) if rest > 0 else _not_pd()
         i00, i11, i10 = 1.0 / l00, 1.0 / l11, -l10 / (l00 * l11)  # L^-1
         Wt = np.array([[i00, 0.0], [i10, i11]]) @ HP  # W^T = L^-1 (Sigma H^T)^T: W W^T = K S K^T
-        nu0, nu1 = z[0] - r_hat, _wrap(z[1] - phi_hat)  # nu = z - z_hat, bearing wrapped
+        nu0, nu1 = z[0] - r_hat, _wrap1(z[1] - phi_hat)  # nu = z - z_hat, bearing wrapped
         mu[:n] += np.array([i00 * nu0, i10 * nu0 + i11 * nu1]) @ Wt  # mu += K nu, K = W L^-1  (Algorithm 1 line 18)
-        mu[2] = _wrap(mu[2])
+        mu[2] = _wrap1(mu[2])
         self._Pt[k:k + 2, :n] = Wt  # Sigma -= W W^T, applied in _flush  (Algorithm 1 line 19)
         self._k = k + 2
 
@@ -867,58 +867,6 @@ class EKFSLAM:
             return 0
         best = int(np.argmin(d))  # argmin returns the first (smallest) index among ties
         return best if d[best] <= alpha else self.n_landmarks  # (Table 10.2 lines 17-18)
-
-
-_TWO_PI = 2.0 * np.pi
-
-
-def _wrap(a):
-    """:func:`~slamlib.angles.wrap_angle` for one Python float, without the array checks (hot path)."""
-    w = (float(a) + math.pi) % _TWO_PI - math.pi
-    return w - _TWO_PI if w >= math.pi else w
-
-
-def _velocity_motion(x, u, dt):
-    """Hot-path copy of :func:`~slamlib.motion.velocity_motion` for one pose (same chord form).
-
-    Returns ``x_next (3,)``, ``G (3, 3)``, ``V (3, 2)``; the tests check it
-    against ``velocity_motion``.
-    """
-    th, v, w = float(x[2]), float(u[0]), float(u[1])
-    if abs(w) < STRAIGHT_LINE_OMEGA:  # straight-line limit of the contract
-        cx, cy = math.cos(th), math.sin(th)
-        v01, v11 = -0.5 * v * dt * dt * cy, 0.5 * v * dt * dt * cx
-    else:  # chord form of Table 5.3: (x' - x) / (v dt) = cos(theta + a) sinc(a), a = omega dt / 2
-        a = 0.5 * w * dt
-        sa = math.sin(a) / a if a != 0.0 else 1.0
-        dsa = (a * math.cos(a) - math.sin(a)) / (a * a) if abs(a) >= 1e-3 else -a / 3.0 + a**3 / 30.0
-        cc, sc = math.cos(th + a), math.sin(th + a)
-        cx, cy = cc * sa, sc * sa
-        half = 0.5 * v * dt * dt
-        v01, v11 = half * (-sc * sa + cc * dsa), half * (cc * sa + sc * dsa)
-    x_next = np.array([x[0] + v * dt * cx, x[1] + v * dt * cy, _wrap(th + w * dt)])
-    # G = d x' / d x, V = d x' / d u  (Table 7.2 lines 3-4)
-    G = np.array([[1.0, 0.0, -v * dt * cy], [0.0, 1.0, v * dt * cx], [0.0, 0.0, 1.0]])
-    V = np.array([[dt * cx, v01], [dt * cy, v11], [0.0, dt]])
-    return x_next, G, V
-
-
-def _range_bearing(mu, a):
-    """Hot-path copy of :func:`~slamlib.sensors.landmark_measurement` for landmark slot `a`.
-
-    Returns ``r_hat``, ``phi_hat`` (floats) and ``h = [Hx Hm]``, shape ``(2, 5)``
-    (the tests check it against ``landmark_measurement``).
-    """
-    x, y, th, mx, my = float(mu[0]), float(mu[1]), float(mu[2]), float(mu[a]), float(mu[a + 1])
-    dx, dy = mx - x, my - y
-    q = dx * dx + dy * dy  # q = delta^T delta  (Algorithm 1 line 13)
-    if q < 1e-24:
-        raise ValueError("a landmark coincides with the robot pose (range 0): bearing and Jacobians are undefined")
-    r = math.sqrt(q)
-    # h_t^j = 1/q [[-r dx, -r dy, 0, r dx, r dy], [dy, -dx, -q, -dy, dx]]  (Eq. 17.3)
-    h = np.array([[-dx / r, -dy / r, 0.0, dx / r, dy / r], [dy / q, -dx / q, -1.0, -dy / q, dx / q]])
-    # z_hat = [sqrt(q), atan2(dy, dx) - theta]  (Eq. 17.2)
-    return r, _wrap(math.atan2(dy, dx) - th), h
 
 
 def _not_pd():

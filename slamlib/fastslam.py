@@ -44,7 +44,7 @@ from scipy.special import logsumexp
 from .particle import effective_sample_size, low_variance_resample, normalize_log_weights
 from ._checks import as_array, as_covariance, as_scalar, check_rng
 from .angles import circular_mean, wrap_angle
-from .motion import sample_motion_model_velocity, velocity_motion
+from .motion import _control_sqrt, sample_motion_model_velocity, velocity_motion
 from .sensors import landmark_from_measurement, landmark_measurement
 
 __all__ = [
@@ -450,15 +450,8 @@ def fastslam_predict(state, u, dt, *, rng, M=None, alpha=None):
         # x_t^[k] ~ p(x_t | x_{t-1}^[k], u_t)  (Table 13.1 line 4, Table 5.3)
         poses = sample_motion_model_velocity(state.poses, u, dt, alpha, rng=rng)
     else:
-        poses = _sample_arc(state.poses, u, dt, _control_sqrt(M), rng)
+        poses = _sample_arc(state.poses, u, dt, _control_sqrt(as_covariance(M, "M", 2)), rng)
     return state._replace(poses=poses)
-
-
-def _control_sqrt(M):
-    """``L`` with ``L L^T = M`` for a positive semi-definite control covariance."""
-    M = as_covariance(M, "M", 2)
-    lam, V = np.linalg.eigh(M)
-    return V * np.sqrt(np.clip(lam, 0.0, None))
 
 
 def _sample_arc(poses, u, dt, L, rng):
@@ -1011,7 +1004,7 @@ def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=Non
             raise ValueError("alpha must be non-negative")
         L = None
     else:
-        L = _control_sqrt(_run_attr(run, "M") if M is None else M)
+        L = _control_sqrt(as_covariance(_run_attr(run, "M") if M is None else M, "M", 2))
     Q = _check_Q(_run_attr(run, "Q") if Q is None else Q)
     if capacity is None:
         capacity = max(1, int(np.asarray(_run_attr(run, "landmarks")).shape[0]))

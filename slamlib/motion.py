@@ -29,7 +29,9 @@ from __future__ import annotations
 import numpy as np
 
 from ._checks import as_array, as_scalar, check_rng
-from .angles import wrap_angle
+import math
+
+from .angles import _wrap1, wrap_angle
 
 __all__ = [
     "velocity_motion",
@@ -120,6 +122,56 @@ def _arc(x, u, dt):
     V[..., 0, 1] = np.where(straight, -half * sin_t, half * (-sin_c * s + cos_c * ds))
     V[..., 1, 1] = np.where(straight, half * cos_t, half * (cos_c * s + sin_c * ds))
     V[..., 2, 1] = dt
+    return x_next, G, V
+
+
+def _arc_pose(x, u, dt):
+    """Exact-arc motion without Jacobians, ``x (M, 3)``, ``u (M, 2)``: the path of the particle filters.
+
+    The chord form of :func:`_arc` (``x' = x + v dt cos(theta + w dt / 2) sinc(w dt / 2)`` and
+    likewise for ``y``); the particle filters need neither ``G`` nor ``V``, and skipping them
+    halves the cost of a step (the tests check it equals :func:`_arc`).
+    """
+    v, w = u[:, 0], u[:, 1]
+    half = (0.5 * dt) * w
+    step = (v * dt) * _sinc(half)  # chord length v dt sinc(w dt / 2)
+    c = x[:, 2] + half
+    out = np.empty(x.shape)
+    # x' = x + v dt cos(theta + w dt/2) sinc(w dt/2), y' likewise  (Table 5.3, chord form)
+    out[:, 0] = x[:, 0] + step * np.cos(c)
+    out[:, 1] = x[:, 1] + step * np.sin(c)
+    out[:, 2] = wrap_angle(x[:, 2] + dt * w)  # theta' = theta + w dt  (Table 5.3 line 6)
+    return out
+
+
+def _control_sqrt(M):
+    """A square root ``L`` of a positive semi-definite control covariance, ``L L^T = M`` (unchecked)."""
+    lam, vec = np.linalg.eigh(M)
+    return vec * np.sqrt(np.maximum(lam, 0.0))
+
+
+def _arc1(x, u, dt):
+    """Exact-arc motion of one pose with Python floats: the scalar path of :func:`_arc` (same chord form).
+
+    Returns ``x_next (3,)``, ``G (3, 3)``, ``V (3, 2)``; the tests check it
+    against :func:`_arc`.
+    """
+    th, v, w = float(x[2]), float(u[0]), float(u[1])
+    if abs(w) < STRAIGHT_LINE_OMEGA:  # straight-line limit of the contract
+        cx, cy = math.cos(th), math.sin(th)
+        v01, v11 = -0.5 * v * dt * dt * cy, 0.5 * v * dt * dt * cx
+    else:  # chord form of Table 5.3: (x' - x) / (v dt) = cos(theta + a) sinc(a), a = omega dt / 2
+        a = 0.5 * w * dt
+        sa = math.sin(a) / a if a != 0.0 else 1.0
+        dsa = (a * math.cos(a) - math.sin(a)) / (a * a) if abs(a) >= 1e-3 else -a / 3.0 + a**3 / 30.0
+        cc, sc = math.cos(th + a), math.sin(th + a)
+        cx, cy = cc * sa, sc * sa
+        half = 0.5 * v * dt * dt
+        v01, v11 = half * (-sc * sa + cc * dsa), half * (cc * sa + sc * dsa)
+    x_next = np.array([x[0] + v * dt * cx, x[1] + v * dt * cy, _wrap1(th + w * dt)])
+    # G = d x' / d x, V = d x' / d u  (Table 7.2 lines 3-4)
+    G = np.array([[1.0, 0.0, -v * dt * cy], [0.0, 1.0, v * dt * cx], [0.0, 0.0, 1.0]])
+    V = np.array([[dt * cx, v01], [dt * cy, v11], [0.0, dt]])
     return x_next, G, V
 
 

@@ -34,6 +34,7 @@ from scipy.special import logsumexp
 from ._checks import as_array, as_scalar, check_rng
 from .angles import circular_mean, wrap_angle
 from .gaussian import Gaussian
+from .motion import _arc_pose, _control_sqrt
 
 __all__ = [
     "ParticleSet",
@@ -565,33 +566,6 @@ def bootstrap_filter_step(particles, log_w, propagate, log_likelihood, *, rng, r
     return _weigh_and_resample(moved, new_lw, rng, resample, ess_threshold)
 
 
-def _control_sqrt(M):
-    """A square root ``L`` of the PSD control covariance, ``L L^T = M``."""
-    lam, vec = np.linalg.eigh(M)
-    return vec * np.sqrt(np.maximum(lam, 0.0))
-
-
-def _arc_motion(x, u, dt):
-    """Exact-arc motion of every particle with its own control, without Jacobians.
-
-    The chord form of :func:`~slamlib.motion.velocity_motion` (module
-    :mod:`slamlib.motion`): ``x' = x + v dt cos(theta + w dt / 2) sinc(w dt / 2)``
-    and likewise for ``y``; the particle filter needs neither ``G`` nor ``V``,
-    and skipping them halves the cost of a step (the tests check both agree).
-    """
-    v, w = u[:, 0], u[:, 1]
-    half = (0.5 * dt) * w
-    safe = np.where(half == 0.0, 1e-300, half)
-    step = (v * dt) * (np.sin(safe) / safe)  # chord length v dt sinc(w dt / 2); sinc(0) = 1
-    c = x[:, 2] + half
-    out = np.empty(x.shape)
-    # x' = x + v dt cos(theta + w dt/2) sinc(w dt/2), y' likewise  (Table 5.3, chord form)
-    out[:, 0] = x[:, 0] + step * np.cos(c)
-    out[:, 1] = x[:, 1] + step * np.sin(c)
-    out[:, 2] = wrap_angle(x[:, 2] + dt * w)  # theta' = theta + w dt  (Table 5.3 line 6)
-    return out
-
-
 def particle_filter_step(particles, log_w, u, z, m, dt, M, Q, *, rng, resample="systematic", ess_threshold=0.5):
     """One particle-filter step for poses with landmark measurements.
 
@@ -663,7 +637,7 @@ def particle_filter_step(particles, log_w, u, z, m, dt, M, Q, *, rng, resample="
     eps = rng.standard_normal((n, 2))
     L = _control_sqrt(M)
     u_hat = u + eps[:, :1] * L[:, 0] + eps[:, 1:] * L[:, 1]  # u + L eps per particle, eps ~ N(0, I)
-    moved = _arc_motion(particles, u_hat, dt)
+    moved = _arc_pose(particles, u_hat, dt)
     if z.shape[0]:
         # w^[m] = prod_k p(z_k | x_t^[m], m_k), summed in log space  (Table 4.3 line 5, Table 6.4)
         new_lw = lw + _log_landmark_likelihood(moved, z, m, Q)

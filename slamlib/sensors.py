@@ -20,12 +20,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import math
+
 import numpy as np
 from scipy import ndimage
 from scipy.special import ndtr
 
 from ._checks import as_array, as_scalar
-from .angles import wrap_angle
+from .angles import _wrap1, wrap_angle
 from .maps import OccupancyGrid
 
 __all__ = [
@@ -114,6 +116,25 @@ def landmark_measurement(x, m):
     Hm[..., 1, 0] = -dy / q
     Hm[..., 1, 1] = dx / q
     return z_hat, Hx, Hm
+
+
+def _range_bearing1(mu, a):
+    """Range-bearing model of one pose and one landmark with Python floats: the scalar path of
+    :func:`landmark_measurement` for the state vector ``mu`` and landmark slot ``a`` (``mu[a:a+2]``).
+
+    Returns ``r_hat``, ``phi_hat`` (floats) and ``h = [Hx Hm]``, shape ``(2, 5)``
+    (the tests check it against ``landmark_measurement``).
+    """
+    x, y, th, mx, my = float(mu[0]), float(mu[1]), float(mu[2]), float(mu[a]), float(mu[a + 1])
+    dx, dy = mx - x, my - y
+    q = dx * dx + dy * dy  # q = delta^T delta  (Algorithm 1 line 13)
+    if q < 1e-24:
+        raise ValueError("a landmark coincides with the robot pose (range 0): bearing and Jacobians are undefined")
+    r = math.sqrt(q)
+    # h_t^j = 1/q [[-r dx, -r dy, 0, r dx, r dy], [dy, -dx, -q, -dy, dx]]  (Eq. 17.3)
+    h = np.array([[-dx / r, -dy / r, 0.0, dx / r, dy / r], [dy / q, -dx / q, -1.0, -dy / q, dx / q]])
+    # z_hat = [sqrt(q), atan2(dy, dx) - theta]  (Eq. 17.2)
+    return r, _wrap1(math.atan2(dy, dx) - th), h
 
 
 def landmark_from_measurement(x, z):

@@ -90,16 +90,16 @@ def test_hot_path_models_equal_the_foundation_models():
         for _ in range(5):
             x = rng.uniform(-3, 3, 3)
             u = np.array([rng.uniform(-2, 2), w])
-            for a, b in zip(es._velocity_motion(x, u, 0.37), sl.velocity_motion(x, u, 0.37)):
+            for a, b in zip(sl.motion._arc1(x, u, 0.37), sl.velocity_motion(x, u, 0.37)):
                 np.testing.assert_allclose(a, b, rtol=0, atol=1e-13)
     mu, _ = random_state(rng, 5)
     for j in range(5):
-        r, phi, h = es._range_bearing(mu, 3 + 2 * j)
+        r, phi, h = sl.sensors._range_bearing1(mu, 3 + 2 * j)
         z_hat, Hx, Hm = sl.landmark_measurement(mu[:3], mu[3 + 2 * j:5 + 2 * j])
         np.testing.assert_allclose([r, phi], z_hat, rtol=0, atol=1e-14)
         np.testing.assert_allclose(h, np.hstack([Hx, Hm]), rtol=1e-14, atol=1e-14)
     angles = np.concatenate([rng.uniform(-20, 20, 500), [np.pi, -np.pi, 3 * np.pi, 0.0]])
-    np.testing.assert_array_equal([es._wrap(a) for a in angles], sl.wrap_angle(angles))
+    np.testing.assert_array_equal([sl.angles._wrap1(a) for a in angles], sl.wrap_angle(angles))
 
 
 def test_init_landmark_inverts_the_measurement():

@@ -440,14 +440,15 @@ def test_particle_gaussian_weighted_moments_and_wrap():
 
 def test_private_fast_models_match_the_library_models():
     # the filter step evaluates h and the exact arc without Jacobians: same values as the models
-    from slamlib.particle import _arc_motion, _log_landmark_likelihood
+    from slamlib.motion import _arc_pose
+    from slamlib.particle import _log_landmark_likelihood
 
     rng = np.random.default_rng(6)
     x = np.column_stack([rng.normal(0, 3, 400), rng.normal(0, 3, 400), rng.uniform(-np.pi, np.pi, 400)])
     u = np.column_stack([rng.normal(1, 1, 400), rng.normal(0, 1, 400)])
     u[:50, 1] = 0.0
     u[50:100, 1] = rng.uniform(-1e-5, 1e-5, 50)
-    d = _arc_motion(x, u, 0.3) - sl.velocity_motion(x, u, 0.3)[0]
+    d = _arc_pose(x, u, 0.3) - sl.velocity_motion(x, u, 0.3)[0]
     d[:, 2] = sl.wrap_angle(d[:, 2])
     # velocity_motion switches to the straight line below |omega| = 1e-6 (error < v dt^2 |omega|)
     np.testing.assert_allclose(d[:50], 0.0, atol=1e-12)
