@@ -7,11 +7,14 @@ of being coerced into a wrong answer.
 
 from __future__ import annotations
 
+import math
 import numbers
 
 import numpy as np
 
 __all__: list[str] = []
+
+_F64 = np.dtype(np.float64)
 
 
 def _shape_str(shape):
@@ -34,15 +37,10 @@ def as_array(value, name, shape=None, *, ndim=None, finite=True, dtype=np.float6
     finite : bool
         Reject NaN and infinities.
     """
-    if isinstance(value, (str, bytes)) or value is None:
-        raise TypeError(f"{name} must be a numeric array, got {type(value).__name__}")
-    try:
-        arr = np.array(value, dtype=None, copy=True)
-    except Exception as exc:  # ragged lists and the like
-        raise ValueError(f"{name} must be a numeric array: {exc}") from None
-    if arr.dtype.kind not in "biuf":
-        raise TypeError(f"{name} must hold real numbers, got dtype {arr.dtype}")
-    arr = np.asarray(arr, dtype=dtype)
+    if type(value) is np.ndarray and value.dtype is _F64 and dtype is np.float64:
+        arr = value.copy()  # the common case: no dtype inspection or conversion
+    else:
+        arr = _convert(value, name, dtype)
     if shape is not None:
         ok = arr.ndim == len(shape) and all(s is None or s == a for s, a in zip(shape, arr.shape))
         if not ok:
@@ -51,20 +49,39 @@ def as_array(value, name, shape=None, *, ndim=None, finite=True, dtype=np.float6
         allowed = (ndim,) if isinstance(ndim, int) else tuple(ndim)
         if arr.ndim not in allowed:
             raise ValueError(f"{name} must have {' or '.join(map(str, allowed))} dimensions, got shape {arr.shape}")
-    if finite and not np.all(np.isfinite(arr)):
+    if finite and not _all_finite(arr):
         raise ValueError(f"{name} must be finite (no NaN or inf)")
     return arr
 
 
+def _convert(value, name, dtype=np.float64):
+    """A new array of `dtype` from any real array_like; bools count as 0/1, strings are refused."""
+    if isinstance(value, (str, bytes)) or value is None:
+        raise TypeError(f"{name} must be a numeric array, got {type(value).__name__}")
+    try:
+        arr = np.array(value, dtype=None, copy=True)
+    except Exception as exc:  # ragged lists and the like
+        raise ValueError(f"{name} must be a numeric array: {exc}") from None
+    if arr.dtype.kind not in "biuf":
+        raise TypeError(f"{name} must hold real numbers, got dtype {arr.dtype}")
+    return np.asarray(arr, dtype=dtype)
+
+
+def _all_finite(arr):
+    if arr.size <= 16:  # a Python pass over a few numbers beats a ufunc and a reduction
+        values = arr.ravel().tolist()
+        # a finite sum proves every term finite; an overflowing sum of finite terms is looked at one by one
+        return math.isfinite(sum(values)) or all(map(math.isfinite, values))
+    return bool(np.isfinite(arr).all())
+
+
 def as_scalar(value, name, *, positive=False, nonnegative=False, finite=True):
     """Return ``value`` as a Python float after checking sign and finiteness."""
-    if isinstance(value, bool) or not isinstance(value, (numbers.Real, np.ndarray)):
-        raise TypeError(f"{name} must be a real number, got {type(value).__name__}")
-    arr = np.asarray(value)
-    if arr.ndim != 0 or arr.dtype.kind not in "iuf":
-        raise ValueError(f"{name} must be a real scalar, got shape {arr.shape} dtype {arr.dtype}")
-    out = float(arr)
-    if finite and not np.isfinite(out):
+    if type(value) is float:  # the common case, without the ABC and array checks
+        out = float(value)
+    else:
+        out = _real_scalar(value, name)
+    if finite and not math.isfinite(out):
         raise ValueError(f"{name} must be finite, got {out}")
     if positive and not out > 0:
         raise ValueError(f"{name} must be positive, got {out}")
@@ -73,16 +90,284 @@ def as_scalar(value, name, *, positive=False, nonnegative=False, finite=True):
     return out
 
 
-def as_covariance(value, name, n, *, psd=True):
-    """Return a float64 ``(n, n)`` symmetric positive semi-definite matrix."""
-    arr = as_array(value, name, (n, n))
-    if not np.allclose(arr, arr.T, rtol=1e-9, atol=1e-12 * max(1.0, float(np.abs(arr).max(initial=0.0)))):
-        raise ValueError(f"{name} must be symmetric")
-    if psd:
-        eig = np.linalg.eigvalsh(arr)
-        if eig.min() < -1e-9 * max(1.0, abs(eig).max()):
-            raise ValueError(f"{name} must be positive semi-definite (smallest eigenvalue {eig.min():.3g})")
+def _real_scalar(value, name):
+    if isinstance(value, bool) or not isinstance(value, (numbers.Real, np.ndarray)):
+        raise TypeError(f"{name} must be a real number, got {type(value).__name__}")
+    arr = np.asarray(value)
+    if arr.ndim != 0 or arr.dtype.kind not in "iuf":
+        raise ValueError(f"{name} must be a real scalar, got shape {arr.shape} dtype {arr.dtype}")
+    return float(arr)
+
+
+def as_vector(value, name, n=None, *, copy=True):
+    """A float64 array of shape ``(n,)`` or ``(..., n)`` (a batch of vectors), finite.
+
+    With ``copy=False`` it returns `value` itself when it already is a finite
+    float64 array (for cores that never write into their inputs), so the check
+    of one small vector costs a few attribute lookups.
+    """
+    if type(value) is np.ndarray and value.dtype is _F64 and value.ndim == 1:
+        arr = value.copy() if copy else value
+    else:
+        arr = as_array(value, name, finite=False)
+        if arr.ndim == 0:
+            raise ValueError(f"{name} must have shape ({'n' if n is None else n},) or (..., {'n' if n is None else n}), "
+                             f"got a scalar")
+    if n is not None and arr.shape[-1] != n:
+        raise ValueError(f"{name} must have shape ({n},) or (..., {n}), got {arr.shape}")
+    if not _all_finite(arr):
+        raise ValueError(f"{name} must be finite (no NaN or inf)")
     return arr
+
+
+def as_matrix(value, name, rows=None, cols=None, *, copy=True):
+    """A float64 array of shape ``(rows, cols)`` or ``(..., rows, cols)``, finite (see :func:`as_vector`)."""
+    if type(value) is np.ndarray and value.dtype is _F64 and value.ndim == 2:
+        arr = value.copy() if copy else value
+    else:
+        arr = as_array(value, name, finite=False)
+        if arr.ndim < 2:
+            raise ValueError(f"{name} must be a matrix {_mat_str(rows, cols)} or a batch (..., {_mat_str(rows, cols)[1:-1]}), "
+                             f"got shape {arr.shape}")
+    r, c = arr.shape[-2:]
+    if (rows is not None and r != rows) or (cols is not None and c != cols):
+        want = _mat_str(rows, cols)
+        raise ValueError(f"{name} must have shape {want} or (..., {want[1:-1]}), got {arr.shape}")
+    if not _all_finite(arr):
+        raise ValueError(f"{name} must be finite (no NaN or inf)")
+    return arr
+
+
+def _mat_str(rows, cols):
+    return f"({'n' if rows is None else rows}, {'n' if cols is None else cols})"
+
+
+#: Relative tolerances of the covariance checks: asymmetry ``|A - A^T|`` and a
+#: negative eigenvalue are tolerated up to this fraction of ``max(1, |A|)``.
+SYM_RTOL = 1e-9
+PSD_RTOL = 1e-9
+
+
+def as_covariance(value, name, n=None, *, definite=False, batched=False, psd=True, copy=True):
+    """A (batch of) symmetric positive semi-definite (or definite) ``(n, n)`` matrices.
+
+    Parameters
+    ----------
+    value : array_like, shape (n, n) or (..., n, n)
+        The argument to check; a batch is checked matrix by matrix.
+    name : str
+        Argument name used in error messages.
+    n : int, optional
+        Required size; any square size if omitted.
+    definite : bool, keyword-only
+        Require positive definiteness (every eigenvalue ``> 0``), e.g. for a
+        matrix that is inverted.
+    batched : bool, keyword-only
+        Accept leading batch axes.
+    psd : bool, keyword-only
+        Check (semi-)definiteness at all; ``False`` checks symmetry only.
+    copy : bool, keyword-only
+        ``False`` returns `value` itself when it already is a float64 array
+        (for cores that never write into it).
+
+    Returns
+    -------
+    ndarray
+        `value` as a float64 array.
+
+    Notes
+    -----
+    Symmetric means ``max |A - A^T| <= 1e-9 max(1, max |A|)``; semi-definite
+    means the smallest eigenvalue is ``>= -1e-9 max(1, max |eig|)``. A 2x2 or
+    3x3 matrix whose leading principal minors are clearly positive (Sylvester's
+    criterion) is accepted without an eigendecomposition, so checking one small
+    covariance costs about a microsecond; anything else goes through
+    ``numpy.linalg.eigvalsh``.
+    """
+    if type(value) is np.ndarray and value.dtype is _F64 and value.ndim == 2:
+        k = value.shape[0]
+        if 2 <= k <= 3 and value.shape[1] == k and (n is None or n == k) and _small_pd(value.tolist(), k):
+            return value.copy() if copy else value  # finite, symmetric and clearly positive definite
+    arr = as_matrix(value, name, n, n, copy=copy)
+    if arr.shape[-1] != arr.shape[-2]:
+        raise ValueError(f"{name} must be square, got shape {arr.shape}")
+    if arr.ndim > 2 and not batched:
+        raise ValueError(f"{name} must have shape {_mat_str(n, n)}, got {arr.shape}")
+    k = arr.shape[-1]
+    if arr.ndim == 2 and 2 <= k <= 3 and _small_pd(arr.tolist(), k):
+        return arr
+    scale = np.maximum(1.0, np.abs(arr).max(axis=(-2, -1), initial=0.0))
+    asym = np.abs(arr - np.swapaxes(arr, -1, -2)).max(axis=(-2, -1), initial=0.0)
+    if np.any(asym > SYM_RTOL * scale):
+        raise ValueError(f"{name} must be symmetric (largest |{name} - {name}^T| is {float(np.max(asym)):.3g})")
+    if psd and k > 0:
+        eig = np.linalg.eigvalsh(arr)
+        low = float(eig.min())
+        if definite and np.any(eig.min(axis=-1) <= 0.0):
+            raise ValueError(f"{name} must be positive definite (smallest eigenvalue {low:.3g})")
+        tol = PSD_RTOL * np.maximum(1.0, np.abs(eig).max(axis=-1))
+        if np.any(eig.min(axis=-1) < -tol):
+            raise ValueError(f"{name} must be positive semi-definite (smallest eigenvalue {low:.3g})")
+    return arr
+
+
+def _small_pd(a, k):
+    """True if the nested list `a` (k = 2 or 3) is symmetric and clearly positive definite.
+
+    False for anything else, including NaN or inf entries (every comparison
+    with them fails), so the caller falls back to the full check.
+    """
+    if k == 2:
+        (a00, a01), (a10, a11) = a
+        scale = max(1.0, abs(a00), abs(a01), abs(a10), abs(a11))
+        if abs(a01 - a10) > SYM_RTOL * scale:
+            return False
+        # Sylvester: a00 > 0 and det > 0, with a margin far above rounding
+        return a00 > 1e-12 * scale and a00 * a11 - a01 * a10 > 1e-12 * scale * scale
+    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = a
+    scale = max(1.0, abs(a00), abs(a01), abs(a02), abs(a10), abs(a11), abs(a12), abs(a20), abs(a21), abs(a22))
+    tol = SYM_RTOL * scale
+    if abs(a01 - a10) > tol or abs(a02 - a20) > tol or abs(a12 - a21) > tol:
+        return False
+    m2 = a00 * a11 - a01 * a10
+    det = a00 * (a11 * a22 - a12 * a21) - a01 * (a10 * a22 - a12 * a20) + a02 * (a10 * a21 - a11 * a20)
+    eps = 1e-12 * scale
+    return a00 > eps and m2 > eps * scale and det > eps * scale * scale
+
+
+def check_rows(*named):
+    """Arrays ``(array, name)`` must have the same number of rows (first axis); returns it."""
+    first, first_name = named[0]
+    n = np.shape(first)[0]
+    for arr, nm in named[1:]:
+        if np.shape(arr)[0] != n:
+            raise ValueError(f"{nm} must have one row per row of {first_name} ({n}), got {np.shape(arr)[0]} "
+                             f"({first_name} {np.shape(first)}, {nm} {np.shape(arr)})")
+    return n
+
+
+def check_batch(*named):
+    """Leading (batch) axes of ``(array, core ndim, name)`` triples must broadcast; returns their shape.
+
+    The message names every argument with its shape, instead of numpy's
+    broadcast error deep inside a computation.
+    """
+    for a, k, _ in named:
+        if a.ndim != k:
+            break
+    else:
+        return ()  # nothing batched
+    shapes = [a.shape[: a.ndim - k] for a, k, _ in named]
+    try:
+        return np.broadcast_shapes(*shapes)
+    except ValueError:
+        desc = ", ".join(f"{name} {a.shape}" for a, _, name in named)
+        raise ValueError(f"leading (batch) axes do not broadcast: {desc}") from None
+
+
+def as_pose(value, name="pose"):
+    """One pose ``[x, y, theta]``, shape ``(3,)``, finite."""
+    if type(value) is np.ndarray and value.dtype is _F64 and value.shape == (3,):
+        if not all(map(math.isfinite, value.tolist())):
+            raise ValueError(f"{name} must be finite (no NaN or inf)")
+        return value.copy()
+    return as_array(value, name, (3,))
+
+
+def as_poses(value, name="poses", *, batched=False, allow_empty=True):
+    """Poses ``[x, y, theta]``: shape ``(M, 3)``, or ``(..., 3)`` when `batched`; finite."""
+    if batched:
+        arr = as_array(value, name, ndim=range(1, 33))
+        if arr.shape[-1] != 3:
+            raise ValueError(f"{name} must have shape (3,) or (..., 3), got {arr.shape}")
+    else:
+        arr = as_array(value, name, (None, 3))
+    if not allow_empty and arr.size == 0:
+        raise ValueError(f"{name} must hold at least one pose")
+    return arr
+
+
+def as_weights(value, name="w", n=None, *, normalize=True):
+    """Non-negative weights ``(n,)``, not all zero, finite sum; normalised to sum 1 unless told not to."""
+    w = as_array(value, name, (None,) if n is None else (n,))
+    if w.size == 0:
+        raise ValueError(f"{name} must hold at least one weight")
+    if np.any(w < 0):
+        raise ValueError(f"{name} must be non-negative, got minimum {w.min():.3g}")
+    total = w.sum()
+    if not total > 0:
+        raise ValueError(f"{name} must have a positive sum (all weights are zero)")
+    if not np.isfinite(total):
+        raise ValueError(f"{name} sums to infinity; rescale the weights (or use log-weights)")
+    return w / total if normalize else w
+
+
+def as_log_weights(value, name="log_w", n=None):
+    """Log-weights ``(n,)``: no NaN or ``+inf``, ``-inf`` allowed for some but not all entries."""
+    lw = as_array(value, name, (None,) if n is None else (n,), finite=False)
+    check_log_weights(lw, name)
+    return lw
+
+
+def check_log_weights(lw, name="log_w"):
+    """Raise unless the float array `lw` can be normalised (see :func:`as_log_weights`)."""
+    if lw.size == 0:
+        raise ValueError(f"{name} must hold at least one log-weight")
+    if np.any(np.isnan(lw)):
+        raise ValueError(f"{name} contains NaN")
+    if np.any(lw == np.inf):
+        raise ValueError(f"{name} contains +inf (an infinite weight cannot be normalised)")
+    if not np.any(np.isfinite(lw)):
+        raise ValueError(f"{name}: every log-weight is -inf (all particles have zero weight), nothing to normalise")
+
+
+def as_probability(value, name):
+    """A Python float in ``[0, 1]``."""
+    p = as_scalar(value, name)
+    if not 0.0 <= p <= 1.0:
+        raise ValueError(f"{name} must be a probability in [0, 1], got {p}")
+    return p
+
+
+def as_probabilities(value, name, shape=None, *, ndim=None, sums_to_one=False, tol=1e-6):
+    """An array of probabilities in ``[0, 1]`` (a distribution summing to 1 within `tol` when `sums_to_one`)."""
+    arr = as_array(value, name, shape, ndim=ndim)
+    if arr.size == 0:
+        raise ValueError(f"{name} must not be empty")
+    if np.any(arr < 0):
+        raise ValueError(f"{name} must be non-negative (it is a probability distribution)")
+    if sums_to_one:
+        total = float(arr.sum())
+        if abs(total - 1.0) > tol:
+            raise ValueError(f"{name} must sum to 1 (it is a probability distribution), got sum {total:.6g}")
+    elif np.any(arr > 1):
+        raise ValueError(f"{name} must hold probabilities in [0, 1], got maximum {arr.max():.6g}")
+    return arr
+
+
+def as_count(value, name, *, minimum=0, maximum=None):
+    """A Python int count ``>= minimum`` (and ``<= maximum``); bools and floats are refused."""
+    if isinstance(value, bool) or not isinstance(value, (numbers.Integral, np.integer)):
+        raise TypeError(f"{name} must be an integer count, got {type(value).__name__}")
+    out = int(value)
+    if out < minimum or (maximum is not None and out > maximum):
+        want = f">= {minimum}" if maximum is None else f"in [{minimum}, {maximum}]"
+        raise ValueError(f"{name} must be {want}, got {out}")
+    return out
+
+
+def as_indices(value, name, upper, shape=None):
+    """An integer array (intp) of indices in ``[0, upper)``; an empty list is fine; bools are refused."""
+    arr = np.asarray(value)
+    if arr.size == 0 and arr.dtype.kind not in "iu":
+        arr = arr.astype(np.intp)
+    if arr.dtype.kind not in "iu":
+        raise TypeError(f"{name} must be an integer array, got dtype {arr.dtype}")
+    if shape is not None and arr.shape != tuple(shape):
+        raise ValueError(f"{name} must have shape {_shape_str(tuple(shape))}, got {arr.shape}")
+    if arr.size and (arr.min() < 0 or arr.max() >= upper):
+        raise ValueError(f"{name} must hold indices in [0, {upper}), got range [{arr.min()}, {arr.max()}]")
+    return arr.astype(np.intp)
 
 
 def check_rng(rng, name="rng"):

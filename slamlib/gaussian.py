@@ -50,10 +50,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._checks import as_array, as_scalar
-from .angles import wrap_angle
-from .motion import velocity_motion
-from .sensors import landmark_measurement
+from ._checks import as_array, as_covariance, as_indices, as_matrix, as_scalar, as_vector, check_batch
+from .angles import _wrap1, wrap_angle
+from .motion import _arc, _arc1
+from .sensors import _landmark_measurement, _rb1
 
 __all__ = [
     "Gaussian",
@@ -76,8 +76,18 @@ __all__ = [
 DEFAULT_GATE = float(-2.0 * np.log(0.01))
 
 
-class Gaussian(NamedTuple):
+class _GaussianFields(NamedTuple):
+    mean: np.ndarray
+    cov: np.ndarray
+
+
+class Gaussian(_GaussianFields):
     """A Gaussian belief ``N(mean, cov)``; unpacks as ``mean, cov = g``.
+
+    ``Gaussian(mean, cov)`` checks its fields cheaply (finite float arrays,
+    ``mean (..., n)``, ``cov (..., n, n)``; a string or ``None`` is refused)
+    and stores them as float64 arrays; the library's cores bundle their
+    already-checked results with ``Gaussian._make((mean, cov))``.
 
     Attributes
     ----------
@@ -87,53 +97,23 @@ class Gaussian(NamedTuple):
         Covariance matrix (matrices), symmetric positive semi-definite.
     """
 
-    mean: np.ndarray
-    cov: np.ndarray
+    __slots__ = ()
+
+    def __new__(cls, mean, cov):
+        mean = as_vector(mean, "mean", copy=False)
+        cov = as_matrix(cov, "cov", mean.shape[-1], mean.shape[-1], copy=False)
+        return tuple.__new__(cls, (mean, cov))
+
+
+def _gaussian(mean, cov):
+    """The unchecked constructor of the cores."""
+    return tuple.__new__(Gaussian, (mean, cov))
 
 
 # --------------------------------------------------------------------------- validation helpers
-def _as_vec(value, name, n=None):
-    arr = as_array(value, name, ndim=range(1, 33))
-    if n is not None and arr.shape[-1] != n:
-        raise ValueError(f"{name} must have shape ({n},) or (..., {n}), got {arr.shape}")
-    return arr
-
-
-def _as_mat(value, name, rows=None, cols=None):
-    arr = as_array(value, name, ndim=range(2, 33))
-    r, c = arr.shape[-2:]
-    if (rows is not None and r != rows) or (cols is not None and c != cols):
-        want = f"({'n' if rows is None else rows}, {'n' if cols is None else cols})"
-        raise ValueError(f"{name} must have shape {want} or (..., {want[1:-1]}), got {arr.shape}")
-    return arr
-
-
 def _as_cov(value, name, n=None, *, definite=False):
-    """A (batch of) symmetric PSD (or PD) ``(n, n)`` matrices, checked per matrix."""
-    arr = _as_mat(value, name, n, n)
-    if arr.shape[-1] != arr.shape[-2]:
-        raise ValueError(f"{name} must be square, got shape {arr.shape}")
-    scale = np.maximum(1.0, np.abs(arr).max(axis=(-2, -1), initial=0.0))
-    asym = np.abs(arr - np.swapaxes(arr, -1, -2)).max(axis=(-2, -1), initial=0.0)
-    if np.any(asym > 1e-9 * scale):
-        raise ValueError(f"{name} must be symmetric")
-    if arr.shape[-1] > 0:
-        eig = np.linalg.eigvalsh(arr)
-        tol = 1e-9 * np.maximum(1.0, np.abs(eig).max(axis=-1))
-        if definite and np.any(eig.min(axis=-1) <= 0.0):
-            raise ValueError(f"{name} must be positive definite (smallest eigenvalue {eig.min():.3g})")
-        if np.any(eig.min(axis=-1) < -tol):
-            raise ValueError(f"{name} must be positive semi-definite (smallest eigenvalue {eig.min():.3g})")
-    return arr
-
-
-def _check_batch(*named):
-    """Leading axes of (array, core ndim, name) triples must broadcast."""
-    try:
-        return np.broadcast_shapes(*(a.shape[: a.ndim - k] for a, k, _ in named))
-    except ValueError:
-        desc = ", ".join(f"{name} {a.shape}" for a, _, name in named)
-        raise ValueError(f"leading (batch) axes do not broadcast: {desc}") from None
+    """A (batch of) symmetric PSD (or PD) ``(n, n)`` matrices (``_checks.as_covariance``)."""
+    return as_covariance(value, name, n, definite=definite, batched=True, copy=False)
 
 
 def _T(A):
@@ -141,12 +121,27 @@ def _T(A):
 
 
 def _sym(S):
-    return 0.5 * (S + _T(S))
+    S = S + S.swapaxes(-1, -2)
+    S *= 0.5  # (S + S^T) / 2, exactly symmetric
+    return S
 
 
 def _mv(A, x):
     """Matrix-vector product over leading axes."""
+    if A.ndim == 2 and x.ndim == 1:
+        return A @ x
     return (A @ x[..., None])[..., 0]
+
+
+def _gain(PHt, S):
+    """``K = PHt S^-1`` for a symmetric positive definite ``S`` (explicit inverse when ``S`` is 1x1 or 2x2)."""
+    if S.ndim == 2 and S.shape[0] <= 2:
+        if S.shape[0] == 1:
+            return PHt / S[0, 0]
+        (a, b), (_, d) = S.tolist()
+        det = a * d - b * b
+        return PHt @ np.array([[d / det, -b / det], [-b / det, a / det]])  # S^-1 of a symmetric 2x2
+    return _T(np.linalg.solve(S, _T(PHt)))
 
 
 # --------------------------------------------------------------------------- linear Kalman filter
@@ -178,30 +173,37 @@ def kf_predict(x, P, F, Q, *, B=None, u=None):
     ----------
     Thrun, Burgard & Fox (2005), Table 3.1 lines 2-3.
     """
-    x = _as_vec(x, "x")
+    x = as_vector(x, "x", copy=False)
     n = x.shape[-1]
-    P = _as_cov(P, "P", n)
-    F = _as_mat(F, "F", n, n)
-    Q = _as_cov(Q, "Q", n)
+    P = as_covariance(P, "P", n, batched=True, copy=False)
+    F = as_matrix(F, "F", n, n, copy=False)
+    Q = as_covariance(Q, "Q", n, batched=True, copy=False)
+    if B is None and u is None and x.ndim == 1 and P.ndim == 2 and F.ndim == 2 and Q.ndim == 2:
+        return _kf_predict(x, P, F, Q)  # one filter: nothing to broadcast
     if (B is None) != (u is None):
         raise ValueError("B and u must be given together (or both omitted)")
     named = [(x, 1, "x"), (P, 2, "P"), (F, 2, "F"), (Q, 2, "Q")]
     if B is not None:
-        B = _as_mat(B, "B", n)
-        u = _as_vec(u, "u", B.shape[-1])
+        B = as_matrix(B, "B", n, copy=False)
+        u = as_vector(u, "u", B.shape[-1], copy=False)
         named += [(B, 2, "B"), (u, 1, "u")]
-    _check_batch(*named)
+    check_batch(*named)
     return _kf_predict(x, P, F, Q, B, u)
 
 
 def _kf_predict(x, P, F, Q, B=None, u=None):
+    if B is None and x.ndim == 1 and P.ndim == 2 and F.ndim == 2 and Q.ndim == 2:  # one filter
+        # x_bar = F x, P_bar = F P F^T + Q  (Table 3.1 lines 2-3), symmetrised
+        P_bar = F @ P @ F.T
+        P_bar += Q
+        return _gaussian(F @ x, _sym(P_bar))
     # x_bar = F x + B u  (Table 3.1 line 2, F = A_t)
     x_bar = _mv(F, x)
     if B is not None:
         x_bar = x_bar + _mv(B, u)
     # P_bar = F P F^T + Q  (Table 3.1 line 3, Q = R_t)
     P_bar = F @ P @ _T(F) + Q
-    return Gaussian(x_bar, _sym(P_bar))
+    return _gaussian(x_bar, _sym(P_bar))
 
 
 def kf_update(x, P, z, H, R):
@@ -230,14 +232,14 @@ def kf_update(x, P, z, H, R):
     ----------
     Thrun, Burgard & Fox (2005), Table 3.1 lines 4-6.
     """
-    x = _as_vec(x, "x")
+    x = as_vector(x, "x", copy=False)
     n = x.shape[-1]
-    P = _as_cov(P, "P", n)
-    z = _as_vec(z, "z")
+    P = as_covariance(P, "P", n, batched=True, copy=False)
+    z = as_vector(z, "z", copy=False)
     k = z.shape[-1]
-    H = _as_mat(H, "H", k, n)
-    R = _as_cov(R, "R", k, definite=True)
-    _check_batch((x, 1, "x"), (P, 2, "P"), (z, 1, "z"), (H, 2, "H"), (R, 2, "R"))
+    H = as_matrix(H, "H", k, n, copy=False)
+    R = as_covariance(R, "R", k, definite=True, batched=True, copy=False)
+    check_batch((x, 1, "x"), (P, 2, "P"), (z, 1, "z"), (H, 2, "H"), (R, 2, "R"))
     return _kf_update(x, P, z, H, R)
 
 
@@ -245,20 +247,23 @@ def _kf_update(x, P, z, H, R):
     # S = H P H^T + R, K = P H^T S^-1  (Table 3.1 line 4, H = C_t, R = Q_t)
     PHt = P @ _T(H)
     S = _sym(H @ PHt + R)
-    K = _T(np.linalg.solve(S, _T(PHt)))
+    K = _gain(PHt, S)
     # x = x_bar + K (z - H x_bar)  (Table 3.1 line 5)
     x_new = x + _mv(K, z - _mv(H, x))
     # P = (I - K H) P_bar  (Table 3.1 line 6)
     P_new = P - K @ H @ P
-    return Gaussian(x_new, _sym(P_new))
+    return _gaussian(x_new, _sym(P_new))
 
 
 # --------------------------------------------------------------------------- EKF localization
 def _ekf_predict(mu, Sigma, u, dt, M):
-    mu_bar, G, V = velocity_motion(mu, u, dt)  # g(u, mu), G, V  (Table 7.2 lines 2-4, 6)
+    if mu.ndim == 1 and u.ndim == 1:  # one pose: the scalar path of the motion model
+        mu_bar, G, V = _arc1(mu, u, dt)  # g(u, mu), G, V  (Table 7.2 lines 2-4, 6)
+    else:
+        mu_bar, G, V = _arc(mu, u, dt)
     # Sigma_bar = G Sigma G^T + V M V^T  (Table 7.2 line 7)
     Sigma_bar = G @ Sigma @ _T(G) + V @ M @ _T(V)
-    return Gaussian(mu_bar, _sym(Sigma_bar))
+    return _gaussian(mu_bar, _sym(Sigma_bar))
 
 
 def ekf_predict(mu, Sigma, u, dt, M):
@@ -289,20 +294,26 @@ def ekf_predict(mu, Sigma, u, dt, M):
     ----------
     Thrun, Burgard & Fox (2005), Table 7.2 lines 2-7.
     """
-    mu = _as_vec(mu, "mu", 3)
-    Sigma = _as_cov(Sigma, "Sigma", 3)
-    u = _as_vec(u, "u", 2)
+    mu = as_vector(mu, "mu", 3, copy=False)
+    Sigma = as_covariance(Sigma, "Sigma", 3, batched=True, copy=False)
+    u = as_vector(u, "u", 2, copy=False)
     dt = as_scalar(dt, "dt", nonnegative=True)
-    M = _as_cov(M, "M", 2)
-    _check_batch((mu, 1, "mu"), (Sigma, 2, "Sigma"), (u, 1, "u"), (M, 2, "M"))
+    M = as_covariance(M, "M", 2, batched=True, copy=False)
+    check_batch((mu, 1, "mu"), (Sigma, 2, "Sigma"), (u, 1, "u"), (M, 2, "M"))
     return _ekf_predict(mu, Sigma, u, dt, M)
 
 
 def _innovation(mu_bar, Sigma_bar, z, m, Q):
     """Innovation ``nu`` (bearing wrapped), its covariance ``S`` and ``H``."""
-    z_hat, H, _ = landmark_measurement(mu_bar, m)  # (Table 7.2 lines 11-13)
-    nu = z - z_hat
-    nu[..., 1] = wrap_angle(nu[..., 1])  # bearing innovation wrapped to [-pi, pi)
+    if mu_bar.ndim == 1 and m.ndim == 1 and z.ndim == 1:  # one pose, one landmark: the scalar path
+        r, phi, dx, dy, q = _rb1(mu_bar[0], mu_bar[1], mu_bar[2], m[0], m[1])  # (Table 7.2 lines 11-12)
+        # H = d h / d x  (Table 7.2 line 13)
+        H = np.array([[-dx / r, -dy / r, 0.0], [dy / q, -dx / q, -1.0]])
+        nu = np.array([z[0] - r, _wrap1(z[1] - phi)])  # bearing innovation wrapped to [-pi, pi)
+    else:
+        z_hat, H, _ = _landmark_measurement(mu_bar, m)  # (Table 7.2 lines 11-13)
+        nu = z - z_hat
+        nu[..., 1] = wrap_angle(nu[..., 1])  # bearing innovation wrapped to [-pi, pi)
     # S = H Sigma_bar H^T + Q  (Table 7.2 line 14)
     S = _sym(H @ Sigma_bar @ _T(H) + Q)
     return nu, S, H
@@ -312,13 +323,16 @@ def _ekf_update(mu_bar, Sigma_bar, z, m, Q):
     nu, S, H = _innovation(mu_bar, Sigma_bar, z, m, Q)
     SigHt = Sigma_bar @ _T(H)
     # K = Sigma_bar H^T S^-1  (Table 7.2 line 15)
-    K = _T(np.linalg.solve(S, _T(SigHt)))
+    K = _gain(SigHt, S)
     # mu = mu_bar + K (z - z_hat)  (Table 7.2 line 16)
     mu = mu_bar + _mv(K, nu)
-    mu[..., 2] = wrap_angle(mu[..., 2])
+    if mu.ndim == 1:
+        mu[2] = _wrap1(mu[2])
+    else:
+        mu[..., 2] = wrap_angle(mu[..., 2])
     # Sigma = (I - K H) Sigma_bar  (Table 7.2 line 17)
     Sigma = Sigma_bar - K @ H @ Sigma_bar
-    return Gaussian(mu, _sym(Sigma))
+    return _gaussian(mu, _sym(Sigma))
 
 
 def ekf_update(mu_bar, Sigma_bar, z, m, Q):
@@ -355,12 +369,12 @@ def ekf_update(mu_bar, Sigma_bar, z, m, Q):
     ----------
     Thrun, Burgard & Fox (2005), Table 7.2 lines 10-17.
     """
-    mu_bar = _as_vec(mu_bar, "mu_bar", 3)
-    Sigma_bar = _as_cov(Sigma_bar, "Sigma_bar", 3)
-    z = _as_vec(z, "z", 2)
-    m = _as_vec(m, "m", 2)
-    Q = _as_cov(Q, "Q", 2, definite=True)
-    _check_batch((mu_bar, 1, "mu_bar"), (Sigma_bar, 2, "Sigma_bar"), (z, 1, "z"), (m, 1, "m"), (Q, 2, "Q"))
+    mu_bar = as_vector(mu_bar, "mu_bar", 3, copy=False)
+    Sigma_bar = as_covariance(Sigma_bar, "Sigma_bar", 3, batched=True, copy=False)
+    z = as_vector(z, "z", 2, copy=False)
+    m = as_vector(m, "m", 2, copy=False)
+    Q = as_covariance(Q, "Q", 2, definite=True, batched=True, copy=False)
+    check_batch((mu_bar, 1, "mu_bar"), (Sigma_bar, 2, "Sigma_bar"), (z, 1, "z"), (m, 1, "m"), (Q, 2, "Q"))
     return _ekf_update(mu_bar, Sigma_bar, z, m, Q)
 
 
@@ -488,7 +502,7 @@ def _known_step(mu, Sigma, u, z, ids, landmarks, dt, M, Q):
     mu, Sigma = _ekf_predict(mu, Sigma, u, dt, M)
     for zi, j in zip(z, ids):  # for all observed features  (Table 7.2 line 9)
         mu, Sigma = _ekf_update(mu, Sigma, zi, landmarks[j], Q)
-    return Gaussian(mu, Sigma)
+    return _gaussian(mu, Sigma)
 
 
 def ekf_localization_known(mu, Sigma, u, z, ids, landmarks, dt, M, Q):
@@ -532,16 +546,7 @@ def ekf_localization_known(mu, Sigma, u, z, ids, landmarks, dt, M, Q):
 
 
 def _as_ids(ids, k, n):
-    arr = np.asarray(ids)
-    if arr.size == 0:
-        arr = arr.reshape(0).astype(np.intp)
-    if arr.dtype.kind not in "iu":
-        raise TypeError(f"ids must be an integer array, got dtype {arr.dtype}")
-    if arr.shape != (k,):
-        raise ValueError(f"ids must have shape ({k},) (one per measurement in z), got {arr.shape}")
-    if k and (arr.min() < 0 or arr.max() >= n):
-        raise ValueError(f"ids must index landmarks, i.e. lie in [0, {n}), got range [{arr.min()}, {arr.max()}]")
-    return arr.astype(np.intp)
+    return as_indices(ids, "ids", n, (k,))
 
 
 def _unknown_step(mu, Sigma, u, z, landmarks, dt, M, Q, gate):
@@ -553,7 +558,7 @@ def _unknown_step(mu, Sigma, u, z, landmarks, dt, M, Q, gate):
         ids[i] = j
         if j >= 0:
             mu, Sigma = _ekf_update(mu, Sigma, zi, landmarks[j], Q)
-    return Gaussian(mu, Sigma), ids
+    return _gaussian(mu, Sigma), ids
 
 
 def ekf_localization_unknown(mu, Sigma, u, z, landmarks, dt, M, Q, *, gate=DEFAULT_GATE):

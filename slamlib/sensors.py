@@ -92,7 +92,13 @@ def landmark_measurement(x, m):
     """
     x = _last_axis(as_array(x, "x", ndim=range(1, 33)), "x", 3)
     m = _last_axis(as_array(m, "m", ndim=range(1, 33)), "m", 2)
-    shape = _broadcast(x, m, "x", "m")
+    _broadcast(x, m, "x", "m")
+    return _landmark_measurement(x, m)
+
+
+def _landmark_measurement(x, m):
+    """Unchecked core of :func:`landmark_measurement` for broadcasting ``x (..., 3)``, ``m (..., 2)``."""
+    shape = np.broadcast_shapes(x.shape[:-1], m.shape[:-1])
     dx = m[..., 0] - x[..., 0]
     dy = m[..., 1] - x[..., 1]
     q = dx**2 + dy**2
@@ -125,16 +131,25 @@ def _range_bearing1(mu, a):
     Returns ``r_hat``, ``phi_hat`` (floats) and ``h = [Hx Hm]``, shape ``(2, 5)``
     (the tests check it against ``landmark_measurement``).
     """
-    x, y, th, mx, my = float(mu[0]), float(mu[1]), float(mu[2]), float(mu[a]), float(mu[a + 1])
-    dx, dy = mx - x, my - y
-    q = dx * dx + dy * dy  # q = delta^T delta  (Algorithm 1 line 13)
-    if q < 1e-24:
-        raise ValueError("a landmark coincides with the robot pose (range 0): bearing and Jacobians are undefined")
-    r = math.sqrt(q)
+    r, phi, dx, dy, q = _rb1(mu[0], mu[1], mu[2], mu[a], mu[a + 1])
     # h_t^j = 1/q [[-r dx, -r dy, 0, r dx, r dy], [dy, -dx, -q, -dy, dx]]  (Eq. 17.3)
     h = np.array([[-dx / r, -dy / r, 0.0, dx / r, dy / r], [dy / q, -dx / q, -1.0, -dy / q, dx / q]])
-    # z_hat = [sqrt(q), atan2(dy, dx) - theta]  (Eq. 17.2)
-    return r, _wrap1(math.atan2(dy, dx) - th), h
+    return r, phi, h
+
+
+def _rb1(x, y, th, mx, my):
+    """Range-bearing model of one pose ``(x, y, th)`` and one landmark ``(mx, my)`` in Python floats.
+
+    Returns ``r_hat, phi_hat, dx, dy, q`` (``q = dx^2 + dy^2``, bearing
+    wrapped), from which the callers build their Jacobians.
+    """
+    dx, dy = float(mx) - float(x), float(my) - float(y)
+    q = dx * dx + dy * dy  # q = delta^T delta  (Algorithm 1 line 13)
+    r = math.sqrt(q)
+    if r < MIN_RANGE:
+        raise ValueError("m coincides with the pose x (range 0): bearing and Jacobians are undefined")
+    # z_hat = [sqrt(q), atan2(dy, dx) - theta]  (Eq. 6.40, Eq. 17.2)
+    return r, _wrap1(math.atan2(dy, dx) - float(th)), dx, dy, q
 
 
 def landmark_from_measurement(x, z):
