@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-from ._checks import as_array
+from ._checks import as_array, as_index
 
 __all__ = ["wrap_angle", "angle_diff", "circular_mean"]
 
@@ -80,9 +80,16 @@ def circular_mean(angles, weights=None, axis=0):
     angles : ndarray
         Angles in radians.
     weights : ndarray, optional
-        Non-negative weights of the same shape as `angles`; uniform if omitted.
+        Non-negative weights of the same shape as `angles`, not all zero along
+        `axis`; uniform if omitted.
     axis : int
         Axis to average over.
+
+    Raises
+    ------
+    ValueError
+        If `angles` is empty along `axis` or every weight along it is zero
+        (the mean direction is undefined).
 
     Returns
     -------
@@ -90,12 +97,25 @@ def circular_mean(angles, weights=None, axis=0):
         The mean direction, wrapped to ``[-pi, pi)``.
     """
     a = as_array(angles, "angles", ndim=range(1, 33))
+    axis = as_index(axis, "axis", a.ndim, lower=-a.ndim)
+    if a.shape[axis] == 0:
+        raise ValueError(f"angles must hold at least one angle along axis {axis}, got shape {a.shape}")
     if weights is None:
         w = np.ones_like(a)
     else:
         w = as_array(weights, "weights", a.shape)
         if np.any(w < 0):
-            raise ValueError("weights must be non-negative")
+            raise ValueError(f"weights must be non-negative, got minimum {w.min():.3g}")
+        total = np.sum(w, axis=axis)
+        if not np.all(total > 0):
+            raise ValueError("weights must not all be zero (along the averaged axis): the mean direction is undefined")
+        if not np.all(np.isfinite(total)):
+            raise ValueError("weights sum to infinity; rescale them")
+    return _circular_mean(a, w, axis)
+
+
+def _circular_mean(a, w, axis=0):
+    """Unchecked core of :func:`circular_mean`: ``wrap(atan2(sum w sin a, sum w cos a))``."""
     s = np.sum(w * np.sin(a), axis=axis)
     c = np.sum(w * np.cos(a), axis=axis)
     return wrap_angle(np.arctan2(s, c))

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import stats
 
-from ._checks import as_array, as_index, as_scalar
+from ._checks import as_array, as_covariance, as_index, as_scalar, as_vector, check_batch
 from .angles import wrap_angle
 
 __all__ = ["pose_error", "ate_rmse", "heading_rmse", "landmark_rmse", "nees", "nees_band"]
@@ -148,15 +148,10 @@ def nees(err, P):
     Thrun, Burgard & Fox (2005), Sec. 3.2 (the quadratic form in the
     multivariate normal); Bar-Shalom, Li & Kirubarajan (2001), Sec. 5.4.2.
     """
-    err = as_array(err, "err", ndim=range(1, 33))
-    P = as_array(P, "P", ndim=range(2, 33))
+    err = as_vector(err, "err")
     n = err.shape[-1]
-    if P.shape[-2:] != (n, n):
-        raise ValueError(f"P must have shape (..., {n}, {n}) to match err {err.shape}, got {P.shape}")
-    try:
-        shape = np.broadcast_shapes(err.shape[:-1], P.shape[:-2])
-    except ValueError:
-        raise ValueError(f"err {err.shape} and P {P.shape} do not broadcast over leading axes") from None
+    P = as_covariance(P, "P", n, definite=True, batched=True)
+    shape = check_batch((err, 1, "err"), (P, 2, "P"))
     e = np.broadcast_to(err, shape + (n,))
     Pb = np.broadcast_to(P, shape + (n, n))
     try:

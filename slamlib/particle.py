@@ -31,9 +31,10 @@ from typing import NamedTuple
 import numpy as np
 from scipy.special import logsumexp
 
-from ._checks import as_array, as_scalar, check_rng
-from .angles import circular_mean, wrap_angle
-from .gaussian import Gaussian
+from ._checks import (as_array, as_covariance, as_log_weights, as_poses, as_scalar, as_weights, check_log_weights,
+                      check_rng)
+from .angles import _circular_mean, wrap_angle
+from .gaussian import _gaussian
 from .motion import _arc_pose, _control_sqrt
 
 __all__ = [
@@ -56,8 +57,18 @@ __all__ = [
 _LOG_2PI = float(np.log(2.0 * np.pi))
 
 
-class ParticleSet(NamedTuple):
+class _ParticleSetFields(NamedTuple):
+    poses: np.ndarray
+    log_weights: np.ndarray
+
+
+class ParticleSet(_ParticleSetFields):
     """A weighted particle set; unpacks as ``poses, log_weights = ps``.
+
+    ``ParticleSet(poses, log_weights)`` checks its fields (finite ``poses (M,
+    d)``, ``log_weights (M,)`` without NaN or ``+inf`` and not all ``-inf``)
+    and stores float64 arrays; the filter steps bundle their already-checked
+    results without the check.
 
     Attributes
     ----------
@@ -67,8 +78,17 @@ class ParticleSet(NamedTuple):
         Normalised log-weights (``logsumexp(log_weights) == 0``).
     """
 
-    poses: np.ndarray
-    log_weights: np.ndarray
+    __slots__ = ()
+
+    def __new__(cls, poses, log_weights):
+        poses = as_array(poses, "poses", ndim=2)
+        log_weights = as_log_weights(log_weights, "log_weights", poses.shape[0])
+        return tuple.__new__(cls, (poses, log_weights))
+
+
+def _particle_set(poses, log_weights):
+    """The unchecked constructor of the cores."""
+    return tuple.__new__(ParticleSet, (poses, log_weights))
 
 
 class PFStepInfo(NamedTuple):
@@ -115,8 +135,7 @@ def normalize_log_weights(log_w, *, log=False):
     Thrun, Burgard & Fox (2005), Table 4.3 line 5 (importance weights) and
     the normaliser ``eta`` of Table 4.4; ``logsumexp`` keeps it in log space.
     """
-    lw = as_array(log_w, "log_w", ndim=1, finite=False)
-    _check_log_weights(lw)
+    lw = as_log_weights(log_w, "log_w")
     out = _normalized(lw)
     return out if log else np.exp(out)
 
@@ -129,30 +148,17 @@ def _normalized(lw):
     return shifted - logsumexp(shifted)
 
 
-def _check_log_weights(lw, name="log_w"):
-    if lw.size == 0:
-        raise ValueError(f"{name} must hold at least one log-weight")
-    if np.any(np.isnan(lw)):
-        raise ValueError(f"{name} contains NaN")
-    if np.any(lw == np.inf):
-        raise ValueError(f"{name} contains +inf (an infinite weight cannot be normalised)")
-    if not np.any(np.isfinite(lw)):
-        raise ValueError(f"{name}: every log-weight is -inf (all particles have zero weight), nothing to normalise")
+def _weighted_pose_mean(poses, w):
+    """Weighted mean pose of particles ``poses (M, 3)`` with normalised weights ``w (M,)`` (unchecked).
 
-
-def _as_weights(w, name="w"):
-    """Validated, normalised copy of non-negative weights."""
-    w = as_array(w, name, ndim=1)
-    if w.size == 0:
-        raise ValueError(f"{name} must hold at least one weight")
-    if np.any(w < 0):
-        raise ValueError(f"{name} must be non-negative, got minimum {w.min():.3g}")
-    total = w.sum()
-    if not total > 0:
-        raise ValueError(f"{name} must have a positive sum (all weights are zero)")
-    if not np.isfinite(total):
-        raise ValueError(f"{name} sums to infinity; rescale the weights (or use log-weights)")
-    return w / total
+    The position is the weighted mean, the heading the weighted circular mean
+    ``atan2(sum w sin theta, sum w cos theta)``, wrapped to ``[-pi, pi)``: the
+    one summary of a particle set that every filter reports.
+    """
+    mean = np.empty(3)
+    mean[:2] = w @ poses[:, :2]
+    mean[2] = _circular_mean(poses[:, 2], w)  # atan2(sum w sin theta, sum w cos theta)
+    return mean
 
 
 def effective_sample_size(w):
@@ -174,14 +180,8 @@ def effective_sample_size(w):
     Thrun, Burgard & Fox (2005), Sec. 4.3.4 (variance reduction: resample only
     when the weights' variance is high); Kong, Liu & Wong (1994).
     """
-    w = as_array(w, "w", ndim=1)
-    if w.size == 0:
-        raise ValueError("w must hold at least one weight")
-    if np.any(w < 0):
-        raise ValueError(f"w must be non-negative, got minimum {w.min():.3g}")
+    w = as_weights(w, "w", normalize=False)
     top = w.max()
-    if not top > 0:
-        raise ValueError("w must have a positive sum (all weights are zero)")
     s = w / top  # scale-free, so huge or tiny weights neither overflow nor underflow
     # ESS = (sum w)^2 / sum w^2
     return float(s.sum() ** 2 / np.sum(s * s))
@@ -239,7 +239,7 @@ def low_variance_resample(w, *, rng):
     ----------
     Thrun, Burgard & Fox (2005), Table 4.4.
     """
-    w = _as_weights(w)
+    w = as_weights(w, "w")
     check_rng(rng)
     r = rng.uniform(0.0, 1.0 / w.size)  # r = rand(0; M^-1)  (Table 4.4 line 3)
     return _low_variance_indices(w, r)
@@ -302,7 +302,7 @@ def stratified_resample(w, *, rng):
     Thrun, Burgard & Fox (2005), Sec. 4.3.4 (stratified sampling); Douc,
     Cappe & Moulines (2005).
     """
-    w = _as_weights(w)
+    w = as_weights(w, "w")
     check_rng(rng)
     M = w.size
     c = np.cumsum(w)
@@ -336,7 +336,7 @@ def multinomial_resample(w, *, rng):
     Thrun, Burgard & Fox (2005), Sec. 4.3.2 (drawing with replacement,
     Table 4.3 line 8); Douc, Cappe & Moulines (2005).
     """
-    w = _as_weights(w)
+    w = as_weights(w, "w")
     check_rng(rng)
     M = w.size
     c = np.cumsum(w)
@@ -365,7 +365,7 @@ def residual_resample(w, *, rng):
     Thrun, Burgard & Fox (2005), Sec. 4.3.4 (variance reduction); Douc, Cappe
     & Moulines (2005).
     """
-    w = _as_weights(w)
+    w = as_weights(w, "w")
     check_rng(rng)
     M = w.size
     mw = M * w
@@ -395,15 +395,6 @@ RESAMPLERS = {
 
 
 # --------------------------------------------------------------------------- measurement likelihood
-def _as_pd(Q, name="Q"):
-    Q = as_array(Q, name, (2, 2))
-    if not np.allclose(Q, Q.T, rtol=1e-9, atol=1e-12 * max(1.0, float(np.abs(Q).max()))):
-        raise ValueError(f"{name} must be symmetric")
-    if np.linalg.eigvalsh(Q).min() <= 0:
-        raise ValueError(f"{name} must be positive definite")
-    return Q
-
-
 def _log_landmark_likelihood(poses, z, m, Q):
     """``sum_k log N(wrap(z_k - h(x, m_k)); 0, Q)`` per particle; ``z, m (K, 2)``.
 
@@ -426,13 +417,6 @@ def _log_landmark_likelihood(poses, z, m, Q):
     # log N(nu; 0, Q) = -(log det(2 pi Q) + nu^T Q^-1 nu) / 2, summed over k  (Eq. 3.1 / Table 6.4 line 9)
     log_norm = _LOG_2PI + 0.5 * np.log(np.linalg.det(Q))
     return -0.5 * quad - z.shape[0] * log_norm
-
-
-def _as_poses(particles, name="particles"):
-    p = as_array(particles, name, ndim=range(1, 33))
-    if p.shape[-1] != 3:
-        raise ValueError(f"{name} must have shape (M, 3), got {p.shape}")
-    return p
 
 
 def landmark_likelihood(particles, z, m, Q, *, log=False):
@@ -463,10 +447,10 @@ def landmark_likelihood(particles, z, m, Q, *, log=False):
     Thrun, Burgard & Fox (2005), Table 6.4 (landmark model with known
     correspondence, with a joint Gaussian of covariance ``Q``), Eq. 6.40.
     """
-    particles = _as_poses(particles)
+    particles = as_poses(particles, "particles", batched=True)
     z = as_array(z, "z", (2,))
     m = as_array(m, "m", (2,))
-    Q = _as_pd(Q)
+    Q = as_covariance(Q, "Q", 2, definite=True)
     ll = _log_landmark_likelihood(particles, z[None], m[None], Q)
     return ll if log else np.exp(ll)
 
@@ -489,8 +473,8 @@ def _weigh_and_resample(particles, log_w, rng, resample, ess_threshold):
         idx = np.asarray(resample(w, rng=rng))
         if idx.shape != (w.size,) or idx.dtype.kind not in "iu":
             raise ValueError(f"resample must return {w.size} integer indices, got shape {idx.shape} dtype {idx.dtype}")
-        return ParticleSet(particles[idx], np.full(w.size, -np.log(w.size))), PFStepInfo(ess, True)
-    return ParticleSet(particles, log_w), PFStepInfo(ess, False)
+        return _particle_set(particles[idx], np.full(w.size, -np.log(w.size))), PFStepInfo(ess, True)
+    return _particle_set(particles, log_w), PFStepInfo(ess, False)
 
 
 def _step_options(rng, resample, ess_threshold):
@@ -500,12 +484,6 @@ def _step_options(rng, resample, ess_threshold):
     if ess_threshold > 1:
         raise ValueError(f"ess_threshold must be in [0, 1] (a fraction of M), got {ess_threshold}")
     return resample, ess_threshold
-
-
-def _as_log_w(log_w, n):
-    lw = as_array(log_w, "log_w", (n,), finite=False)
-    _check_log_weights(lw)
-    return lw
 
 
 def bootstrap_filter_step(particles, log_w, propagate, log_likelihood, *, rng, resample="systematic", ess_threshold=0.5):
@@ -547,7 +525,7 @@ def bootstrap_filter_step(particles, log_w, propagate, log_likelihood, *, rng, r
     sample size, Sec. 4.3.4).
     """
     particles = as_array(particles, "particles", ndim=2)
-    lw = _as_log_w(log_w, particles.shape[0])
+    lw = as_log_weights(log_w, "log_w", particles.shape[0])
     resample, ess_threshold = _step_options(rng, resample, ess_threshold)
     if not callable(propagate):
         raise TypeError("propagate must be a callable (particles, rng) -> particles")
@@ -562,7 +540,7 @@ def bootstrap_filter_step(particles, log_w, propagate, log_likelihood, *, rng, r
     if ll.shape != lw.shape:
         raise ValueError(f"log_likelihood must return shape {lw.shape}, got {ll.shape}")
     new_lw = lw + ll
-    _check_log_weights(new_lw, "log_w + log_likelihood")
+    check_log_weights(new_lw, "log_w + log_likelihood")
     return _weigh_and_resample(moved, new_lw, rng, resample, ess_threshold)
 
 
@@ -611,11 +589,9 @@ def particle_filter_step(particles, log_w, u, z, m, dt, M, Q, *, rng, resample="
     (Sec. 5.3, control noise as in Table 7.2) and the landmark measurement
     model (Table 6.4).
     """
-    particles = _as_poses(particles)
-    if particles.ndim != 2:
-        raise ValueError(f"particles must have shape (n, 3), got {particles.shape}")
+    particles = as_poses(particles, "particles")
     n = particles.shape[0]
-    lw = _as_log_w(log_w, n)
+    lw = as_log_weights(log_w, "log_w", n)
     u = as_array(u, "u", (2,))
     z = as_array(z, "z", ndim=(1, 2))
     if z.size == 0:
@@ -628,10 +604,8 @@ def particle_filter_step(particles, log_w, u, z, m, dt, M, Q, *, rng, resample="
     if m.shape != z.shape:
         raise ValueError(f"m must have shape {z.shape} (one landmark per measurement in z), got {m.shape}")
     dt = as_scalar(dt, "dt", nonnegative=True)
-    M = as_array(M, "M", (2, 2))
-    if not np.allclose(M, M.T) or np.linalg.eigvalsh(M).min() < -1e-12 * max(1.0, np.abs(M).max()):
-        raise ValueError("M must be symmetric positive semi-definite")
-    Q = _as_pd(Q)
+    M = as_covariance(M, "M", 2)
+    Q = as_covariance(Q, "Q", 2, definite=True)
     resample, ess_threshold = _step_options(rng, resample, ess_threshold)
     # u_hat^[m] = u + N(0, M); x_t^[m] = g(u_hat^[m], x_{t-1}^[m])  (Table 4.3 line 4, Table 5.3)
     eps = rng.standard_normal((n, 2))
@@ -677,7 +651,7 @@ def particle_gaussian(particles, log_weights=None, *, angles=()):
     if log_weights is None:
         w = np.full(n, 1.0 / n)
     else:
-        w = normalize_log_weights(as_array(log_weights, "log_weights", (n,), finite=False))
+        w = np.exp(_normalized(as_log_weights(log_weights, "log_weights", n)))
     cols = []
     for a in angles:
         if isinstance(a, bool) or not isinstance(a, (int, np.integer)) or not 0 <= a < d:
@@ -685,9 +659,9 @@ def particle_gaussian(particles, log_weights=None, *, angles=()):
         cols.append(int(a))
     mean = np.einsum("m,md->d", w, p)
     for a in cols:
-        mean[a] = circular_mean(p[:, a], w)
+        mean[a] = _circular_mean(p[:, a], w)  # atan2(sum w sin a, sum w cos a)
     e = p - mean
     for a in cols:
         e[:, a] = wrap_angle(e[:, a])
     cov = np.einsum("m,mi,mj->ij", w, e, e)
-    return Gaussian(mean, 0.5 * (cov + cov.T))
+    return _gaussian(mean, 0.5 * (cov + cov.T))
