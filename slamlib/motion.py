@@ -42,6 +42,7 @@ __all__ = [
     "odometry_motion",
     "sample_motion_model_odometry",
     "motion_model_odometry",
+    "dead_reckoning",
 ]
 
 #: Below this ``abs(omega)`` the velocity model uses the straight-line limit.
@@ -562,3 +563,54 @@ def motion_model_odometry(x_next, u, x, alpha, *, log=False):
         + _log_normal(wrap_angle(u[2] - r2h), var3)
     )
     return lp if log else np.exp(lp)
+
+
+# --------------------------------------------------------------------------- dead reckoning
+def dead_reckoning(x0, u, dt):
+    """Integrate the controls with the noise-free velocity motion model.
+
+    Parameters
+    ----------
+    x0 : ndarray, shape (3,)
+        Initial pose.
+    u : ndarray, shape (T, 2)
+        Controls ``[v, omega]``.
+    dt : float
+        Step duration, seconds (non-negative).
+
+    Returns
+    -------
+    ndarray, shape (T + 1, 3)
+        Poses ``x_0 = x0``, ``x_{k+1} = g(u_k, x_k)``; headings wrapped.
+
+    Notes
+    -----
+    Exact-arc motion has a structure that removes the step-to-step loop: the
+    heading after ``k`` steps is ``theta_0 + dt sum_{i<k} omega_i`` whatever
+    the positions, and the displacement of step ``k`` depends only on that
+    heading and ``u_k``. So all headings come from one cumulative sum, all
+    displacements from one batched call of
+    :func:`velocity_motion`, and the positions from a second
+    cumulative sum. The result equals step-by-step integration up to
+    floating-point rounding.
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Table 5.3 (without noise), Eq. 5.9.
+    """
+    x0 = as_array(x0, "x0", (3,))
+    u = as_array(u, "u", (None, 2))
+    dt = as_scalar(dt, "dt", nonnegative=True)
+    T = u.shape[0]
+    theta = np.empty(T + 1)
+    theta[0] = x0[2]
+    # theta_{k+1} = theta_k + omega_k dt  (Table 5.3 line 7 without noise)
+    theta[1:] = x0[2] + np.cumsum(u[:, 1] * dt)
+    start = np.zeros((T, 3))
+    start[:, 2] = theta[:-1]
+    step, _, _ = _arc(start, u, dt)  # displacement of each step from the origin
+    out = np.empty((T + 1, 3))
+    out[0, :2] = x0[:2]
+    out[1:, :2] = x0[:2] + np.cumsum(step[:, :2], axis=0)
+    out[:, 2] = wrap_angle(theta)
+    return out

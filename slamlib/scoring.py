@@ -42,7 +42,7 @@ from scipy.optimize import linear_sum_assignment
 from ._checks import as_array, as_scalar
 from .angles import wrap_angle
 from .metrics import ate_rmse, heading_rmse, landmark_rmse
-from .motion import velocity_motion
+from .motion import dead_reckoning  # noqa: F401  (moved to motion; still sl.dead_reckoning)
 from .sensors import landmark_measurement
 
 __all__ = [
@@ -55,7 +55,6 @@ __all__ = [
     "RunScore",
     "score_run",
     "format_score_table",
-    "dead_reckoning",
     "measurement_residuals",
     "control_residuals",
 ]
@@ -475,56 +474,6 @@ def format_score_table(rows):
 
 
 # --------------------------------------------------------------------------- baselines and calibration
-def dead_reckoning(x0, u, dt):
-    """Integrate the controls with the noise-free velocity motion model.
-
-    Parameters
-    ----------
-    x0 : ndarray, shape (3,)
-        Initial pose.
-    u : ndarray, shape (T, 2)
-        Controls ``[v, omega]``.
-    dt : float
-        Step duration, seconds (non-negative).
-
-    Returns
-    -------
-    ndarray, shape (T + 1, 3)
-        Poses ``x_0 = x0``, ``x_{k+1} = g(u_k, x_k)``; headings wrapped.
-
-    Notes
-    -----
-    Exact-arc motion has a structure that removes the step-to-step loop: the
-    heading after ``k`` steps is ``theta_0 + dt sum_{i<k} omega_i`` whatever
-    the positions, and the displacement of step ``k`` depends only on that
-    heading and ``u_k``. So all headings come from one cumulative sum, all
-    displacements from one batched call of
-    :func:`~slamlib.motion.velocity_motion`, and the positions from a second
-    cumulative sum. The result equals step-by-step integration up to
-    floating-point rounding.
-
-    References
-    ----------
-    Thrun, Burgard & Fox (2005), Table 5.3 (without noise), Eq. 5.9.
-    """
-    x0 = as_array(x0, "x0", (3,))
-    u = as_array(u, "u", (None, 2))
-    dt = as_scalar(dt, "dt", nonnegative=True)
-    T = u.shape[0]
-    theta = np.empty(T + 1)
-    theta[0] = x0[2]
-    # theta_{k+1} = theta_k + omega_k dt  (Table 5.3 line 7 without noise)
-    theta[1:] = x0[2] + np.cumsum(u[:, 1] * dt)
-    start = np.zeros((T, 3))
-    start[:, 2] = theta[:-1]
-    step, _, _ = velocity_motion(start, u, dt)  # displacement of each step from the origin
-    out = np.empty((T + 1, 3))
-    out[0, :2] = x0[:2]
-    out[1:, :2] = x0[:2] + np.cumsum(step[:, :2], axis=0)
-    out[:, 2] = wrap_angle(theta)
-    return out
-
-
 def _run_arrays(x_true, z, ids):
     x_true = as_array(x_true, "x_true", (None, 3))
     if len(z) != x_true.shape[0] - 1 or len(ids) != len(z):
