@@ -21,7 +21,7 @@ def _shape_str(shape):
     return "(" + ", ".join("*" if s is None else str(s) for s in shape) + (",)" if len(shape) == 1 else ")")
 
 
-def as_array(value, name, shape=None, *, ndim=None, finite=True, dtype=np.float64):
+def as_array(value, name, shape=None, *, ndim=None, finite=True, dtype=np.float64, nonnegative=False):
     """Return ``value`` as a new float64 array after checking it.
 
     Parameters
@@ -36,6 +36,8 @@ def as_array(value, name, shape=None, *, ndim=None, finite=True, dtype=np.float6
         Accepted numbers of dimensions (when ``shape`` is not given).
     finite : bool
         Reject NaN and infinities.
+    nonnegative : bool
+        Reject negative entries.
     """
     if type(value) is np.ndarray and value.dtype is _F64 and dtype is np.float64:
         arr = value.copy()  # the common case: no dtype inspection or conversion
@@ -51,7 +53,35 @@ def as_array(value, name, shape=None, *, ndim=None, finite=True, dtype=np.float6
             raise ValueError(f"{name} must have {' or '.join(map(str, allowed))} dimensions, got shape {arr.shape}")
     if finite and not _all_finite(arr):
         raise ValueError(f"{name} must be finite (no NaN or inf)")
+    if nonnegative and arr.size and not arr.min() >= 0:
+        raise ValueError(f"{name} must be non-negative, got minimum {arr.min():.6g}")
     return arr
+
+
+def as_rows(value, name, cols):
+    """A float64 ``(K, cols)`` array of rows (e.g. measurements ``(K, 2)``); an empty list gives ``(0, cols)``."""
+    arr = as_array(value, name, ndim=(1, 2))
+    if arr.ndim == 1 and arr.size == 0:
+        arr = arr.reshape(0, cols)
+    if arr.ndim != 2 or arr.shape[1] != cols:
+        raise ValueError(f"{name} must have shape (K, {cols}), got {arr.shape}")
+    return arr
+
+
+def as_mask(value, name, *, ndim=None):
+    """A boolean array from booleans or 0/1 numbers."""
+    arr = as_array(value, name, ndim=ndim)
+    if not np.all((arr == 0) | (arr == 1)):
+        raise ValueError(f"{name} must hold booleans (or 0/1)")
+    return arr.astype(bool)
+
+
+def check_type(value, cls, name):
+    """Require an instance of `cls` (a class or a tuple of classes)."""
+    if not isinstance(value, cls):
+        want = " or ".join(c.__name__ for c in cls) if isinstance(cls, tuple) else cls.__name__
+        raise TypeError(f"{name} must be a {want}, got {type(value).__name__}")
+    return value
 
 
 def _convert(value, name, dtype=np.float64):
@@ -274,12 +304,14 @@ def as_pose(value, name="pose"):
     return as_array(value, name, (3,))
 
 
-def as_poses(value, name="poses", *, batched=False, allow_empty=True):
-    """Poses ``[x, y, theta]``: shape ``(M, 3)``, or ``(..., 3)`` when `batched`; finite."""
-    if batched:
-        arr = as_array(value, name, ndim=range(1, 33))
+def as_poses(value, name="poses", *, batched=False, ndim=None, allow_empty=True):
+    """Poses ``[x, y, theta]``, finite: shape ``(M, 3)``; ``(..., 3)`` when `batched`;
+    any of the numbers of dimensions `ndim` (e.g. ``(1, 2)`` for ``(3,)`` or ``(M, 3)``) when given."""
+    if batched or ndim is not None:
+        arr = as_array(value, name, ndim=range(1, 33) if ndim is None else ndim)
         if arr.shape[-1] != 3:
-            raise ValueError(f"{name} must have shape (3,) or (..., 3), got {arr.shape}")
+            want = "(3,) or (..., 3)" if ndim is None else "(3,) or (M, 3)"
+            raise ValueError(f"{name} must have shape {want}, got {arr.shape}")
     else:
         arr = as_array(value, name, (None, 3))
     if not allow_empty and arr.size == 0:

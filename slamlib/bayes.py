@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import signal, special
 
-from ._checks import as_array, as_index, as_scalar, check_rng
+from ._checks import as_array, as_index, as_mask, as_probabilities, as_probability, as_scalar, check_rng
 
 __all__ = [
     "bayes_rule",
@@ -53,22 +53,7 @@ _SUM_TOL = 1e-6  # how far from 1 the sum of a distribution may be (rounding, fl
 
 def _as_distribution(value, name, shape=None, *, ndim=None):
     """A non-negative float64 array summing to 1 (within ``_SUM_TOL``)."""
-    arr = as_array(value, name, shape, ndim=ndim)
-    if arr.size == 0:
-        raise ValueError(f"{name} must not be empty")
-    if np.any(arr < 0):
-        raise ValueError(f"{name} must be non-negative (it is a probability distribution)")
-    total = float(arr.sum())
-    if abs(total - 1.0) > _SUM_TOL:
-        raise ValueError(f"{name} must sum to 1 (it is a probability distribution), got sum {total:.6g}")
-    return arr
-
-
-def _as_likelihood(value, name, shape):
-    arr = as_array(value, name, shape)
-    if np.any(arr < 0):
-        raise ValueError(f"{name} must be non-negative (it holds likelihoods p(z | x))")
-    return arr
+    return as_probabilities(value, name, shape, ndim=ndim, sums_to_one=True, tol=_SUM_TOL)
 
 
 def _as_kernel(value, name, ndim):
@@ -77,20 +62,6 @@ def _as_kernel(value, name, ndim):
         raise ValueError(f"{name} must have an odd length along every axis (centred on zero displacement), "
                          f"got shape {arr.shape}")
     return arr
-
-
-def _as_probability(value, name):
-    p = as_scalar(value, name)
-    if not 0.0 <= p <= 1.0:
-        raise ValueError(f"{name} must be a probability in [0, 1], got {p}")
-    return p
-
-
-def _as_bool_grid(value, name, *, ndim):
-    arr = as_array(value, name, ndim=ndim)
-    if not np.all((arr == 0) | (arr == 1)):
-        raise ValueError(f"{name} must hold booleans (or 0/1)")
-    return arr.astype(bool)
 
 
 def _posterior(prior, likelihood):
@@ -148,7 +119,7 @@ def bayes_rule(prior, likelihood):
     array([0.625, 0.375])
     """
     prior = _as_distribution(prior, "prior", ndim=range(1, 33))
-    likelihood = _as_likelihood(likelihood, "likelihood", prior.shape)
+    likelihood = as_array(likelihood, "likelihood", prior.shape, nonnegative=True)
     return _posterior(prior, likelihood)
 
 
@@ -182,7 +153,7 @@ def histogram_update(belief, likelihood):
     Thrun, Burgard & Fox, *Probabilistic Robotics*, Table 4.1 line 4; Table 2.1 line 4.
     """
     belief = _as_distribution(belief, "belief", ndim=range(1, 33))
-    likelihood = _as_likelihood(likelihood, "likelihood", belief.shape)
+    likelihood = as_array(likelihood, "likelihood", belief.shape, nonnegative=True)
     # bel(x_t) = eta p(z_t | x_t) bel_bar(x_t)  (Table 4.1 line 4)
     return _posterior(belief, likelihood)
 
@@ -346,7 +317,7 @@ def histogram_filter(belief, kernels, likelihoods):
     Thrun, Burgard & Fox, *Probabilistic Robotics*, Table 4.1 (discrete Bayes filter).
     """
     bel = _as_distribution(belief, "belief", ndim=1)
-    likelihoods = _as_likelihood(likelihoods, "likelihoods", (None, bel.size))
+    likelihoods = as_array(likelihoods, "likelihoods", (None, bel.size), nonnegative=True)
     steps = likelihoods.shape[0]
     try:
         single = np.asarray(kernels, dtype=float).ndim == 1
@@ -428,12 +399,12 @@ def door_likelihood(doors, z, *, p_hit, p_false):
     Thrun, Burgard & Fox, *Probabilistic Robotics*, Sec. 2.4.2 (the door sensor
     example) and Sec. 4.1.
     """
-    doors = _as_bool_grid(doors, "doors", ndim=1)
+    doors = as_mask(doors, "doors", ndim=1)
     zs = as_array(z, "z", ndim=(0, 1))
     if not np.all((zs == 0) | (zs == 1)):
         raise ValueError("z must hold booleans (True = door seen) or 0/1")
-    p_hit = _as_probability(p_hit, "p_hit")
-    p_false = _as_probability(p_false, "p_false")
+    p_hit = as_probability(p_hit, "p_hit")
+    p_false = as_probability(p_false, "p_false")
     p_door = np.where(doors, p_hit, p_false)  # p(z = door | x)
     seen = zs.astype(bool)[..., None]
     return np.where(seen, p_door, 1.0 - p_door)
@@ -474,13 +445,13 @@ def simulate_corridor(doors, x0, moves, *, sigma, p_hit, p_false, rng):
     ----------
     Thrun, Burgard & Fox, *Probabilistic Robotics*, Sec. 4.1 (the corridor example).
     """
-    doors = _as_bool_grid(doors, "doors", ndim=1)
+    doors = as_mask(doors, "doors", ndim=1)
     n = doors.size
     pos = as_index(x0, "x0", n)
     moves = as_array(moves, "moves", ndim=1)
     sigma = as_scalar(sigma, "sigma", nonnegative=True)
-    p_hit = _as_probability(p_hit, "p_hit")
-    p_false = _as_probability(p_false, "p_false")
+    p_hit = as_probability(p_hit, "p_hit")
+    p_false = as_probability(p_false, "p_false")
     rng = check_rng(rng)
     xs = np.empty(moves.size, dtype=int)
     zs = np.empty(moves.size, dtype=bool)
@@ -496,7 +467,7 @@ def simulate_corridor(doors, x0, moves, *, sigma, p_hit, p_false, rng):
 
 
 def _as_free(free, shape=None):
-    free = _as_bool_grid(free, "free", ndim=2)
+    free = as_mask(free, "free", ndim=2)
     if shape is not None and free.shape != shape:
         raise ValueError(f"free must have the shape of belief {shape}, got {free.shape}")
     return free

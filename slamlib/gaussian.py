@@ -50,7 +50,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._checks import as_array, as_covariance, as_indices, as_matrix, as_scalar, as_vector, check_batch
+from ._checks import as_array, as_covariance, as_indices, as_rows, as_matrix, as_scalar, as_vector, check_batch
 from .angles import _wrap1, wrap_angle
 from .motion import _arc, _arc1
 from .sensors import _landmark_measurement, _rb1
@@ -476,12 +476,7 @@ def associate_ml(mu_bar, Sigma_bar, z, landmarks, Q, gate):
 
 
 def _as_measurements(z, name="z"):
-    z = as_array(z, name, ndim=(1, 2))
-    if z.ndim == 1 and z.size == 0:
-        z = z.reshape(0, 2)
-    if z.ndim != 2 or z.shape[1] != 2:
-        raise ValueError(f"{name} must have shape (K, 2), got {z.shape}")
-    return z
+    return as_rows(z, name, 2)
 
 
 def _step_inputs(mu, Sigma, u, z, landmarks, dt, M, Q):

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._checks import as_array, as_scalar, check_rng, as_index
+from ._checks import as_array, as_index, as_scalar, check_rng, check_type
 
 __all__ = ["OccupancyGrid", "sample_free_poses", "make_landmark_world"]
 
@@ -278,8 +278,7 @@ def sample_free_poses(grid, n, *, rng, threshold=0.2):
     Thrun, Burgard & Fox (2005), Table 8.2 (MCL initialisation for global
     localization: particles uniform over the free space).
     """
-    if not isinstance(grid, OccupancyGrid):
-        raise TypeError(f"grid must be an OccupancyGrid, got {type(grid).__name__}")
+    check_type(grid, OccupancyGrid, "grid")
     n = as_index(n, "n")
     check_rng(rng)
     rc = np.argwhere(grid.free_mask(threshold))

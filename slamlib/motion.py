@@ -76,13 +76,6 @@ def _log_normal(d, var):
     return -0.5 * (_LOG_2PI + np.log(var)) - 0.5 * d**2 / var
 
 
-def _as_alpha(alpha, n):
-    a = as_array(alpha, "alpha", (n,))
-    if np.any(a < 0):
-        raise ValueError(f"alpha must be non-negative, got {a}")
-    return a
-
-
 def _arc(x, u, dt):
     """Exact-arc motion and its Jacobians for broadcast pose/control arrays."""
     theta = x[..., 2]
@@ -249,7 +242,7 @@ def velocity_noise_cov(u, alpha):
     u = as_array(u, "u", ndim=range(1, 33))
     if u.shape[-1] != 2:
         raise ValueError(f"u must have shape (2,) or (..., 2), got {u.shape}")
-    a = _as_alpha(alpha, 4)
+    a = as_array(alpha, "alpha", (4,), nonnegative=True)
     v2, w2 = u[..., 0] ** 2, u[..., 1] ** 2
     M = np.zeros(u.shape[:-1] + (2, 2))
     # M = diag(a1 v^2 + a2 w^2, a3 v^2 + a4 w^2)  (Table 7.2 line 5)
@@ -293,7 +286,7 @@ def sample_motion_model_velocity(x, u, dt, alpha, *, rng):
     if u.shape[-1] != 2:
         raise ValueError(f"u must have shape (2,) or (M, 2), got {u.shape}")
     dt = as_scalar(dt, "dt", nonnegative=True)
-    a = _as_alpha(alpha, 6)
+    a = as_array(alpha, "alpha", (6,), nonnegative=True)
     check_rng(rng)
     shape = np.broadcast_shapes(x.shape[:-1], u.shape[:-1])
     v, w = u[..., 0], u[..., 1]
@@ -375,7 +368,7 @@ def motion_model_velocity(x_next, u, x, dt, alpha, *, log=False):
     if x.shape[-1] != 3:
         raise ValueError(f"x must have shape (3,) or (M, 3), got {x.shape}")
     dt = as_scalar(dt, "dt", positive=True)
-    a = _as_alpha(alpha, 6)
+    a = as_array(alpha, "alpha", (6,), nonnegative=True)
     v, w = u
     v_hat, w_hat, gamma_hat = _velocity_inverse(x_next, x, dt)
     var = np.maximum([a[0] * v**2 + a[1] * w**2, a[2] * v**2 + a[3] * w**2, a[4] * v**2 + a[5] * w**2], _VAR_FLOOR)
@@ -501,7 +494,7 @@ def sample_motion_model_odometry(x, u, alpha, *, rng):
     if x.shape[-1] != 3:
         raise ValueError(f"x must have shape (3,) or (M, 3), got {x.shape}")
     u = as_array(u, "u", (3,))
-    a = _as_alpha(alpha, 4)
+    a = as_array(alpha, "alpha", (4,), nonnegative=True)
     check_rng(rng)
     rot1, trans, rot2 = u
     std = np.sqrt(np.array(_odometry_vars(rot1, trans, rot2, a)))
@@ -552,7 +545,7 @@ def motion_model_odometry(x_next, u, x, alpha, *, log=False):
         raise ValueError(f"x_next must have shape (3,) or (M, 3), got {x_next.shape}")
     if x.shape[-1] != 3:
         raise ValueError(f"x must have shape (3,) or (M, 3), got {x.shape}")
-    a = _as_alpha(alpha, 4)
+    a = as_array(alpha, "alpha", (4,), nonnegative=True)
     h = _odometry_from_poses(x, x_next)
     r1h, th, r2h = h[..., 0], h[..., 1], h[..., 2]
     var1, var2, var3 = (np.maximum(vv, _VAR_FLOOR) for vv in _odometry_vars(r1h, th, r2h, a))

@@ -31,8 +31,8 @@ from typing import NamedTuple
 import numpy as np
 from scipy.special import logsumexp
 
-from ._checks import (as_array, as_covariance, as_log_weights, as_poses, as_scalar, as_weights, check_log_weights,
-                      check_rng)
+from ._checks import (as_array, as_covariance, as_log_weights, as_poses, as_rows, as_scalar, as_weights,
+                      check_log_weights, check_rng, check_rows)
 from .angles import _circular_mean, wrap_angle
 from .gaussian import _gaussian
 from .motion import _arc_pose, _control_sqrt
@@ -593,16 +593,9 @@ def particle_filter_step(particles, log_w, u, z, m, dt, M, Q, *, rng, resample="
     n = particles.shape[0]
     lw = as_log_weights(log_w, "log_w", n)
     u = as_array(u, "u", (2,))
-    z = as_array(z, "z", ndim=(1, 2))
-    if z.size == 0:
-        z = z.reshape(0, 2)
-    if z.ndim != 2 or z.shape[1] != 2:
-        raise ValueError(f"z must have shape (K, 2), got {z.shape}")
-    m = as_array(m, "m", ndim=(1, 2))
-    if m.size == 0:
-        m = m.reshape(0, 2)
-    if m.shape != z.shape:
-        raise ValueError(f"m must have shape {z.shape} (one landmark per measurement in z), got {m.shape}")
+    z = as_rows(z, "z", 2)
+    m = as_rows(m, "m", 2)
+    check_rows((z, "z"), (m, "m"))  # one landmark per measurement
     dt = as_scalar(dt, "dt", nonnegative=True)
     M = as_covariance(M, "M", 2)
     Q = as_covariance(Q, "Q", 2, definite=True)

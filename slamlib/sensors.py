@@ -26,7 +26,7 @@ import numpy as np
 from scipy import ndimage
 from scipy.special import ndtr
 
-from ._checks import as_array, as_scalar
+from ._checks import as_array, as_poses, as_scalar, check_type
 from .angles import _wrap1, wrap_angle
 from .maps import OccupancyGrid
 
@@ -295,19 +295,6 @@ def beam_range_finder_log_likelihood(z, z_star, *, z_max, sigma_hit, lambda_shor
 
 
 # --------------------------------------------------------------------------- ray casting
-def _check_grid(grid):
-    if not isinstance(grid, OccupancyGrid):
-        raise TypeError(f"grid must be an OccupancyGrid, got {type(grid).__name__}")
-    return grid
-
-
-def _poses(poses):
-    poses = as_array(poses, "poses", ndim=(1, 2))
-    if poses.shape[-1] != 3:
-        raise ValueError(f"poses must have shape (P, 3) or (3,), got {poses.shape}")
-    return poses
-
-
 def ray_cast(grid, poses, angles, max_range, *, sensor_offset=0.0, threshold=0.5, unknown_occupied=False):
     """Expected ranges of beams cast from poses through an occupancy grid.
 
@@ -347,9 +334,9 @@ def ray_cast(grid, poses, angles, max_range, *, sensor_offset=0.0, threshold=0.5
     Thrun, Burgard & Fox (2005), Sec. 6.3.1 (``z_k^*`` computed by ray
     casting, Table 6.1 line 4).
     """
-    grid = _check_grid(grid)
+    grid = check_type(grid, OccupancyGrid, "grid")
     single = np.ndim(poses) == 1
-    poses = np.atleast_2d(_poses(poses))
+    poses = np.atleast_2d(as_poses(poses, "poses", ndim=(1, 2)))
     angles = as_array(angles, "angles", ndim=1)
     max_range = as_scalar(max_range, "max_range", positive=True, finite=False)
     if np.isnan(max_range):
@@ -494,7 +481,7 @@ def likelihood_field(grid, *, max_dist=2.0, threshold=0.5):
     ----------
     Thrun, Burgard & Fox (2005), Sec. 6.4 (Table 6.3 line 7, Fig. 6.8).
     """
-    grid = _check_grid(grid)
+    grid = check_type(grid, OccupancyGrid, "grid")
     max_dist = as_scalar(max_dist, "max_dist", positive=True, finite=False)
     threshold = as_scalar(threshold, "threshold")
     occ = grid.occupied_mask(threshold)
@@ -540,10 +527,9 @@ def likelihood_field_log_likelihood(field, poses, ranges, angles, *, z_max, sigm
     ----------
     Thrun, Burgard & Fox (2005), Table 6.3.
     """
-    if not isinstance(field, LikelihoodField):
-        raise TypeError(f"field must be a LikelihoodField, got {type(field).__name__}")
+    check_type(field, LikelihoodField, "field")
     single = np.ndim(poses) == 1
-    poses = np.atleast_2d(_poses(poses))
+    poses = np.atleast_2d(as_poses(poses, "poses", ndim=(1, 2)))
     ranges = as_array(ranges, "ranges", ndim=1)
     angles = as_array(angles, "angles", ranges.shape)
     if np.any(ranges < 0):
