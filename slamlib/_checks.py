@@ -21,7 +21,8 @@ def _shape_str(shape):
     return "(" + ", ".join("*" if s is None else str(s) for s in shape) + (",)" if len(shape) == 1 else ")")
 
 
-def as_array(value, name, shape=None, *, ndim=None, finite=True, dtype=np.float64, nonnegative=False):
+def as_array(value, name, shape=None, *, ndim=None, finite=True, dtype=np.float64, nonnegative=False, ref=None,
+             bools=True):
     """Return ``value`` as a new float64 array after checking it.
 
     Parameters
@@ -38,15 +39,20 @@ def as_array(value, name, shape=None, *, ndim=None, finite=True, dtype=np.float6
         Reject NaN and infinities.
     nonnegative : bool
         Reject negative entries.
+    ref : str, optional
+        The argument(s) the expected shape comes from, named in the message
+        (``"... (to match x)"``).
+    bools : bool
+        Accept booleans (as 0 and 1); ``False`` refuses them with a TypeError.
     """
     if type(value) is np.ndarray and value.dtype is _F64 and dtype is np.float64:
         arr = value.copy()  # the common case: no dtype inspection or conversion
     else:
-        arr = _convert(value, name, dtype)
+        arr = _convert(value, name, dtype, bools)
     if shape is not None:
         ok = arr.ndim == len(shape) and all(s is None or s == a for s, a in zip(shape, arr.shape))
         if not ok:
-            raise ValueError(f"{name} must have shape {_shape_str(shape)}, got {arr.shape}")
+            raise ValueError(f"{name} must have shape {_shape_str(shape)}{_ref(ref)}, got {arr.shape}")
     elif ndim is not None:
         allowed = (ndim,) if isinstance(ndim, int) else tuple(ndim)
         if arr.ndim not in allowed:
@@ -84,7 +90,11 @@ def check_type(value, cls, name):
     return value
 
 
-def _convert(value, name, dtype=np.float64):
+def _ref(ref):
+    return "" if ref is None else f" (to match {ref})"
+
+
+def _convert(value, name, dtype=np.float64, bools=True):
     """A new array of `dtype` from any real array_like; bools count as 0/1, strings are refused."""
     if isinstance(value, (str, bytes)) or value is None:
         raise TypeError(f"{name} must be a numeric array, got {type(value).__name__}")
@@ -92,7 +102,7 @@ def _convert(value, name, dtype=np.float64):
         arr = np.array(value, dtype=None, copy=True)
     except Exception as exc:  # ragged lists and the like
         raise ValueError(f"{name} must be a numeric array: {exc}") from None
-    if arr.dtype.kind not in "biuf":
+    if arr.dtype.kind not in ("biuf" if bools else "iuf"):
         raise TypeError(f"{name} must hold real numbers, got dtype {arr.dtype}")
     return np.asarray(arr, dtype=dtype)
 
@@ -129,7 +139,7 @@ def _real_scalar(value, name):
     return float(arr)
 
 
-def as_vector(value, name, n=None, *, copy=True):
+def as_vector(value, name, n=None, *, copy=True, ref=None):
     """A float64 array of shape ``(n,)`` or ``(..., n)`` (a batch of vectors), finite.
 
     With ``copy=False`` it returns `value` itself when it already is a finite
@@ -144,13 +154,13 @@ def as_vector(value, name, n=None, *, copy=True):
             raise ValueError(f"{name} must have shape ({'n' if n is None else n},) or (..., {'n' if n is None else n}), "
                              f"got a scalar")
     if n is not None and arr.shape[-1] != n:
-        raise ValueError(f"{name} must have shape ({n},) or (..., {n}), got {arr.shape}")
+        raise ValueError(f"{name} must have shape ({n},) or (..., {n}){_ref(ref)}, got {arr.shape}")
     if not _all_finite(arr):
         raise ValueError(f"{name} must be finite (no NaN or inf)")
     return arr
 
 
-def as_matrix(value, name, rows=None, cols=None, *, copy=True):
+def as_matrix(value, name, rows=None, cols=None, *, copy=True, ref=None):
     """A float64 array of shape ``(rows, cols)`` or ``(..., rows, cols)``, finite (see :func:`as_vector`)."""
     if type(value) is np.ndarray and value.dtype is _F64 and value.ndim == 2:
         arr = value.copy() if copy else value
@@ -162,7 +172,7 @@ def as_matrix(value, name, rows=None, cols=None, *, copy=True):
     r, c = arr.shape[-2:]
     if (rows is not None and r != rows) or (cols is not None and c != cols):
         want = _mat_str(rows, cols)
-        raise ValueError(f"{name} must have shape {want} or (..., {want[1:-1]}), got {arr.shape}")
+        raise ValueError(f"{name} must have shape {want} or (..., {want[1:-1]}){_ref(ref)}, got {arr.shape}")
     if not _all_finite(arr):
         raise ValueError(f"{name} must be finite (no NaN or inf)")
     return arr
@@ -178,7 +188,7 @@ SYM_RTOL = 1e-9
 PSD_RTOL = 1e-9
 
 
-def as_covariance(value, name, n=None, *, definite=False, batched=False, psd=True, copy=True):
+def as_covariance(value, name, n=None, *, definite=False, batched=False, psd=True, copy=True, ref=None):
     """A (batch of) symmetric positive semi-definite (or definite) ``(n, n)`` matrices.
 
     Parameters
@@ -218,11 +228,11 @@ def as_covariance(value, name, n=None, *, definite=False, batched=False, psd=Tru
         k = value.shape[0]
         if 2 <= k <= 3 and value.shape[1] == k and (n is None or n == k) and _small_pd(value.tolist(), k):
             return value.copy() if copy else value  # finite, symmetric and clearly positive definite
-    arr = as_matrix(value, name, n, n, copy=copy)
+    arr = as_matrix(value, name, n, n, copy=copy, ref=ref)
     if arr.shape[-1] != arr.shape[-2]:
         raise ValueError(f"{name} must be square, got shape {arr.shape}")
     if arr.ndim > 2 and not batched:
-        raise ValueError(f"{name} must have shape {_mat_str(n, n)}, got {arr.shape}")
+        raise ValueError(f"{name} must have shape {_mat_str(n, n)}{_ref(ref)}, got {arr.shape}")
     k = arr.shape[-1]
     if arr.ndim == 2 and 2 <= k <= 3 and _small_pd(arr.tolist(), k):
         return arr
@@ -295,6 +305,15 @@ def check_batch(*named):
         raise ValueError(f"leading (batch) axes do not broadcast: {desc}") from None
 
 
+def check_broadcast(*named):
+    """Arrays ``(array, name)`` must broadcast against each other (whole shapes); returns the shape."""
+    try:
+        return np.broadcast_shapes(*(np.shape(a) for a, _ in named))
+    except ValueError:
+        desc = ", ".join(f"{name} {np.shape(a)}" for a, name in named)
+        raise ValueError(f"shapes do not broadcast: {desc}") from None
+
+
 def as_pose(value, name="pose"):
     """One pose ``[x, y, theta]``, shape ``(3,)``, finite."""
     if type(value) is np.ndarray and value.dtype is _F64 and value.shape == (3,):
@@ -319,9 +338,9 @@ def as_poses(value, name="poses", *, batched=False, ndim=None, allow_empty=True)
     return arr
 
 
-def as_weights(value, name="w", n=None, *, normalize=True):
+def as_weights(value, name="w", n=None, *, normalize=True, ref=None):
     """Non-negative weights ``(n,)``, not all zero, finite sum; normalised to sum 1 unless told not to."""
-    w = as_array(value, name, (None,) if n is None else (n,))
+    w = as_array(value, name, (None,) if n is None else (n,), ref=ref)
     if w.size == 0:
         raise ValueError(f"{name} must hold at least one weight")
     if np.any(w < 0):
@@ -334,9 +353,9 @@ def as_weights(value, name="w", n=None, *, normalize=True):
     return w / total if normalize else w
 
 
-def as_log_weights(value, name="log_w", n=None):
+def as_log_weights(value, name="log_w", n=None, *, ref=None):
     """Log-weights ``(n,)``: no NaN or ``+inf``, ``-inf`` allowed for some but not all entries."""
-    lw = as_array(value, name, (None,) if n is None else (n,), finite=False)
+    lw = as_array(value, name, (None,) if n is None else (n,), finite=False, ref=ref)
     check_log_weights(lw, name)
     return lw
 
@@ -388,7 +407,7 @@ def as_count(value, name, *, minimum=0, maximum=None):
     return out
 
 
-def as_indices(value, name, upper, shape=None):
+def as_indices(value, name, upper, shape=None, *, ref=None):
     """An integer array (intp) of indices in ``[0, upper)``; an empty list is fine; bools are refused."""
     arr = np.asarray(value)
     if arr.size == 0 and arr.dtype.kind not in "iu":
@@ -396,7 +415,7 @@ def as_indices(value, name, upper, shape=None):
     if arr.dtype.kind not in "iu":
         raise TypeError(f"{name} must be an integer array, got dtype {arr.dtype}")
     if shape is not None and arr.shape != tuple(shape):
-        raise ValueError(f"{name} must have shape {_shape_str(tuple(shape))}, got {arr.shape}")
+        raise ValueError(f"{name} must have shape {_shape_str(tuple(shape))}{_ref(ref)}, got {arr.shape}")
     if arr.size and (arr.min() < 0 or arr.max() >= upper):
         raise ValueError(f"{name} must hold indices in [0, {upper}), got range [{arr.min()}, {arr.max()}]")
     return arr.astype(np.intp)

@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-from ._checks import as_array, as_index
+from ._checks import as_array, as_index, check_broadcast
 
 __all__ = ["wrap_angle", "angle_diff", "circular_mean"]
 
@@ -69,6 +69,7 @@ def angle_diff(a, b):
     """
     a = as_array(a, "a", ndim=range(0, 33))
     b = as_array(b, "b", ndim=range(0, 33))
+    check_broadcast((a, "a"), (b, "b"))
     return wrap_angle(a - b)
 
 
@@ -103,7 +104,7 @@ def circular_mean(angles, weights=None, axis=0):
     if weights is None:
         w = np.ones_like(a)
     else:
-        w = as_array(weights, "weights", a.shape)
+        w = as_array(weights, "weights", a.shape, ref="angles")
         if np.any(w < 0):
             raise ValueError(f"weights must be non-negative, got minimum {w.min():.3g}")
         total = np.sum(w, axis=axis)

@@ -119,7 +119,7 @@ def bayes_rule(prior, likelihood):
     array([0.625, 0.375])
     """
     prior = _as_distribution(prior, "prior", ndim=range(1, 33))
-    likelihood = as_array(likelihood, "likelihood", prior.shape, nonnegative=True)
+    likelihood = as_array(likelihood, "likelihood", prior.shape, nonnegative=True, ref="prior")
     return _posterior(prior, likelihood)
 
 
@@ -153,7 +153,7 @@ def histogram_update(belief, likelihood):
     Thrun, Burgard & Fox, *Probabilistic Robotics*, Table 4.1 line 4; Table 2.1 line 4.
     """
     belief = _as_distribution(belief, "belief", ndim=range(1, 33))
-    likelihood = as_array(likelihood, "likelihood", belief.shape, nonnegative=True)
+    likelihood = as_array(likelihood, "likelihood", belief.shape, nonnegative=True, ref="belief")
     # bel(x_t) = eta p(z_t | x_t) bel_bar(x_t)  (Table 4.1 line 4)
     return _posterior(belief, likelihood)
 
@@ -201,12 +201,12 @@ def motion_kernel(shift, sigma, *, radius=None):
     Thrun, Burgard & Fox, *Probabilistic Robotics*, Sec. 4.1 (the motion model of a
     histogram filter as a probability per cell).
     """
-    shift_arr = as_array(shift, "shift", ndim=(0, 1))
+    shift_arr = as_array(shift, "shift", ndim=(0, 1), bools=False)
     if shift_arr.ndim == 1 and shift_arr.shape != (2,):
         raise ValueError(f"shift must be a scalar (corridor) or have shape (2,) (grid), got {shift_arr.shape}")
     dim = shift_arr.size
     shifts = np.atleast_1d(shift_arr)
-    sig = as_array(sigma, "sigma", ndim=(0, 1))
+    sig = as_array(sigma, "sigma", ndim=(0, 1), bools=False)
     if sig.ndim == 1 and sig.shape != (dim,):
         raise ValueError(f"sigma must be a scalar or have shape ({dim},) like shift, got {sig.shape}")
     sig = np.broadcast_to(sig, (dim,))
@@ -274,6 +274,11 @@ def histogram_predict(belief, kernel):
     """
     belief = _as_distribution(belief, "belief", ndim=1)
     kernel = _as_kernel(kernel, "kernel", ndim=1)
+    return _histogram_predict(belief, kernel)
+
+
+def _histogram_predict(belief, kernel):
+    """Unchecked core of :func:`histogram_predict`."""
     r = kernel.size // 2
     bel_bar = np.zeros_like(belief)
     for k in np.flatnonzero(kernel):
@@ -317,21 +322,26 @@ def histogram_filter(belief, kernels, likelihoods):
     Thrun, Burgard & Fox, *Probabilistic Robotics*, Table 4.1 (discrete Bayes filter).
     """
     bel = _as_distribution(belief, "belief", ndim=1)
-    likelihoods = as_array(likelihoods, "likelihoods", (None, bel.size), nonnegative=True)
+    likelihoods = as_array(likelihoods, "likelihoods", (None, bel.size), nonnegative=True, ref="belief")
     steps = likelihoods.shape[0]
+    if kernels is None or isinstance(kernels, (str, bytes)) or not hasattr(kernels, "__len__"):
+        raise TypeError(f"kernels must be one kernel (L,) or a sequence of kernels, got {type(kernels).__name__}")
     try:
         single = np.asarray(kernels, dtype=float).ndim == 1
     except (ValueError, TypeError):  # kernels of different lengths
         single = False
-    kernels = [kernels] * steps if single else list(kernels)
+    if single:
+        kernels = [_as_kernel(kernels, "kernels", ndim=1)] * steps
+    else:
+        kernels = [_as_kernel(k, f"kernels[{t}]", ndim=1) for t, k in enumerate(kernels)]
     if len(kernels) != steps:
         raise ValueError(f"kernels must hold one kernel per step: got {len(kernels)} kernels "
                          f"for {steps} rows of likelihoods")
     predicted = np.empty((steps, bel.size))
     posterior = np.empty((steps, bel.size))
     for t in range(steps):
-        predicted[t] = histogram_predict(bel, kernels[t])  # Table 4.1 line 3
-        bel = posterior[t] = histogram_update(predicted[t], likelihoods[t])  # Table 4.1 line 4
+        predicted[t] = _histogram_predict(bel, kernels[t])  # Table 4.1 line 3
+        bel = posterior[t] = _posterior(predicted[t], likelihoods[t])  # Table 4.1 line 4
     return predicted, posterior
 
 
@@ -610,7 +620,7 @@ def grid_range_likelihood(expected, z, *, sigma):
     component of the beam model).
     """
     expected = as_array(expected, "expected", ndim=3)
-    z = as_array(z, "z", (expected.shape[-1],))
+    z = as_array(z, "z", (expected.shape[-1],), ref="expected")
     sigma = as_scalar(sigma, "sigma", positive=True)
     # log p(z | x) = sum_k log N(z_k; z*_k, sigma^2), up to a constant  (Eq. 6.2)
     log_lik = -0.5 * np.sum(((z - expected) / sigma) ** 2, axis=-1)

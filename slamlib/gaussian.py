@@ -101,7 +101,7 @@ class Gaussian(_GaussianFields):
 
     def __new__(cls, mean, cov):
         mean = as_vector(mean, "mean", copy=False)
-        cov = as_matrix(cov, "cov", mean.shape[-1], mean.shape[-1], copy=False)
+        cov = as_matrix(cov, "cov", mean.shape[-1], mean.shape[-1], copy=False, ref="mean")
         return tuple.__new__(cls, (mean, cov))
 
 
@@ -175,17 +175,17 @@ def kf_predict(x, P, F, Q, *, B=None, u=None):
     """
     x = as_vector(x, "x", copy=False)
     n = x.shape[-1]
-    P = as_covariance(P, "P", n, batched=True, copy=False)
-    F = as_matrix(F, "F", n, n, copy=False)
-    Q = as_covariance(Q, "Q", n, batched=True, copy=False)
+    P = as_covariance(P, "P", n, batched=True, copy=False, ref="x")
+    F = as_matrix(F, "F", n, n, copy=False, ref="x")
+    Q = as_covariance(Q, "Q", n, batched=True, copy=False, ref="x")
     if B is None and u is None and x.ndim == 1 and P.ndim == 2 and F.ndim == 2 and Q.ndim == 2:
         return _kf_predict(x, P, F, Q)  # one filter: nothing to broadcast
     if (B is None) != (u is None):
         raise ValueError("B and u must be given together (or both omitted)")
     named = [(x, 1, "x"), (P, 2, "P"), (F, 2, "F"), (Q, 2, "Q")]
     if B is not None:
-        B = as_matrix(B, "B", n, copy=False)
-        u = as_vector(u, "u", B.shape[-1], copy=False)
+        B = as_matrix(B, "B", n, copy=False, ref="x")
+        u = as_vector(u, "u", B.shape[-1], copy=False, ref="B")
         named += [(B, 2, "B"), (u, 1, "u")]
     check_batch(*named)
     return _kf_predict(x, P, F, Q, B, u)
@@ -234,11 +234,11 @@ def kf_update(x, P, z, H, R):
     """
     x = as_vector(x, "x", copy=False)
     n = x.shape[-1]
-    P = as_covariance(P, "P", n, batched=True, copy=False)
+    P = as_covariance(P, "P", n, batched=True, copy=False, ref="x")
     z = as_vector(z, "z", copy=False)
     k = z.shape[-1]
-    H = as_matrix(H, "H", k, n, copy=False)
-    R = as_covariance(R, "R", k, definite=True, batched=True, copy=False)
+    H = as_matrix(H, "H", k, n, copy=False, ref="z and x")
+    R = as_covariance(R, "R", k, definite=True, batched=True, copy=False, ref="z")
     check_batch((x, 1, "x"), (P, 2, "P"), (z, 1, "z"), (H, 2, "H"), (R, 2, "R"))
     return _kf_update(x, P, z, H, R)
 
@@ -541,7 +541,7 @@ def ekf_localization_known(mu, Sigma, u, z, ids, landmarks, dt, M, Q):
 
 
 def _as_ids(ids, k, n):
-    return as_indices(ids, "ids", n, (k,))
+    return as_indices(ids, "ids", n, (k,), ref="z")
 
 
 def _unknown_step(mu, Sigma, u, z, landmarks, dt, M, Q, gate):

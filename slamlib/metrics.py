@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import stats
 
-from ._checks import as_array, as_covariance, as_index, as_scalar, as_vector, check_batch
+from ._checks import as_array, as_covariance, as_index, as_poses, as_scalar, as_vector, check_batch
 from .angles import wrap_angle
 
 __all__ = ["pose_error", "ate_rmse", "heading_rmse", "landmark_rmse", "nees", "nees_band"]
@@ -47,10 +47,9 @@ def pose_error(est, true):
     ----------
     Thrun, Burgard & Fox (2005), Sec. 7.5 (wrapped angular differences of pose estimates).
     """
-    est = as_array(est, "est", ndim=range(1, 33))
-    true = as_array(true, "true", ndim=range(1, 33))
-    if est.shape[-1] != 3 or true.shape[-1] != 3:
-        raise ValueError(f"est and true must have shape (..., 3), got {est.shape} and {true.shape}")
+    est = as_poses(est, "est", batched=True)
+    true = as_poses(true, "true", batched=True)
+    check_batch((est, 1, "est"), (true, 1, "true"))
     err = est - true
     err[..., 2] = wrap_angle(err[..., 2])
     return err
@@ -150,7 +149,7 @@ def nees(err, P):
     """
     err = as_vector(err, "err")
     n = err.shape[-1]
-    P = as_covariance(P, "P", n, definite=True, batched=True)
+    P = as_covariance(P, "P", n, definite=True, batched=True, ref="err")
     shape = check_batch((err, 1, "err"), (P, 2, "P"))
     e = np.broadcast_to(err, shape + (n,))
     Pb = np.broadcast_to(P, shape + (n, n))

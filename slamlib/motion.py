@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._checks import as_array, as_scalar, check_rng
+from ._checks import as_array, as_poses, as_scalar, check_batch, check_rng
 import math
 
 from .angles import _wrap1, wrap_angle
@@ -279,16 +279,14 @@ def sample_motion_model_velocity(x, u, dt, alpha, *, rng):
     ----------
     Thrun, Burgard & Fox (2005), Table 5.3.
     """
-    x = as_array(x, "x", ndim=(1, 2))
+    x = as_poses(x, "x", ndim=(1, 2))
     u = as_array(u, "u", ndim=(1, 2))
-    if x.shape[-1] != 3:
-        raise ValueError(f"x must have shape (3,) or (M, 3), got {x.shape}")
     if u.shape[-1] != 2:
         raise ValueError(f"u must have shape (2,) or (M, 2), got {u.shape}")
+    shape = check_batch((x, 1, "x"), (u, 1, "u"))
     dt = as_scalar(dt, "dt", nonnegative=True)
     a = as_array(alpha, "alpha", (6,), nonnegative=True)
     check_rng(rng)
-    shape = np.broadcast_shapes(x.shape[:-1], u.shape[:-1])
     v, w = u[..., 0], u[..., 1]
     std = np.sqrt(np.stack([a[0] * v**2 + a[1] * w**2, a[2] * v**2 + a[3] * w**2, a[4] * v**2 + a[5] * w**2], axis=-1))
     eps = rng.standard_normal(shape + (3,)) * std
@@ -360,13 +358,10 @@ def motion_model_velocity(x_next, u, x, dt, alpha, *, log=False):
     ----------
     Thrun, Burgard & Fox (2005), Tables 5.1 and 5.2.
     """
-    x_next = as_array(x_next, "x_next", ndim=(1, 2))
+    x_next = as_poses(x_next, "x_next", ndim=(1, 2))
     u = as_array(u, "u", (2,))
-    x = as_array(x, "x", ndim=(1, 2))
-    if x_next.shape[-1] != 3:
-        raise ValueError(f"x_next must have shape (3,) or (M, 3), got {x_next.shape}")
-    if x.shape[-1] != 3:
-        raise ValueError(f"x must have shape (3,) or (M, 3), got {x.shape}")
+    x = as_poses(x, "x", ndim=(1, 2))
+    check_batch((x_next, 1, "x_next"), (x, 1, "x"))
     dt = as_scalar(dt, "dt", positive=True)
     a = as_array(alpha, "alpha", (6,), nonnegative=True)
     v, w = u
@@ -397,12 +392,9 @@ def odometry_from_poses(x_prev, x_next):
     ----------
     Thrun, Burgard & Fox (2005), Table 5.5 lines 2-4.
     """
-    x_prev = as_array(x_prev, "x_prev", ndim=range(1, 33))
-    x_next = as_array(x_next, "x_next", ndim=range(1, 33))
-    if x_prev.shape[-1] != 3:
-        raise ValueError(f"x_prev must have shape (..., 3), got {x_prev.shape}")
-    if x_next.shape[-1] != 3:
-        raise ValueError(f"x_next must have shape (..., 3), got {x_next.shape}")
+    x_prev = as_poses(x_prev, "x_prev", batched=True)
+    x_next = as_poses(x_next, "x_next", batched=True)
+    check_batch((x_prev, 1, "x_prev"), (x_next, 1, "x_next"))
     return _odometry_from_poses(x_prev, x_next)
 
 
@@ -435,12 +427,11 @@ def odometry_motion(x, u):
     ----------
     Thrun, Burgard & Fox (2005), Table 5.6 lines 5-7 (without noise).
     """
-    x = as_array(x, "x", ndim=range(1, 33))
+    x = as_poses(x, "x", batched=True)
     u = as_array(u, "u", ndim=range(1, 33))
-    if x.shape[-1] != 3:
-        raise ValueError(f"x must have shape (..., 3), got {x.shape}")
     if u.shape[-1] != 3:
-        raise ValueError(f"u must have shape (..., 3), got {u.shape}")
+        raise ValueError(f"u must have shape (3,) or (..., 3), got {u.shape}")
+    check_batch((x, 1, "x"), (u, 1, "u"))
     return _odometry_apply(x, u[..., 0], u[..., 1], u[..., 2])
 
 
@@ -538,13 +529,10 @@ def motion_model_odometry(x_next, u, x, alpha, *, log=False):
     ----------
     Thrun, Burgard & Fox (2005), Table 5.5.
     """
-    x_next = as_array(x_next, "x_next", ndim=(1, 2))
+    x_next = as_poses(x_next, "x_next", ndim=(1, 2))
     u = as_array(u, "u", (3,))
-    x = as_array(x, "x", ndim=(1, 2))
-    if x_next.shape[-1] != 3:
-        raise ValueError(f"x_next must have shape (3,) or (M, 3), got {x_next.shape}")
-    if x.shape[-1] != 3:
-        raise ValueError(f"x must have shape (3,) or (M, 3), got {x.shape}")
+    x = as_poses(x, "x", ndim=(1, 2))
+    check_batch((x_next, 1, "x_next"), (x, 1, "x"))
     a = as_array(alpha, "alpha", (4,), nonnegative=True)
     h = _odometry_from_poses(x, x_next)
     r1h, th, r2h = h[..., 0], h[..., 1], h[..., 2]

@@ -82,7 +82,7 @@ class ParticleSet(_ParticleSetFields):
 
     def __new__(cls, poses, log_weights):
         poses = as_array(poses, "poses", ndim=2)
-        log_weights = as_log_weights(log_weights, "log_weights", poses.shape[0])
+        log_weights = as_log_weights(log_weights, "log_weights", poses.shape[0], ref="poses")
         return tuple.__new__(cls, (poses, log_weights))
 
 
@@ -525,7 +525,7 @@ def bootstrap_filter_step(particles, log_w, propagate, log_likelihood, *, rng, r
     sample size, Sec. 4.3.4).
     """
     particles = as_array(particles, "particles", ndim=2)
-    lw = as_log_weights(log_w, "log_w", particles.shape[0])
+    lw = as_log_weights(log_w, "log_w", particles.shape[0], ref="particles")
     resample, ess_threshold = _step_options(rng, resample, ess_threshold)
     if not callable(propagate):
         raise TypeError("propagate must be a callable (particles, rng) -> particles")
@@ -591,7 +591,7 @@ def particle_filter_step(particles, log_w, u, z, m, dt, M, Q, *, rng, resample="
     """
     particles = as_poses(particles, "particles")
     n = particles.shape[0]
-    lw = as_log_weights(log_w, "log_w", n)
+    lw = as_log_weights(log_w, "log_w", n, ref="particles")
     u = as_array(u, "u", (2,))
     z = as_rows(z, "z", 2)
     m = as_rows(m, "m", 2)
@@ -644,7 +644,7 @@ def particle_gaussian(particles, log_weights=None, *, angles=()):
     if log_weights is None:
         w = np.full(n, 1.0 / n)
     else:
-        w = np.exp(_normalized(as_log_weights(log_weights, "log_weights", n)))
+        w = np.exp(_normalized(as_log_weights(log_weights, "log_weights", n, ref="particles")))
     cols = []
     for a in angles:
         if isinstance(a, bool) or not isinstance(a, (int, np.integer)) or not 0 <= a < d:

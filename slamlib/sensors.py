@@ -531,7 +531,7 @@ def likelihood_field_log_likelihood(field, poses, ranges, angles, *, z_max, sigm
     single = np.ndim(poses) == 1
     poses = np.atleast_2d(as_poses(poses, "poses", ndim=(1, 2)))
     ranges = as_array(ranges, "ranges", ndim=1)
-    angles = as_array(angles, "angles", ranges.shape)
+    angles = as_array(angles, "angles", ranges.shape, ref="ranges")
     if np.any(ranges < 0):
         raise ValueError("ranges must be non-negative")
     z_max = as_scalar(z_max, "z_max", positive=True)
