@@ -146,7 +146,7 @@ def as_vector(value, name, n=None, *, copy=True, ref=None):
     float64 array (for cores that never write into their inputs), so the check
     of one small vector costs a few attribute lookups.
     """
-    if type(value) is np.ndarray and value.dtype is _F64 and value.ndim == 1:
+    if type(value) is np.ndarray and value.dtype is _F64 and value.ndim >= 1:
         arr = value.copy() if copy else value
     else:
         arr = as_array(value, name, finite=False)
@@ -162,7 +162,7 @@ def as_vector(value, name, n=None, *, copy=True, ref=None):
 
 def as_matrix(value, name, rows=None, cols=None, *, copy=True, ref=None):
     """A float64 array of shape ``(rows, cols)`` or ``(..., rows, cols)``, finite (see :func:`as_vector`)."""
-    if type(value) is np.ndarray and value.dtype is _F64 and value.ndim == 2:
+    if type(value) is np.ndarray and value.dtype is _F64 and value.ndim >= 2:
         arr = value.copy() if copy else value
     else:
         arr = as_array(value, name, finite=False)
@@ -345,7 +345,8 @@ def as_weights(value, name="w", n=None, *, normalize=True, ref=None):
         raise ValueError(f"{name} must hold at least one weight")
     if np.any(w < 0):
         raise ValueError(f"{name} must be non-negative, got minimum {w.min():.3g}")
-    total = w.sum()
+    with np.errstate(over="ignore"):
+        total = w.sum()
     if not total > 0:
         raise ValueError(f"{name} must have a positive sum (all weights are zero)")
     if not np.isfinite(total):

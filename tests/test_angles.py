@@ -58,3 +58,16 @@ def test_inputs_not_modified():
     sl.angle_diff(a, a)
     sl.circular_mean(a)
     np.testing.assert_array_equal(a, [4.0, -7.0])
+
+
+def test_circular_mean_refuses_zero_weights_and_empty_input():
+    with pytest.raises(ValueError, match="weights must not all be zero"):
+        sl.circular_mean(np.array([0.1, 0.2]), weights=np.zeros(2))
+    with pytest.raises(ValueError, match="weights must not all be zero"):
+        sl.circular_mean(np.ones((2, 3)), weights=np.array([[1.0, 1.0, 1.0], [0.0, 0.0, 0.0]]), axis=1)
+    with pytest.raises(ValueError, match="angles must hold at least one angle"):
+        sl.circular_mean(np.zeros(0))
+    with pytest.raises(ValueError, match="axis must be in"):
+        sl.circular_mean(np.zeros(3), axis=1)
+    with pytest.raises(ValueError, match=r"shapes do not broadcast: a \(2,\), b \(3,\)"):
+        sl.angle_diff(np.zeros(2), np.zeros(3))

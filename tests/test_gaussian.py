@@ -385,3 +385,66 @@ def test_unknown_run_without_clutter_matches_known():
 def test_bad_input_names_the_argument(call, name):
     with pytest.raises((ValueError, TypeError), match=name):
         call()
+
+
+# --------------------------------------------------------------------------- the scalar path of one filter
+@pytest.mark.parametrize("omega", [0.0, 1e-9, 3e-7, 0.5, -2.0])
+def test_one_pose_path_equals_batched_path(omega):
+    rng = np.random.default_rng(21)
+    mu, Sigma = _random_belief(rng)
+    u = np.array([1.3, omega])
+    one = sl.ekf_predict(mu, Sigma, u, DT, M_NOISE)  # the scalar motion path
+    batch = sl.ekf_predict(mu[None], Sigma[None], u[None], DT, M_NOISE[None])  # the array path
+    np.testing.assert_allclose(one.mean, batch.mean[0], rtol=1e-13, atol=1e-15)
+    np.testing.assert_allclose(one.cov, batch.cov[0], rtol=1e-12, atol=1e-15)
+    z, m = np.array([4.0, 2.9]), np.array([-3.0, 2.0])  # bearing innovation near +-pi: wrapped on both paths
+    one = sl.ekf_update(one.mean, one.cov, z, m, Q_NOISE)
+    batch = sl.ekf_update(batch.mean, batch.cov, z[None], m[None], Q_NOISE[None])
+    np.testing.assert_allclose(one.mean, batch.mean[0], rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(one.cov, batch.cov[0], rtol=1e-11, atol=1e-15)
+    assert np.array_equal(one.cov, one.cov.T)
+
+
+@pytest.mark.parametrize("k", [1, 2, 3])
+def test_kf_update_gain_equals_a_linear_solve(k):
+    rng = np.random.default_rng(k)
+    x, P = _random_belief(rng, n=4)
+    H = rng.normal(size=(k, 4))
+    A = rng.normal(size=(k, k))
+    R = A @ A.T + 0.1 * np.eye(k)
+    z = rng.normal(size=k)
+    x_new, P_new = sl.kf_update(x, P, z, H, R)
+    S = H @ P @ H.T + R
+    K = np.linalg.solve(S, H @ P).T  # K = P H^T S^-1
+    np.testing.assert_allclose(x_new, x + K @ (z - H @ x), rtol=1e-11, atol=1e-13)
+    np.testing.assert_allclose(P_new, P - K @ H @ P, rtol=1e-10, atol=1e-13)
+    one = sl.kf_update(x[None], P[None], z[None], H[None], R[None])  # batched path uses the solver
+    np.testing.assert_allclose(one.mean[0], x_new, rtol=1e-12, atol=1e-14)
+
+
+def test_kf_update_refuses_asymmetric_or_indefinite_R():
+    x, P, H = np.zeros(3), np.eye(3), np.eye(2, 3)
+    with pytest.raises(ValueError, match="R must be symmetric"):
+        sl.kf_update(x, P, np.zeros(2), H, [[1.0, 0.5], [0.0, 1.0]])
+    with pytest.raises(ValueError, match="R must be positive definite"):
+        sl.kf_update(x, P, np.zeros(2), H, [[1.0, 2.0], [2.0, 1.0]])
+    with pytest.raises(ValueError, match="R must be positive definite"):
+        sl.kf_update(x, P, np.zeros(2), H, np.zeros((2, 2)))
+    with pytest.raises(ValueError, match=r"H must have shape \(2, 3\).*\(to match z and x\)"):
+        sl.kf_update(x, P, np.zeros(2), np.eye(3), np.eye(2))
+
+
+def test_gaussian_checks_its_fields():
+    with pytest.raises(TypeError, match="mean must be a numeric array"):
+        sl.Gaussian("abc", None)
+    with pytest.raises(TypeError, match="cov must be a numeric array"):
+        sl.Gaussian(np.zeros(2), None)
+    with pytest.raises(ValueError, match=r"cov must have shape \(2, 2\).*\(to match mean\)"):
+        sl.Gaussian(np.zeros(2), np.eye(3))
+    with pytest.raises(ValueError, match="mean must be finite"):
+        sl.Gaussian([np.nan, 0.0], np.eye(2))
+    g = sl.Gaussian([1, 2], [[1, 0], [0, 1]])
+    assert g.mean.dtype == np.float64 and g.cov.dtype == np.float64
+    mean, cov = g  # still a NamedTuple
+    assert g._replace(mean=np.ones(2)).mean[0] == 1.0
+    assert isinstance(sl.kf_predict(np.zeros(2), np.eye(2), np.eye(2), np.eye(2)), sl.Gaussian)

@@ -60,3 +60,14 @@ def test_bad_inputs():
         sl.pose_error(np.zeros(2), np.zeros(3))
     with pytest.raises(ValueError, match="err"):
         sl.nees(np.array([np.nan, 0.0]), np.eye(2))
+
+
+def test_nees_refuses_asymmetric_or_indefinite_P():
+    with pytest.raises(ValueError, match="P must be symmetric"):
+        sl.nees(np.ones(2), [[1.0, 0.5], [0.0, 1.0]])
+    with pytest.raises(ValueError, match="P must be positive definite"):
+        sl.nees(np.ones(2), [[1.0, 2.0], [2.0, 1.0]])
+    with pytest.raises(ValueError, match=r"P must have shape \(3, 3\).*\(to match err\)"):
+        sl.nees(np.ones(3), np.eye(2))
+    with pytest.raises(ValueError, match=r"est \(4, 3\), true \(3, 3\)"):
+        sl.pose_error(np.zeros((4, 3)), np.zeros((3, 3)))

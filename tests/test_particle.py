@@ -460,3 +460,39 @@ def test_private_fast_models_match_the_library_models():
         np.column_stack([zk[0] - zh[:, 0], sl.wrap_angle(zk[1] - zh[:, 1])]))
         for zk, zh in ((zk, sl.landmark_measurement(x, mk)[0]) for zk, mk in zip(z, m)))
     np.testing.assert_allclose(_log_landmark_likelihood(x, z, m, Q_NOISE), ref, rtol=1e-10)
+
+
+def test_particle_set_checks_its_fields():
+    poses = np.zeros((3, 3))
+    with pytest.raises(ValueError, match="poses must be finite"):
+        sl.ParticleSet(np.array([[0.0, np.nan, 0.0]] * 3), np.zeros(3))
+    with pytest.raises(ValueError, match=r"log_weights must have shape \(3,\) \(to match poses\)"):
+        sl.ParticleSet(poses, np.zeros(2))
+    with pytest.raises(ValueError, match="every log-weight is -inf"):
+        sl.ParticleSet(poses, np.full(3, -np.inf))
+    ps = sl.ParticleSet(poses.tolist(), [0.0, -np.inf, 0.0])  # -inf for some particles is fine
+    assert ps.poses.dtype == np.float64 and ps.log_weights[1] == -np.inf
+
+
+def test_particle_gaussian_all_minus_inf_is_refused_like_normalize():
+    p = np.zeros((4, 3))
+    with pytest.raises(ValueError, match="log_w: every log-weight is -inf"):
+        sl.normalize_log_weights(np.full(4, -np.inf))
+    with pytest.raises(ValueError, match="log_weights: every log-weight is -inf"):
+        sl.particle_gaussian(p, np.full(4, -np.inf))
+
+
+def test_weighted_pose_mean_is_the_summary_of_the_filters():
+    from slamlib.particle import _weighted_pose_mean
+
+    rng = np.random.default_rng(4)
+    poses = np.column_stack([rng.normal(2.0, 0.5, 500), rng.normal(-1.0, 0.3, 500), rng.normal(3.1, 0.2, 500)])
+    log_w = rng.normal(size=500)
+    w = sl.normalize_log_weights(log_w)
+    mean = _weighted_pose_mean(poses, w)
+    np.testing.assert_allclose(mean[:2], w @ poses[:, :2], rtol=1e-14)
+    assert mean[2] == sl.circular_mean(poses[:, 2], w)  # the same core, bit for bit
+    assert -np.pi <= mean[2] < np.pi
+    np.testing.assert_array_equal(mean, sl.particle_summary(poses, log_w)[0])
+    g = sl.particle_gaussian(poses, log_w, angles=(2,))
+    np.testing.assert_allclose(g.mean, mean, rtol=1e-14)
