@@ -63,12 +63,36 @@ def test_plot_particles_landmarks_grid(ax):
         viz.plot_grid(occ, ax=ax)
 
 
-def test_default_axes_is_current():
-    fig = plt.figure()
+def test_ax_none_means_a_new_figure():
+    fig, ax = plt.subplots()
+    grid = sl.OccupancyGrid(np.zeros((4, 5)), 0.5)
+    calls = [
+        lambda: viz.plot_pose(np.zeros(3)),
+        lambda: viz.plot_trajectory(np.zeros((3, 3))),
+        lambda: viz.plot_covariance_ellipse(np.zeros(2), np.eye(2)),
+        lambda: viz.plot_particles(np.zeros((5, 3))),
+        lambda: viz.plot_landmarks(np.zeros((2, 2))),
+        lambda: viz.plot_grid(grid),
+        lambda: sl.viz.plot_mcl_particles(grid, np.zeros((5, 3))),
+        lambda: sl.viz.plot_scan_endpoints(np.zeros(3), np.ones(3), np.zeros(3)),
+        lambda: sl.viz.plot_position_error(np.arange(3.0), {"a": np.ones(3)}),
+    ]
     try:
-        assert viz.plot_pose(np.zeros(3)) is plt.gca()
+        for call in calls:
+            out = call()
+            assert out is not ax and out.figure is not fig  # never drawn on the current axes
+            plt.close(out.figure)
     finally:
-        plt.close(fig)
+        plt.close("all")
+
+
+def test_one_truth_colour():
+    from slamlib.viz import _bayes, _core, _fastslam, _filters, _real_data, _slam
+
+    for mod in (_bayes, _fastslam, _filters, _real_data, _slam):
+        assert mod.TRUTH_COLOR is _core.TRUTH_COLOR
+        assert not any(name in vars(mod) for name in ("_TRUE_COLOR", "_TRUTH"))
+        assert "_axes" not in mod.__dict__ or mod._axes is _core._axes
 
 
 def test_animate_returns_html_with_controls():

@@ -14,6 +14,8 @@ from __future__ import annotations
 import numpy as np
 
 from .._checks import as_array
+from . import _core
+from ._core import TRUTH_COLOR, _axes
 
 __all__ = [
     "plot_belief_1d",
@@ -30,15 +32,7 @@ __all__ = [
 ]
 
 _DOOR_COLOR = "#c8a46e"
-_TRUE_COLOR = "C3"
 
-
-def _axes(ax, figsize):
-    import matplotlib.pyplot as plt
-
-    if ax is None:
-        _, ax = plt.subplots(figsize=figsize, layout="constrained")
-    return ax
 
 
 def _draw_doors(ax, doors):
@@ -93,7 +87,7 @@ def plot_belief_1d(belief, *, doors=None, true_x=None, predicted=None, ax=None, 
         predicted = as_array(predicted, "predicted", (n,))
         ax.stairs(predicted, edges, color="0.3", lw=1.2, label=r"$\overline{bel}(x)$")
     if true_x is not None:
-        ax.plot([true_x], [0], marker="^", ms=9, color=_TRUE_COLOR, clip_on=False, zorder=5,
+        ax.plot([true_x], [0], marker="^", ms=9, color=TRUTH_COLOR, clip_on=False, zorder=5,
                 transform=ax.get_xaxis_transform(), label="true position")
     ax.set_xlim(-0.5, n - 0.5)
     if ylim is None:
@@ -195,7 +189,7 @@ def plot_belief_2d(belief, *, free=None, true_xy=None, path=None, ax=None, title
         ax.plot(path[:, 0], path[:, 1], color="w", lw=1, alpha=0.8)
     if true_xy is not None:
         true_xy = as_array(true_xy, "true_xy", (2,))
-        ax.plot(true_xy[0], true_xy[1], marker="x", ms=9, mew=2.5, color=_TRUE_COLOR)
+        ax.plot(true_xy[0], true_xy[1], marker="x", ms=9, mew=2.5, color=TRUTH_COLOR)
     ax.set_xlabel("$x$ [cells]")
     ax.set_ylabel("$y$ [cells]")
     if title:
@@ -456,8 +450,6 @@ def plot_motion_samples(samples, *, start, end=None, titles=None, densities=None
     """
     import matplotlib.pyplot as plt
 
-    from . import _core
-
     samples = [as_array(s, "samples", (None, 3)) for s in samples]
     start = as_array(start, "start", (3,))
     n = len(samples)
@@ -511,8 +503,6 @@ def plot_likelihood_panels(likelihoods, extent, *, landmarks, pose=None, titles=
     """
     import matplotlib.pyplot as plt
 
-    from . import _core
-
     n = len(likelihoods)
     _, axes = plt.subplots(1, n, figsize=(size * n, size + 0.3), layout="constrained", squeeze=False)
     axes = axes[0]
@@ -550,8 +540,6 @@ def plot_map_and_field(grid, field, *, sigma_hit, xlim=None, ylim=None, size=5.5
     ndarray of matplotlib.axes.Axes, shape (2,)
     """
     import matplotlib.pyplot as plt
-
-    from . import _core
 
     _, axes = plt.subplots(1, 2, figsize=(2 * size, size * 0.75), layout="constrained")
     _core.plot_grid(grid, ax=axes[0])

@@ -2,7 +2,8 @@
 landmarks, occupancy grids and animations.
 
 matplotlib is imported inside the functions only. Every function draws on the
-given ``ax`` (or the current axes when ``ax`` is None) and returns it; extra
+given ``ax`` (or on a new figure when ``ax`` is None, as everywhere in
+``slamlib.viz``) and returns it; extra
 keyword arguments go to the underlying matplotlib call.
 
 References
@@ -18,7 +19,7 @@ import re
 
 import numpy as np
 
-from .._checks import as_array, as_scalar
+from .._checks import as_array, as_covariance, as_scalar
 
 __all__ = [
     "plot_pose",
@@ -31,12 +32,18 @@ __all__ = [
 ]
 
 
-def _ax(ax):
+#: The colour of ground truth (true paths, true landmarks, true positions) in every figure.
+TRUTH_COLOR = "k"
+
+
+def _axes(ax, figsize=None):
+    """`ax`, or the axes of a new figure when `ax` is None (the one meaning of ``ax=None`` in ``viz``)."""
     if ax is None:
         import matplotlib.pyplot as plt
 
-        ax = plt.gca()
+        _, ax = plt.subplots(figsize=figsize, layout="constrained")
     return ax
+
 
 
 def plot_pose(x, ax=None, *, size=None, **kw):
@@ -47,7 +54,7 @@ def plot_pose(x, ax=None, *, size=None, **kw):
     x : ndarray, shape (3,)
         Pose ``[x, y, theta]``.
     ax : matplotlib.axes.Axes, optional
-        Axes to draw on (default: current axes).
+        Axes to draw on (default: a new figure).
     size : float, keyword-only
         Length of the triangle in data units (default: 3 % of the larger
         axis span, at least 0.1).
@@ -65,7 +72,7 @@ def plot_pose(x, ax=None, *, size=None, **kw):
     from matplotlib.patches import Polygon
 
     x = as_array(x, "x", (3,))
-    ax = _ax(ax)
+    ax = _axes(ax)
     if size is None:
         span = max(np.ptp(ax.get_xlim()), np.ptp(ax.get_ylim())) if ax.has_data() else 3.0
         size = max(0.03 * span, 0.1)
@@ -89,7 +96,7 @@ def plot_trajectory(xs, ax=None, **kw):
     xs : ndarray, shape (T, 3) or (T, 2)
         Poses or positions.
     ax : matplotlib.axes.Axes, optional
-        Axes to draw on.
+        Axes to draw on (default: a new figure).
     **kw
         Passed to ``ax.plot`` (``color``, ``label``, ``lw``, ...).
 
@@ -104,7 +111,7 @@ def plot_trajectory(xs, ax=None, **kw):
     xs = as_array(xs, "xs", ndim=2)
     if xs.shape[1] not in (2, 3):
         raise ValueError(f"xs must have shape (T, 3) or (T, 2), got {xs.shape}")
-    ax = _ax(ax)
+    ax = _axes(ax)
     kw.setdefault("lw", 1.2)
     ax.plot(xs[:, 0], xs[:, 1], **kw)
     ax.set_aspect("equal", adjustable="datalim")
@@ -123,7 +130,7 @@ def plot_covariance_ellipse(mean, cov, n_sigma=2.0, ax=None, *, n_std=None, **kw
     n_sigma : float
         Mahalanobis radius: the ellipse ``(p - mean)^T cov^-1 (p - mean) = n_sigma^2``.
     ax : matplotlib.axes.Axes, optional
-        Axes to draw on.
+        Axes to draw on (default: a new figure).
     n_std : float, keyword-only
         Alias of `n_sigma`.
     **kw
@@ -139,8 +146,6 @@ def plot_covariance_ellipse(mean, cov, n_sigma=2.0, ax=None, *, n_std=None, **kw
     """
     from matplotlib.patches import Ellipse
 
-    from .._checks import as_covariance
-
     mean = as_array(mean, "mean", (2,))
     cov = as_covariance(cov, "cov", 2)
     k = as_scalar(n_sigma if n_std is None else n_std, "n_sigma" if n_std is None else "n_std", positive=True)
@@ -148,7 +153,7 @@ def plot_covariance_ellipse(mean, cov, n_sigma=2.0, ax=None, *, n_std=None, **kw
     vals = np.clip(vals, 0.0, None)
     angle = np.degrees(np.arctan2(vecs[1, 1], vecs[0, 1]))
     width, height = 2 * k * np.sqrt(vals[1]), 2 * k * np.sqrt(vals[0])
-    ax = _ax(ax)
+    ax = _axes(ax)
     color = kw.pop("color", "C0")
     kw.setdefault("edgecolor", color)
     kw.setdefault("facecolor", "none")
@@ -169,7 +174,7 @@ def plot_particles(particles, weights=None, ax=None, *, arrows=False, **kw):
     weights : ndarray, shape (M,), optional
         Non-negative weights; marker areas are proportional to them.
     ax : matplotlib.axes.Axes, optional
-        Axes to draw on.
+        Axes to draw on (default: a new figure).
     arrows : bool, keyword-only
         Also draw short heading ticks (``(M, 3)`` particles only).
     **kw
@@ -187,7 +192,7 @@ def plot_particles(particles, weights=None, ax=None, *, arrows=False, **kw):
     if p.shape[1] not in (2, 3):
         raise ValueError(f"particles must have shape (M, 3) or (M, 2), got {p.shape}")
     M = p.shape[0]
-    ax = _ax(ax)
+    ax = _axes(ax)
     if weights is not None:
         w = as_array(weights, "weights", (M,))
         if np.any(w < 0):
@@ -218,7 +223,7 @@ def plot_landmarks(landmarks, ax=None, labels=False, **kw):
     landmarks : ndarray, shape (N, 2)
         Landmark positions.
     ax : matplotlib.axes.Axes, optional
-        Axes to draw on.
+        Axes to draw on (default: a new figure).
     labels : bool
         Write each landmark's index (0-based) beside it.
     **kw
@@ -233,7 +238,7 @@ def plot_landmarks(landmarks, ax=None, labels=False, **kw):
     Thrun, Burgard & Fox (2005), Sec. 6.2 (feature-based maps).
     """
     lm = as_array(landmarks, "landmarks", (None, 2))
-    ax = _ax(ax)
+    ax = _axes(ax)
     kw.setdefault("marker", "*")
     kw.setdefault("s", 90)
     kw.setdefault("color", "k")
@@ -256,7 +261,7 @@ def plot_grid(grid, ax=None, *, unknown_color="#c8d8e8", **kw):
         The map; drawn with ``origin="lower"`` and the grid's ``extent`` so
         that x runs right and y up.
     ax : matplotlib.axes.Axes, optional
-        Axes to draw on.
+        Axes to draw on (default: a new figure).
     unknown_color : color, keyword-only
         Colour of unknown (NaN) cells.
     **kw
@@ -276,7 +281,7 @@ def plot_grid(grid, ax=None, *, unknown_color="#c8d8e8", **kw):
 
     if not isinstance(grid, OccupancyGrid):
         raise TypeError(f"grid must be an OccupancyGrid, got {type(grid).__name__}")
-    ax = _ax(ax)
+    ax = _axes(ax)
     cmap = mpl.colormaps["gray_r"].with_extremes(bad=unknown_color)
     kw.setdefault("cmap", cmap)
     kw.setdefault("vmin", 0.0)

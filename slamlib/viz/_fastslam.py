@@ -10,6 +10,8 @@ from __future__ import annotations
 import numpy as np
 
 from .._checks import as_array, as_scalar
+from . import _core
+from ._core import TRUTH_COLOR, _axes
 
 __all__ = [
     "plot_fastslam_particles",
@@ -19,17 +21,9 @@ __all__ = [
     "plot_fastslam_vs_ekf",
 ]
 
-_TRUE_COLOR = "C3"
 _EST_COLOR = "C0"
 _BEST_COLOR = "C2"
 
-
-def _axes(ax, figsize):
-    import matplotlib.pyplot as plt
-
-    if ax is None:
-        _, ax = plt.subplots(figsize=figsize, layout="constrained")
-    return ax
 
 
 def _panels(axes, n, figsize):
@@ -106,8 +100,6 @@ def plot_fastslam_particles(state, *, landmarks=None, x_true=None, n_std=2.0, ma
     Thrun, Burgard & Fox (2005), Chapter 13 (particles, each with its own
     map); course text, Eq. 17.4.
     """
-    from . import _core
-
     state = _check_state(state)
     ax = _axes(ax, (6.0, 6.0))
     w = np.exp(state.log_weights - state.log_weights.max())
@@ -116,7 +108,7 @@ def plot_fastslam_particles(state, *, landmarks=None, x_true=None, n_std=2.0, ma
         _core.plot_landmarks(as_array(landmarks, "landmarks", (None, 2)), ax=ax)
     if x_true is not None:
         xt = as_array(x_true, "x_true", (None, 3))
-        ax.plot(xt[:, 0], xt[:, 1], color=_TRUE_COLOR, lw=1.0, label="true path")
+        ax.plot(xt[:, 0], xt[:, 1], color=TRUTH_COLOR, lw=1.0, label="true path")
     shown = order[:max(int(max_maps), 1)]
     pts = np.concatenate([state.mu[k][state.seen[k]] for k in shown])
     ax.scatter(pts[:, 0], pts[:, 1], s=4, color=_EST_COLOR, alpha=0.5, lw=0, zorder=3,
@@ -177,11 +169,9 @@ def plot_fastslam_run(run, result, *, n_std=2.0, label="FastSLAM", ax=None, titl
     ----------
     Thrun, Burgard & Fox (2005), Chapter 13; course text, Algorithm 3.
     """
-    from . import _core
-
     ax = _axes(ax, (6.0, 6.0))
     _core.plot_landmarks(run.landmarks, ax=ax)
-    ax.plot(run.x_true[:, 0], run.x_true[:, 1], color=_TRUE_COLOR, lw=1.2, label="true path")
+    ax.plot(run.x_true[:, 0], run.x_true[:, 1], color=TRUTH_COLOR, lw=1.2, label="true path")
     x = as_array(result.x_est, "result.x_est", (None, 3))
     p = as_array(result.path_best, "result.path_best", x.shape)
     ax.plot(x[:, 0], x[:, 1], color=_EST_COLOR, lw=1.2, ls="--", label=f"{label}: weighted mean")
@@ -310,7 +300,7 @@ def plot_weight_comparison(pose, mu, w_S, w_Q, *, landmark=None, lam=None, ess_S
         sc = ax.scatter(mu[order, 0], mu[order, 1], c=wn[order], s=5, cmap="viridis", vmin=0, vmax=1, lw=0)
         if landmark is not None:
             lm = as_array(landmark, "landmark", (2,))
-            ax.plot(*lm, marker="*", color=_TRUE_COLOR, ms=12, ls="none", label="true landmark")
+            ax.plot(*lm, marker="*", color=TRUTH_COLOR, ms=12, ls="none", label="true landmark")
             ax.legend(fontsize=8, loc="upper left")
         ess = w.sum() ** 2 / (w**2).sum() / w.size
         ax.set_title(f"{name}\nESS / M = {ess:.2f}", fontsize=9)
@@ -366,12 +356,10 @@ def plot_fastslam_vs_ekf(run, fastslam, ekf, *, labels=("FastSLAM", "EKF SLAM"),
     Thrun, Burgard & Fox (2005), Table 10.1 and Table 13.1; course text,
     Algorithms 1 and 3.
     """
-    from . import _core
-
     axes = _panels(axes, 2, (11.5, 4.6))
     ax = axes[0]
     _core.plot_landmarks(run.landmarks, ax=ax)
-    ax.plot(run.x_true[:, 0], run.x_true[:, 1], color="k", lw=1.2, label="true path")
+    ax.plot(run.x_true[:, 0], run.x_true[:, 1], color=TRUTH_COLOR, lw=1.2, label="true path")
     xf = as_array(fastslam.x_est, "fastslam.x_est", (None, 3))
     xe = as_array(ekf.x, "ekf.x", xf.shape)
     ax.plot(xf[:, 0], xf[:, 1], color="C0", lw=1.1, ls="--", label=labels[0])

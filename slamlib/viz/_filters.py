@@ -15,6 +15,8 @@ from __future__ import annotations
 import numpy as np
 
 from .._checks import as_array, as_scalar
+from . import _core
+from ._core import TRUTH_COLOR, _axes
 
 __all__ = [
     "plot_estimate_band",
@@ -29,15 +31,7 @@ __all__ = [
     "plot_resampling_cost",
 ]
 
-_TRUE_COLOR = "k"
 
-
-def _axes(ax, figsize):
-    import matplotlib.pyplot as plt
-
-    if ax is None:
-        _, ax = plt.subplots(figsize=figsize, layout="constrained")
-    return ax
 
 
 def plot_estimate_band(t, mean, std, *, truth=None, measurements=None, n_std=2.0, label="estimate", color="C0",
@@ -81,7 +75,7 @@ def plot_estimate_band(t, mean, std, *, truth=None, measurements=None, n_std=2.0
         ax.plot(t, measurements, ".", color="0.55", ms=4, label="measurements")
     if truth is not None:
         truth = as_array(truth, "truth", t.shape)
-        ax.plot(t, truth, color=_TRUE_COLOR, lw=1.2, label="truth")
+        ax.plot(t, truth, color=TRUTH_COLOR, lw=1.2, label="truth")
     ax.fill_between(t, mean - n_std * std, mean + n_std * std, color=color, alpha=0.15, lw=0,
                     label=rf"{label} $\pm{n_std:g}\sigma$")
     for edge in (mean - n_std * std, mean + n_std * std):
@@ -268,8 +262,6 @@ def plot_ekf_run(run, mu, Sigma, *, every=10, n_std=2.0, ids=None, z=None, dead_
     -------
     matplotlib.axes.Axes
     """
-    from . import _core
-
     mu = as_array(mu, "mu", (None, 3))
     Sigma = as_array(Sigma, "Sigma", (mu.shape[0], 3, 3))
     ax = _axes(ax, (6.5, 6.5))
@@ -281,7 +273,7 @@ def plot_ekf_run(run, mu, Sigma, *, every=10, n_std=2.0, ids=None, z=None, dead_
         ax.plot(dr_mu[:, 0], dr_mu[:, 1], color="C1", lw=1.0, ls=":", label="dead reckoning")
         for k in steps:
             _core.plot_covariance_ellipse(dr_mu[k, :2], dr_S[k, :2, :2], n_std=n_std, ax=ax, color="C1", lw=0.8)
-    ax.plot(run.x_true[:, 0], run.x_true[:, 1], color=_TRUE_COLOR, lw=1.2, label="true path")
+    ax.plot(run.x_true[:, 0], run.x_true[:, 1], color=TRUTH_COLOR, lw=1.2, label="true path")
     ax.plot(mu[:, 0], mu[:, 1], color="C0", lw=1.2, ls="--", label="EKF mean")
     for k in steps:
         _core.plot_covariance_ellipse(mu[k, :2], Sigma[k, :2, :2], n_std=n_std, ax=ax, color="C0", lw=1.0)
@@ -332,8 +324,6 @@ def plot_linearized_motion(samples, mean, cov, *, start=None, n_std=2.0, ax=None
     -------
     matplotlib.axes.Axes
     """
-    from . import _core
-
     samples = as_array(samples, "samples", (None, 3))
     mean = as_array(mean, "mean", (3,))
     cov = as_array(cov, "cov", (3, 3))
@@ -376,11 +366,9 @@ def plot_particle_snapshots(run, snapshots, *, estimate=None, ax=None, title=Non
     -------
     matplotlib.axes.Axes
     """
-    from . import _core
-
     ax = _axes(ax, (6.5, 6.5))
     _core.plot_landmarks(run.landmarks, ax=ax)
-    ax.plot(run.x_true[:, 0], run.x_true[:, 1], color=_TRUE_COLOR, lw=1.2, label="true path")
+    ax.plot(run.x_true[:, 0], run.x_true[:, 1], color=TRUTH_COLOR, lw=1.2, label="true path")
     if estimate is not None:
         est = as_array(estimate, "estimate", (None, 3))
         ax.plot(est[:, 0], est[:, 1], color="C3", lw=1.2, ls="--", label="particle-filter mean")

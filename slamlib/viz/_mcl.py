@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._checks import as_array, as_scalar
-from ._core import _ax, animate, plot_grid, plot_particles, plot_pose
+from ._core import _axes, animate, plot_grid, plot_particles, plot_pose
 
 __all__ = [
     "plot_mcl_particles",
@@ -53,7 +53,7 @@ def plot_mcl_particles(grid, particles, ax=None, *, mean=None, center=None, half
     particles : MCLState or ndarray, shape (M, 3)
         The particle set (weights are not drawn: after resampling they are equal).
     ax : matplotlib.axes.Axes, optional
-        Axes to draw on.
+        Axes to draw on (default: a new figure).
     mean : ndarray, shape (3,), keyword-only, optional
         The filter's estimate, drawn as a pose.
     center : ndarray, shape (2,) or (3,), keyword-only, optional
@@ -77,7 +77,7 @@ def plot_mcl_particles(grid, particles, ax=None, *, mean=None, center=None, half
     occupancy grid map).
     """
     poses = _poses_of(particles)
-    ax = _ax(ax)
+    ax = _axes(ax)
     plot_grid(grid, ax)
     step = max(1, int(np.ceil(poses.shape[0] / max(1, int(max_points)))))
     plot_particles(poses[::step], ax=ax, color=color, s=3.0, alpha=0.5, zorder=3)
@@ -108,7 +108,7 @@ def plot_scan_endpoints(pose, ranges, angles, ax=None, *, z_max=np.inf, sensor_o
     angles : ndarray, shape (K,)
         Beam angles in the laser frame [rad].
     ax : matplotlib.axes.Axes, optional
-        Axes to draw on.
+        Axes to draw on (default: a new figure).
     z_max : float, keyword-only
         Readings at or beyond it are not drawn.
     sensor_offset : float, keyword-only
@@ -130,7 +130,7 @@ def plot_scan_endpoints(pose, ranges, angles, ax=None, *, z_max=np.inf, sensor_o
 
     pose = as_array(pose, "pose", (3,))
     pts = scan_endpoints(pose, ranges, angles, z_max=z_max, sensor_offset=sensor_offset)
-    ax = _ax(ax)
+    ax = _axes(ax)
     if rays:
         s = pose[:2] + sensor_offset * np.array([np.cos(pose[2]), np.sin(pose[2])])
         for p in pts:
@@ -208,7 +208,7 @@ def plot_augmented_averages(result, ax=None):
     ----------
     Thrun, Burgard & Fox (2005), Table 8.3 lines 8-13.
     """
-    ax = _ax(ax)
+    ax = _axes(ax)
     t = result.t - result.t[0]
     ax.plot(t, result.w_avg, color="0.6", lw=0.8, label=r"$w_\mathrm{avg}$")
     ax.plot(t, result.w_slow, color="C0", label=r"$w_\mathrm{slow}$")
@@ -234,7 +234,7 @@ def plot_position_error(t, errors, ax=None, *, ylabel="distance [m]", log=True):
     errors : dict of str to ndarray, shape (S_i,)
         Errors [m] of each run, keyed by label.
     ax : matplotlib.axes.Axes, optional
-        Axes to draw on.
+        Axes to draw on (default: a new figure).
     ylabel : str, keyword-only
         Label of the y axis.
     log : bool, keyword-only
@@ -248,7 +248,7 @@ def plot_position_error(t, errors, ax=None, *, ylabel="distance [m]", log=True):
     ----------
     Thrun, Burgard & Fox (2005), Fig. 8.13 (localization error of MCL variants).
     """
-    ax = _ax(ax)
+    ax = _axes(ax)
     for k, (lab, e) in enumerate(errors.items()):
         tt = t[lab] if isinstance(t, dict) else t
         tt = as_array(tt, "t", ndim=1)

@@ -11,10 +11,10 @@ from __future__ import annotations
 import numpy as np
 
 from .._checks import as_array, as_covariance
+from ._core import TRUTH_COLOR, _axes
 
 __all__ = ["plot_sightings", "plot_real_trajectories", "plot_error_over_time", "plot_residual_histograms"]
 
-_TRUTH = "0.15"
 _LANDMARK = "C3"
 #: Colours reserved for methods that appear in several figures of a chapter.
 _RESERVED = {"dead reckoning": "C1"}
@@ -41,13 +41,6 @@ def _colors(names, colors):
 def _legend_outside(ax):
     ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=8, borderaxespad=0.0)
 
-
-def _axes(ax, figsize=(6.5, 6.0)):
-    import matplotlib.pyplot as plt
-
-    if ax is None:
-        _, ax = plt.subplots(figsize=figsize, layout="constrained")
-    return ax
 
 
 def _estimates(estimates, name="estimates"):
@@ -101,7 +94,7 @@ def plot_sightings(run, *, ax=None, max_rays=400, title=None):
     ax = _axes(ax, figsize=(7.0, 6.5))
     counts = [len(i) for i in run.ids]
     n = int(sum(counts))
-    ax.plot(x_true[:, 0], x_true[:, 1], color=_TRUTH, lw=0.8, label="Vicon path")
+    ax.plot(x_true[:, 0], x_true[:, 1], color=TRUTH_COLOR, lw=0.8, label="Vicon path")
     if n:
         Z = np.concatenate([np.reshape(z, (-1, 2)) for z in run.z])
         step = np.repeat(np.arange(len(counts)), counts)
@@ -171,7 +164,7 @@ def plot_real_trajectories(x_true, estimates, *, landmarks=None, maps=None, alig
         raise ValueError(f"maps has methods without an estimate: {sorted(unknown)}")
     col = _colors(list(est), colors)
     ax = _axes(ax, figsize=(7.0, 6.5))
-    ax.plot(x_true[:, 0], x_true[:, 1], color=_TRUTH, lw=1.6, label="Vicon")
+    ax.plot(x_true[:, 0], x_true[:, 1], color=TRUTH_COLOR, lw=1.6, label="Vicon")
     for name, x in est.items():
         c = col[name]
         if x.shape != x_true.shape:

@@ -10,6 +10,8 @@ from __future__ import annotations
 import numpy as np
 
 from .._checks import as_array
+from . import _core
+from ._core import TRUTH_COLOR, _axes
 
 __all__ = [
     "plot_graphical_model",
@@ -23,16 +25,8 @@ __all__ = [
     "plot_step_times",
 ]
 
-_TRUE_COLOR = "C3"
 _EST_COLOR = "C0"
 
-
-def _axes(ax, figsize):
-    import matplotlib.pyplot as plt
-
-    if ax is None:
-        _, ax = plt.subplots(figsize=figsize, layout="constrained")
-    return ax
 
 
 # --------------------------------------------------------------------------- graphical models
@@ -336,12 +330,10 @@ def plot_slam_map(result, run=None, *, n_std=2.0, every=0, ax=None, title=None, 
     ----------
     Thrun, Burgard & Fox (2005), Sec. 10.2, Fig. 10.3.
     """
-    from . import _core
-
     ax = _axes(ax, (6.0, 6.0))
     if run is not None:
         _core.plot_landmarks(run.landmarks, ax=ax, label="true landmarks", s=70)
-        ax.plot(run.x_true[:, 0], run.x_true[:, 1], color=_TRUE_COLOR, lw=1.2, label="true path")
+        ax.plot(run.x_true[:, 0], run.x_true[:, 1], color=TRUTH_COLOR, lw=1.2, label="true path")
     x = np.asarray(result.x)
     ax.plot(x[:, 0], x[:, 1], color=_EST_COLOR, lw=1.2, ls="--", label="estimated path")
     if every:
@@ -496,7 +488,7 @@ def plot_landmark_counts(results, labels, *, true_count=None, dt=1.0, ax=None, t
         ax.step(np.arange(n.size) * dt, n, where="post", color=f"C{k}", lw=1.4, label=lab)
     if true_count is not None:
         c = np.asarray(true_count)
-        ax.step(np.arange(c.size) * dt, c, where="post", color="k", lw=1.0, ls=":", label="true landmarks seen")
+        ax.step(np.arange(c.size) * dt, c, where="post", color=TRUTH_COLOR, lw=1.0, ls=":", label="true landmarks seen")
     ax.set_xlabel("time [s]" if dt != 1.0 else "step")
     ax.set_ylabel("landmarks in the map")
     ax.legend(fontsize=8)
