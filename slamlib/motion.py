@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._checks import as_array, as_poses, as_scalar, check_batch, check_rng
+from ._checks import as_array, as_poses, as_scalar, as_vector, check_batch, check_rng
 import math
 
 from .angles import _wrap1, wrap_angle
@@ -204,17 +204,10 @@ def velocity_motion(x, u, dt):
     Thrun, Burgard & Fox (2005), Table 5.3 (without noise), Eq. 5.9;
     Table 7.2 lines 2-4 (``G``, ``V``).
     """
-    x = as_array(x, "x", ndim=range(1, 33))
-    u = as_array(u, "u", ndim=range(1, 33))
-    if x.shape[-1] != 3:
-        raise ValueError(f"x must have shape (3,) or (..., 3), got {x.shape}")
-    if u.shape[-1] != 2:
-        raise ValueError(f"u must have shape (2,) or (..., 2), got {u.shape}")
+    x = as_poses(x, "x", batched=True)
+    u = as_vector(u, "u", 2)
     dt = as_scalar(dt, "dt", nonnegative=True)
-    try:
-        np.broadcast_shapes(x.shape[:-1], u.shape[:-1])
-    except ValueError:
-        raise ValueError(f"x {x.shape} and u {u.shape} do not broadcast over leading axes") from None
+    check_batch((x, 1, "x"), (u, 1, "u"))
     return _arc(x, u, dt)
 
 
@@ -239,9 +232,7 @@ def velocity_noise_cov(u, alpha):
     ----------
     Thrun, Burgard & Fox (2005), Table 7.2 line 5.
     """
-    u = as_array(u, "u", ndim=range(1, 33))
-    if u.shape[-1] != 2:
-        raise ValueError(f"u must have shape (2,) or (..., 2), got {u.shape}")
+    u = as_vector(u, "u", 2)
     a = as_array(alpha, "alpha", (4,), nonnegative=True)
     v2, w2 = u[..., 0] ** 2, u[..., 1] ** 2
     M = np.zeros(u.shape[:-1] + (2, 2))
@@ -481,9 +472,7 @@ def sample_motion_model_odometry(x, u, alpha, *, rng):
     ----------
     Thrun, Burgard & Fox (2005), Table 5.6.
     """
-    x = as_array(x, "x", ndim=(1, 2))
-    if x.shape[-1] != 3:
-        raise ValueError(f"x must have shape (3,) or (M, 3), got {x.shape}")
+    x = as_poses(x, "x", ndim=(1, 2))
     u = as_array(u, "u", (3,))
     a = as_array(alpha, "alpha", (4,), nonnegative=True)
     check_rng(rng)
