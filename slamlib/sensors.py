@@ -26,7 +26,7 @@ import numpy as np
 from scipy import ndimage
 from scipy.special import ndtr
 
-from ._checks import as_array, as_poses, as_scalar, check_type
+from ._checks import as_array, as_poses, as_scalar, as_vector, check_batch, check_type
 from .angles import _wrap1, wrap_angle
 from .maps import OccupancyGrid
 
@@ -44,19 +44,6 @@ __all__ = [
 #: Ranges below this (metres) make the landmark Jacobians undefined.
 MIN_RANGE = 1e-12
 _LOG_2PI = float(np.log(2.0 * np.pi))
-
-
-def _last_axis(arr, name, n):
-    if arr.ndim < 1 or arr.shape[-1] != n:
-        raise ValueError(f"{name} must have shape ({n},) or (..., {n}), got {arr.shape}")
-    return arr
-
-
-def _broadcast(a, b, name_a, name_b):
-    try:
-        return np.broadcast_shapes(a.shape[:-1], b.shape[:-1])
-    except ValueError:
-        raise ValueError(f"{name_a} {a.shape} and {name_b} {b.shape} do not broadcast over leading axes") from None
 
 
 # --------------------------------------------------------------------------- landmarks
@@ -90,9 +77,9 @@ def landmark_measurement(x, m):
     ----------
     Thrun, Burgard & Fox (2005), Eq. 6.40 and Table 7.2 lines 11-13.
     """
-    x = _last_axis(as_array(x, "x", ndim=range(1, 33)), "x", 3)
-    m = _last_axis(as_array(m, "m", ndim=range(1, 33)), "m", 2)
-    _broadcast(x, m, "x", "m")
+    x = as_poses(x, "x", batched=True)
+    m = as_vector(m, "m", 2)
+    check_batch((x, 1, "x"), (m, 1, "m"))
     return _landmark_measurement(x, m)
 
 
@@ -171,9 +158,9 @@ def landmark_from_measurement(x, z):
     ----------
     Thrun, Burgard & Fox (2005), Table 10.1 line 10 (inverse of Eq. 6.40).
     """
-    x = _last_axis(as_array(x, "x", ndim=range(1, 33)), "x", 3)
-    z = _last_axis(as_array(z, "z", ndim=range(1, 33)), "z", 2)
-    shape = _broadcast(x, z, "x", "z")
+    x = as_poses(x, "x", batched=True)
+    z = as_vector(z, "z", 2)
+    shape = check_batch((x, 1, "x"), (z, 1, "z"))
     ang = x[..., 2] + z[..., 1]
     m = np.empty(shape + (2,))
     # mu_j = (x + r cos(phi + theta), y + r sin(phi + theta))  (Table 10.1 line 10)
@@ -446,7 +433,7 @@ class LikelihoodField:
         ----------
         Thrun, Burgard & Fox (2005), Table 6.3 line 7.
         """
-        xy = _last_axis(as_array(xy, "xy", ndim=range(1, 33)), "xy", 2)
+        xy = as_vector(xy, "xy", 2)
         return self._lookup(xy)
 
     def _lookup(self, xy):
