@@ -105,10 +105,12 @@ __all__ = [
     "landmark_graph_slam_row",
 ]
 
-#: Solver options of SuperLU: fill-reducing column ordering, and pivoting on the diagonal
-#: (``H`` is symmetric positive definite, so no pivoting is needed and the symmetric
-#: ordering is kept). Chosen by ``benchmarks/bench_graph_slam.py``.
-SPLU_OPTIONS = dict(permc_spec="COLAMD", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
+#: Solver options of SuperLU. ``H`` is symmetric positive definite, so the factorisation
+#: pivots on the diagonal (no row exchanges: in effect a sparse Cholesky factorisation) and
+#: keeps the symmetric order; the fill-reducing order is computed once per graph on its
+#: blocks (:func:`_fill_reducing_order`) and built into the system, so SuperLU factorises it
+#: as it comes ("NATURAL"). Chosen by measurement (``benchmarks/bench_graph_slam.py``).
+SPLU_OPTIONS = dict(permc_spec="NATURAL", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
 #: Kernel widths (on the Mahalanobis distance ``sqrt(s)``) used when ``robust_scale`` is None:
 #: the square root of the 95 % quantile of the chi-square distribution with the edge's dimension.
 DEFAULT_ROBUST_SCALE = {2: math.sqrt(_chi2_dist.ppf(0.95, 2)), 3: math.sqrt(_chi2_dist.ppf(0.95, 3))}
@@ -359,10 +361,10 @@ def gauss_newton_step(X, edges, Z, Omega):
     """
     X, edges, Z, Omega = _check_pose_graph(X, edges, Z, Omega)
     _require_connected(X.shape[0], edges, (0,))
-    layout = _Layout(3 * X.shape[0], [(3 * edges[:, 0], 3, 3 * edges[:, 1], 3)], fixed_vars=(0, 1, 2))
+    layout = _Layout(3 * X.shape[0], [(3 * edges[:, 0], 3, 3 * edges[:, 1], 3)], fixed_vars=(0, 1, 2), order=True)
     e, A, B = _se2_edges(X[edges[:, 0]], X[edges[:, 1]], Z)
-    H, b = layout.assemble([(A, B, e, Omega)])
-    dx = splu(H, **SPLU_OPTIONS).solve(-b)  # H dx = -b  (Grisetti et al. 2010, Algorithm 1 line 13)
+    data, b = layout.values([(A, B, e, Omega)])
+    dx = layout.solve(data, -b)  # H dx = -b  (Grisetti et al. 2010, Algorithm 1 line 13)
     return _update_poses(X, layout.expand(dx))
 
 
@@ -476,14 +478,15 @@ class _Layout:
     ``H`` by one ``bincount`` (entries of fixed variables go to a dump slot).
     """
 
-    def __init__(self, n_var, terms, fixed_vars):
+    def __init__(self, n_var, terms, fixed_vars, *, order=False):
         free = np.ones(n_var, dtype=bool)
         free[list(fixed_vars)] = False
         self.n_var = n_var
         self.free_idx = np.flatnonzero(free)
-        new = np.full(n_var, -1, dtype=np.int64)
-        new[self.free_idx] = np.arange(self.free_idx.size)
         n = self.n = int(self.free_idx.size)
+        new = np.full(n_var, -1, dtype=np.int64)
+        new[self.free_idx] = _fill_reducing_order(n_var, terms, free) if order else np.arange(n)
+        self.new = new  # variable -> row of the reduced system (-1 for fixed variables)
         rows, cols, brow = [], [], []
         for oa, p, ob, q in terms:
             va = np.asarray(oa, dtype=np.int64)[:, None] + np.arange(p)  # (E, p) variable indices
@@ -531,10 +534,43 @@ class _Layout:
         return self.matrix(data), b
 
     def expand(self, dx):
-        """A step over the free variables as a step over all variables (zeros where fixed)."""
+        """A step over the free variables (system order) as a step over all variables (zeros where fixed)."""
         out = np.zeros(self.n_var)
-        out[self.free_idx] = dx
+        out[self.free_idx] = dx[self.new[self.free_idx]]
         return out
+
+    def solve(self, data, rhs):
+        """``H^-1 rhs`` by a sparse LU factorisation of ``H`` (system order)."""
+        return splu(self.matrix(data), **SPLU_OPTIONS).solve(rhs)
+
+
+def _fill_reducing_order(n_var, terms, free):
+    """Position of each free variable in a fill-reducing elimination order.
+
+    The order is computed once per graph on the graph of *variable blocks*
+    (poses, landmarks), which has the sparsity pattern of ``H`` with each
+    block shrunk to one entry: minimum-degree ordering on ``A^T + A`` (SuperLU's
+    ``MMD_AT_PLUS_A``), blocks then expanded to their variables. Factorising the
+    permuted ``H`` in natural order then needs no ordering per iteration.
+    """
+    # blocks: a block starts at every offset a term uses; the variables of a block are contiguous
+    starts = np.unique(np.concatenate([np.asarray(o, dtype=np.int64) for t in terms for o in (t[0], t[2])]))
+    block_of = np.searchsorted(starts, np.arange(n_var), side="right") - 1
+    nb = starts.size
+    ea = np.concatenate([block_of[np.asarray(t[0], dtype=np.int64)] for t in terms])
+    eb = np.concatenate([block_of[np.asarray(t[2], dtype=np.int64)] for t in terms])
+    r = np.concatenate([ea, eb, np.arange(nb)])
+    c = np.concatenate([eb, ea, np.arange(nb)])
+    val = np.concatenate([np.ones(2 * ea.size), np.full(nb, 4.0 * ea.size + 1.0)])  # diagonally dominant
+    G = sp.csc_matrix((val, (r, c)), shape=(nb, nb))
+    rank = splu(G, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                options=dict(SymmetricMode=True)).perm_c  # rank[block] = its position
+    # variables sorted by (rank of their block, offset inside it); fixed variables dropped
+    var = np.flatnonzero(free)
+    order = var[np.lexsort((var, rank[block_of[var]]))]
+    pos = np.empty(n_var, dtype=np.int64)
+    pos[order] = np.arange(order.size)
+    return pos[var]
 
 
 def _update_poses(X, dx):
@@ -826,7 +862,7 @@ class PoseGraphResult(NamedTuple):
     weights: np.ndarray
 
 
-def _optimize(state, evaluate, layout, update, *, method, max_iter, rtol, lm_lambda=1e-5):
+def _optimize(state, evaluate, layout, update, *, method, max_iter, rtol, lm_lambda=1e-7, lm_shrink=1.0 / 3.0):
     """Gauss-Newton / Levenberg-Marquardt over a problem given by callbacks.
 
     ``evaluate(state) -> (cost, chi2, blocks, weights)`` where ``blocks`` feed
@@ -841,7 +877,7 @@ def _optimize(state, evaluate, layout, update, *, method, max_iter, rtol, lm_lam
     while not converged and it < max_iter:
         it += 1
         if method == "gn":
-            dx = splu(layout.matrix(data), **SPLU_OPTIONS).solve(-b)  # H dx = -b  (Algorithm 1 line 13)
+            dx = layout.solve(data, -b)  # H dx = -b  (Grisetti et al. 2010, Algorithm 1 line 13)
             state = update(state, layout.expand(dx))
             new_cost, chi2, blocks, weights = evaluate(state)
             converged = abs(cost - new_cost) <= rtol * cost or new_cost == 0.0
@@ -852,7 +888,7 @@ def _optimize(state, evaluate, layout, update, *, method, max_iter, rtol, lm_lam
             diag = data[layout.diag]
             # (H + lambda diag(H)) dx = -b  (Marquardt's scaling; Madsen et al. 2004, Sec. 3.2)
             damped[layout.diag] = diag + lam * diag
-            dx = splu(layout.matrix(damped), **SPLU_OPTIONS).solve(-b)
+            dx = layout.solve(damped, -b)
             cand = update(state, layout.expand(dx))
             new_cost, new_chi2, new_blocks, new_weights = evaluate(cand)
             # predicted decrease of the quadratic model: -(2 b^T dx + dx^T H dx) = dx^T (lambda D dx - b)
@@ -863,7 +899,7 @@ def _optimize(state, evaluate, layout, update, *, method, max_iter, rtol, lm_lam
                 state, cost, chi2, weights = cand, new_cost, new_chi2, new_weights
                 data, b = layout.values(new_blocks)
                 # lambda *= max(1/3, 1 - (2 gain - 1)^3), nu = 2  (Madsen et al. 2004, Eq. 3.15)
-                lam *= max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3)
+                lam *= max(lm_shrink, 1.0 - (2.0 * gain - 1.0) ** 3)
                 nu = 2.0
             else:
                 lam *= nu
@@ -884,7 +920,7 @@ def _method_args(method, max_iter, rtol):
 
 
 def optimize_pose_graph(X0, edges, Z, Omega, *, method="lm", max_iter=100, rtol=1e-9, robust=None,
-                        robust_scale=None, fixed=(0,)):
+                        robust_scale=None, fixed=(0,), lm_lambda=1e-7):
     """Maximum a posteriori poses of a pose graph by Gauss-Newton or Levenberg-Marquardt.
 
     Minimises ``sum_k rho(e_k^T Omega_k e_k)`` (``rho(s) = s`` without a robust
@@ -915,6 +951,10 @@ def optimize_pose_graph(X0, edges, Z, Omega, *, method="lm", max_iter=100, rtol=
         ``sqrt(chi2_3(0.95)) = 2.80``.
     fixed : sequence of int, keyword-only
         Poses held fixed (the gauge); default the first pose.
+    lm_lambda : float, keyword-only
+        Initial damping of Levenberg-Marquardt, relative to ``diag(H)``. Small:
+        the first step is nearly a Gauss-Newton step, and the damping grows
+        only where steps fail.
 
     Returns
     -------
@@ -942,7 +982,7 @@ def optimize_pose_graph(X0, edges, Z, Omega, *, method="lm", max_iter=100, rtol=
     fixed = _as_fixed(fixed, n)
     _require_connected(n, edges, fixed)
     fixed_vars = [3 * f + c for f in fixed for c in range(3)]
-    layout = _Layout(3 * n, [(3 * edges[:, 0], 3, 3 * edges[:, 1], 3)], fixed_vars)
+    layout = _Layout(3 * n, [(3 * edges[:, 0], 3, 3 * edges[:, 1], 3)], fixed_vars, order=True)
     ii, jj = edges[:, 0], edges[:, 1]
 
     def evaluate(X):
@@ -953,7 +993,8 @@ def optimize_pose_graph(X0, edges, Z, Omega, *, method="lm", max_iter=100, rtol=
         return float(rho.sum()), float(s.sum()), [(A, B, e, W)], w
 
     X, chi2s, costs, it, conv, w = _optimize(X0, evaluate, layout, _update_poses, method=method,
-                                             max_iter=max_iter, rtol=rtol)
+                                             max_iter=max_iter, rtol=rtol,
+                                             lm_lambda=as_scalar(lm_lambda, "lm_lambda", positive=True))
     return PoseGraphResult(X=X, chi2=chi2s, cost=costs, iterations=it, converged=conv,
                            time=time.perf_counter() - start, method=method, weights=w)
 
@@ -1000,19 +1041,18 @@ def pose_graph_marginals(result_or_X, edges, Z, Omega, *, poses, fixed=(0,), rob
             raise ValueError(f"poses holds {p}, outside 0..{n - 1}")
     _require_connected(n, edges, fixed)
     robust, k = _robust_args(robust, robust_scale, 3)
-    layout = _Layout(3 * n, [(3 * edges[:, 0], 3, 3 * edges[:, 1], 3)], [3 * f + c for f in fixed for c in range(3)])
+    layout = _Layout(3 * n, [(3 * edges[:, 0], 3, 3 * edges[:, 1], 3)], [3 * f + c for f in fixed for c in range(3)],
+                     order=True)
     e, A, B = _se2_edges(X[edges[:, 0]], X[edges[:, 1]], Z)
     w = _kernel(_chi2_terms(e, Omega), robust, k)[1]
-    H, _ = layout.assemble([(A, B, e, Omega * w[:, None, None])])
-    pos = np.full(3 * n, -1)
-    pos[layout.free_idx] = np.arange(layout.n)
+    data, _ = layout.values([(A, B, e, Omega * w[:, None, None])])
     out = np.zeros((len(sel), 3, 3))
     free_sel = [q for q, p in enumerate(sel) if p not in fixed]
     if free_sel:
-        cols = np.concatenate([pos[3 * sel[q]:3 * sel[q] + 3] for q in free_sel])
+        cols = np.concatenate([layout.new[3 * sel[q]:3 * sel[q] + 3] for q in free_sel])
         rhs = np.zeros((layout.n, cols.size))
         rhs[cols, np.arange(cols.size)] = 1.0
-        sol = splu(H, **SPLU_OPTIONS).solve(rhs)  # columns of H^-1
+        sol = layout.solve(data, rhs)  # the needed columns of H^-1
         for r, q in enumerate(free_sel):
             blk = sol[cols[3 * r:3 * r + 3], 3 * r:3 * r + 3]
             out[q] = 0.5 * (blk + blk.T)
@@ -1154,7 +1194,7 @@ def landmark_graph_errors(X, L, obs_edges, obs_Z):
 def _landmark_problem(X0, L0, odo, Zo, Wo, obs, Zl, Wl, robust, k, fixed):
     n, K = X0.shape[0], L0.shape[0]
     terms = [(3 * odo[:, 0], 3, 3 * odo[:, 1], 3), (3 * obs[:, 0], 3, 3 * n + 2 * obs[:, 1], 2)]
-    layout = _Layout(3 * n + 2 * K, terms, [3 * f + c for f in fixed for c in range(3)])
+    layout = _Layout(3 * n + 2 * K, terms, [3 * f + c for f in fixed for c in range(3)], order=True)
     oi, oj, pi, lj = odo[:, 0], odo[:, 1], obs[:, 0], obs[:, 1]
 
     def evaluate(state):
@@ -1202,7 +1242,8 @@ def landmark_graph_chi2(graph, X=None, L=None):
     return float(_chi2_terms(e1, Wo).sum() + _chi2_terms(e2, Wl).sum())
 
 
-def optimize_landmark_graph(graph, *, method="lm", max_iter=100, rtol=1e-9, robust=None, robust_scale=None):
+def optimize_landmark_graph(graph, *, method="lm", max_iter=100, rtol=1e-9, robust=None, robust_scale=None,
+                            lm_lambda=1e-7):
     """Maximum a posteriori poses and landmarks of a landmark graph (full SLAM).
 
     Minimises ``sum rho(e^T Omega e)`` over all pose-pose edges (odometry) and
@@ -1214,7 +1255,7 @@ def optimize_landmark_graph(graph, *, method="lm", max_iter=100, rtol=1e-9, robu
     ----------
     graph : LandmarkGraph
         The problem (e.g. from :func:`landmark_graph_from_run`).
-    method, max_iter, rtol, robust, robust_scale : keyword-only
+    method, max_iter, rtol, robust, robust_scale, lm_lambda : keyword-only
         As in :func:`optimize_pose_graph` (default kernel width per edge
         dimension: ``sqrt(chi2_3(0.95))`` for pose-pose, ``sqrt(chi2_2(0.95))``
         for pose-landmark edges).
@@ -1237,7 +1278,8 @@ def optimize_landmark_graph(graph, *, method="lm", max_iter=100, rtol=1e-9, robu
         {2: float(robust_scale), 3: float(robust_scale)}
     layout, evaluate, update = _landmark_problem(X0, L0, odo, Zo, Wo, obs, Zl, Wl, robust, k, (0,))
     (X, L), chi2s, costs, it, conv, _ = _optimize((X0, L0), evaluate, layout, update, method=method,
-                                                  max_iter=max_iter, rtol=rtol)
+                                                  max_iter=max_iter, rtol=rtol,
+                                                  lm_lambda=as_scalar(lm_lambda, "lm_lambda", positive=True))
     return LandmarkGraphResult(X=X, landmarks=L, chi2=chi2s, cost=costs, iterations=it, converged=conv,
                                time=time.perf_counter() - start, method=method)
 
