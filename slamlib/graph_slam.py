@@ -1521,11 +1521,19 @@ def landmark_graph_slam_row(run, *, name="graph SLAM, known", **kw):
     name : str, keyword-only
         Method name in the table.
     **kw
-        Passed to :func:`run_landmark_graph_slam`.
+        Passed to :func:`run_landmark_graph_slam`, e.g. ``robust="cauchy"``.
 
     Returns
     -------
     RunScore
+
+    Notes
+    -----
+    The default is plain least squares, the noise model the filters use. Real
+    logs with wrong sightings need a robust kernel: on MRCLAM Dataset 6 (dt =
+    0.1 s, the shipped ``M`` and ``Q``) least squares reaches an ATE of 0.10,
+    0.13, 0.92, 0.14 and 0.40 m on robots 1-5, the Cauchy kernel 0.10, 0.13,
+    0.12, 0.13 and 0.14 m.
 
     References
     ----------
