@@ -561,3 +561,14 @@ def test_graph_plots_draw():
     with pytest.raises(TypeError):
         sl.viz.plot_convergence([1, 2])
     plt.close("all")
+
+
+def test_a_consistent_graph_stops_at_its_exact_fit():
+    X, edges, Z, Omega, X0 = _ring_graph(np.random.default_rng(21), sigma=(0.0, 0.0, 0.0))
+    start = X0.copy()
+    start[1:] += np.array([0.05, -0.05, 0.02])
+    for method in ("gn", "lm"):
+        res = sl.optimize_pose_graph(start, edges, Z, Omega, method=method)
+        assert res.converged and res.iterations <= 6 and res.chi2[-1] < 1e-18 * res.chi2[0]
+        np.testing.assert_allclose(res.X[:, :2], X[:, :2], atol=1e-8)
+        np.testing.assert_allclose(sl.wrap_angle(res.X[:, 2] - X[:, 2]), 0, atol=1e-8)
