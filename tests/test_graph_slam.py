@@ -518,3 +518,57 @@ def test_sparse_factor_reproduces_H_and_reordering_reduces_fill():
     assert sl.sparse_factor(Hr).nnz < 0.2 * sl.sparse_factor(H).nnz
     with pytest.raises(ValueError, match="square"):
         sl.sparse_factor(H[:5])
+
+
+def test_landmark_graph_chi2_and_system_at_the_optimum():
+    run = _landmark_run(19)
+    g = sl.landmark_graph_from_run(run)
+    res = sl.optimize_landmark_graph(g, rtol=1e-12)
+    np.testing.assert_allclose(sl.landmark_graph_chi2(g, res.X, res.landmarks), res.chi2[-1], rtol=1e-12)
+    assert sl.landmark_graph_chi2(g) == pytest.approx(res.chi2[0], rel=1e-12)
+    H, b = sl.landmark_graph_system(g, res.X, res.landmarks)
+    n, K = g.X0.shape[0], g.L0.shape[0]
+    assert H.shape == (3 * (n - 1) + 2 * K,) * 2
+    assert abs(H - H.T).max() <= 1e-9 * abs(H).max()
+    # the gradient vanishes at the optimum (relative to its size at the start)
+    b0 = sl.landmark_graph_system(g)[1]
+    assert np.abs(b).max() < 1e-6 * np.abs(b0).max()
+    # GN and LM reach the same optimum
+    gn = sl.optimize_landmark_graph(g, method="gn", rtol=1e-12)
+    np.testing.assert_allclose(gn.X, res.X, atol=1e-6)
+    np.testing.assert_allclose(gn.landmarks, res.landmarks, atol=1e-6)
+
+
+def test_graph_plots_draw():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    X, edges, Z, Omega, X0 = _ring_graph(np.random.default_rng(20))
+    res = sl.optimize_pose_graph(X0, edges, Z, Omega)
+    ax = sl.viz.plot_pose_graph(res.X, edges, highlight=[len(edges) - 1], title="ring")
+    assert ax.get_title() == "ring" and len(ax.collections) == 1
+    axes = sl.viz.plot_pose_graphs({"guess": X0, "optimum": res.X}, edges)
+    assert len(axes) == 2
+    H, _, _ = sl.pose_graph_system(res.X, edges, Z, Omega)
+    ax = sl.viz.plot_sparsity(H, title="H")
+    assert f"{H.nnz:,} non-zeros" in ax.get_title()
+    axes = sl.viz.plot_sparsity_panels({"H": H, "L": sl.sparse_factor(H), "dense": np.ones((5, 5))})
+    assert "25 non-zeros (100 %)" in axes[2].get_title()
+    ax = sl.viz.plot_convergence({"LM": res.chi2})
+    assert ax.get_yscale() == "log"
+    with pytest.raises(TypeError):
+        sl.viz.plot_convergence([1, 2])
+    plt.close("all")
+
+
+def test_a_consistent_graph_stops_at_its_exact_fit():
+    X, edges, Z, Omega, X0 = _ring_graph(np.random.default_rng(21), sigma=(0.0, 0.0, 0.0))
+    start = X0.copy()
+    start[1:] += np.array([0.05, -0.05, 0.02])
+    for method in ("gn", "lm"):
+        res = sl.optimize_pose_graph(start, edges, Z, Omega, method=method)
+        assert res.converged and res.iterations <= 6 and res.chi2[-1] < 1e-18 * res.chi2[0]
+        np.testing.assert_allclose(res.X[:, :2], X[:, :2], atol=1e-8)
+        np.testing.assert_allclose(sl.wrap_angle(res.X[:, 2] - X[:, 2]), 0, atol=1e-8)

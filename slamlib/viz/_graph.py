@@ -139,7 +139,9 @@ def plot_sparsity(M, ax=None, *, title=None, resolution=600, tol=0.0):
         Matrices with more rows than this are drawn binned to this many pixels
         a side, a bin dark if any of its entries is non-zero.
     tol : float, keyword-only
-        Entries with ``|m_ij| <= tol * max |m|`` count as zero (for dense matrices).
+        Entries with ``|m_ij| <= tol * max |m|`` count as zero. With 0 (the
+        default) a sparse matrix shows its stored entries (its structure,
+        including entries that happen to be 0.0) and a dense one its non-zeros.
 
     Returns
     -------
@@ -154,7 +156,8 @@ def plot_sparsity(M, ax=None, *, title=None, resolution=600, tol=0.0):
     ax = _axes(ax, figsize=(4.5, 4.5))
     if sp.issparse(M):
         C = sp.coo_matrix(M)
-        keep = np.abs(C.data) > tol * (np.abs(C.data).max() if C.nnz else 0.0)
+        # the stored entries (the structure), or those above the tolerance
+        keep = np.abs(C.data) > tol * np.abs(C.data).max() if tol > 0 and C.nnz else np.ones(C.nnz, dtype=bool)
         r, c, N = C.row[keep], C.col[keep], C.shape[0]
     else:
         A = as_array(M, "M", ndim=2)
