@@ -15,7 +15,7 @@ Layers, bottom up:
 * :mod:`slamlib.viz` -- plotting (the only module that imports matplotlib)
 """
 
-from . import angles, bayes, motion, sensors, maps, sim, metrics, scoring, gaussian, particle, mcl, ekf_slam, fastslam, scan_matching
+from . import angles, bayes, motion, sensors, maps, sim, metrics, scoring, gaussian, particle, mcl, ekf_slam, fastslam, scan_matching, mapping
 from .angles import *  # noqa: F401,F403
 from .bayes import *  # noqa: F401,F403
 from .motion import *  # noqa: F401,F403
@@ -30,13 +30,14 @@ from .mcl import *  # noqa: F401,F403
 from .ekf_slam import *  # noqa: F401,F403
 from .fastslam import *  # noqa: F401,F403
 from .scan_matching import *  # noqa: F401,F403
+from .mapping import *  # noqa: F401,F403
 
 __version__ = "0.1.0"
 
 __all__ = (
     angles.__all__ + bayes.__all__ + motion.__all__ + sensors.__all__ + maps.__all__ + sim.__all__ + metrics.__all__ + scoring.__all__
     + gaussian.__all__ + particle.__all__ + mcl.__all__ + ekf_slam.__all__ + fastslam.__all__
-    + scan_matching.__all__
+    + scan_matching.__all__ + mapping.__all__
 )
 
 
