@@ -11,11 +11,14 @@ Layers, bottom up:
 * :mod:`slamlib.maps`, :mod:`slamlib.sim`, :mod:`slamlib.metrics`, :mod:`slamlib.scoring`
 * :mod:`slamlib.gaussian`, :mod:`slamlib.particle`, :mod:`slamlib.mcl` -- localization
 * :mod:`slamlib.ekf_slam`, :mod:`slamlib.fastslam` -- SLAM
+* :mod:`slamlib.graph_slam` -- full SLAM: pose graphs and landmark graphs as sparse least squares
 * :mod:`slamlib.datasets` -- loaders of the real robot logs shipped in ``slamlib/data``
 * :mod:`slamlib.viz` -- plotting (the only module that imports matplotlib)
 """
 
-from . import angles, bayes, motion, sensors, maps, sim, metrics, scoring, gaussian, particle, mcl, ekf_slam, fastslam, scan_matching, mapping
+from . import angles, bayes, motion, sensors, maps, sim, metrics, scoring, gaussian, particle, mcl, ekf_slam, fastslam
+from . import graph_slam
+from . import scan_matching, mapping
 from .angles import *  # noqa: F401,F403
 from .bayes import *  # noqa: F401,F403
 from .motion import *  # noqa: F401,F403
@@ -29,6 +32,7 @@ from .particle import *  # noqa: F401,F403
 from .mcl import *  # noqa: F401,F403
 from .ekf_slam import *  # noqa: F401,F403
 from .fastslam import *  # noqa: F401,F403
+from .graph_slam import *  # noqa: F401,F403
 from .scan_matching import *  # noqa: F401,F403
 from .mapping import *  # noqa: F401,F403
 
@@ -37,8 +41,9 @@ __version__ = "0.1.0"
 __all__ = (
     angles.__all__ + bayes.__all__ + motion.__all__ + sensors.__all__ + maps.__all__ + sim.__all__ + metrics.__all__ + scoring.__all__
     + gaussian.__all__ + particle.__all__ + mcl.__all__ + ekf_slam.__all__ + fastslam.__all__
-    + scan_matching.__all__ + mapping.__all__
 )
+__all__ += graph_slam.__all__
+__all__ += scan_matching.__all__ + mapping.__all__
 
 
 def __getattr__(name):

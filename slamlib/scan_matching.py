@@ -24,8 +24,8 @@ Frames. A pose ``[x, y, theta]`` is also the rigid transform taking points of
 its frame into the parent frame: ``p_parent = R(theta) p + [x, y]``. The
 result of ``icp(source, target)`` is the pose of the source scan's frame in the
 target scan's frame, so for scans ``i`` (target) and ``j`` (source) it is
-``X_i^-1 X_j``, the relative-pose measurement ``Z_ij`` of a pose graph
-(g2o's ``EDGE_SE2``).
+``X_i^-1 X_j`` (:func:`~slamlib.graph_slam.relative`), the relative-pose
+measurement ``Z_ij`` of a pose graph (g2o's ``EDGE_SE2``).
 
 References
 ----------
@@ -51,85 +51,9 @@ from scipy.spatial import cKDTree
 from ._checks import as_array, as_index, as_scalar
 from .angles import wrap_angle
 
-__all__ = ["icp_align", "scan_to_points", "ICPResult", "icp", "compose_pose", "relative_pose"]
+__all__ = ["icp_align", "scan_to_points", "ICPResult", "icp"]
 
 _METHODS = ("point_to_line", "point_to_point")
-
-
-# --------------------------------------------------------------------------- SE(2) helpers
-def _compose(a, b):
-    """``a (+) b``: pose `b`, given in the frame of `a`, expressed in the parent frame of `a`."""
-    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
-    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
-    out[..., 0] = a[..., 0] + c * b[..., 0] - s * b[..., 1]
-    out[..., 1] = a[..., 1] + s * b[..., 0] + c * b[..., 1]
-    out[..., 2] = wrap_angle(a[..., 2] + b[..., 2])
-    return out
-
-
-def _between(a, b):
-    """``a^-1 (+) b``: pose `b` seen from pose `a`."""
-    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
-    dx, dy = b[..., 0] - a[..., 0], b[..., 1] - a[..., 1]
-    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
-    out[..., 0] = c * dx + s * dy
-    out[..., 1] = -s * dx + c * dy
-    out[..., 2] = wrap_angle(b[..., 2] - a[..., 2])
-    return out
-
-
-def _pose_array(x, name):
-    x = as_array(x, name, ndim=range(1, 33))
-    if x.shape[-1] != 3:
-        raise ValueError(f"{name} must have shape (3,) or (..., 3), got {x.shape}")
-    return x
-
-
-def compose_pose(a, b):
-    """Compose two SE(2) poses: ``a (+) b``.
-
-    Parameters
-    ----------
-    a : ndarray, shape (..., 3)
-        Pose of a frame in the parent frame.
-    b : ndarray, shape (..., 3)
-        Pose given in the frame of `a`; broadcasts against `a`.
-
-    Returns
-    -------
-    ndarray, shape (..., 3)
-        ``[t_a + R(theta_a) t_b, wrap(theta_a + theta_b)]``, i.e. ``X_a X_b`` of
-        the homogeneous matrices.
-
-    References
-    ----------
-    Lu & Milios (1997), the compounding operator; Thrun, Burgard & Fox (2005),
-    Sec. 5.4 (relative motion).
-    """
-    return _compose(_pose_array(a, "a"), _pose_array(b, "b"))
-
-
-def relative_pose(a, b):
-    """Pose `b` seen from pose `a`: ``a^-1 (+) b``.
-
-    Parameters
-    ----------
-    a, b : ndarray, shape (..., 3)
-        Poses in a common frame; they broadcast.
-
-    Returns
-    -------
-    ndarray, shape (..., 3)
-        ``[R(theta_a)^T (t_b - t_a), wrap(theta_b - theta_a)]``, the
-        relative-pose measurement ``Z_ab`` of a pose graph; inverse of
-        :func:`compose_pose` (``compose_pose(a, relative_pose(a, b)) == b``).
-
-    References
-    ----------
-    Lu & Milios (1997), the inverse compounding operator; Grisetti et al.
-    (2010), ``t2v(X_i^-1 X_j)``.
-    """
-    return _between(_pose_array(a, "a"), _pose_array(b, "b"))
 
 
 # --------------------------------------------------------------------------- closed-form alignment

@@ -6,7 +6,8 @@ Each data set keeps its attribution in ``slamlib/data/<name>/ATTRIBUTION.md``.
 from importlib import resources
 from pathlib import Path
 
-__all__ = ["data_path", "CmuLog", "load_cmu_map", "load_cmu_log", "MRCLAMRun", "load_mrclam"]
+__all__ = ["data_path", "CmuLog", "load_cmu_map", "load_cmu_log", "MRCLAMRun", "load_mrclam",
+           "PoseGraph", "load_g2o", "load_intel", "load_m3500"]
 
 
 def data_path(*parts: str) -> Path:
@@ -21,3 +22,4 @@ def data_path(*parts: str) -> Path:
 
 from .cmu import CmuLog, load_cmu_log, load_cmu_map  # noqa: E402
 from .mrclam import MRCLAMRun, load_mrclam  # noqa: E402
+from .g2o import PoseGraph, load_g2o, load_intel, load_m3500  # noqa: E402

@@ -1,0 +1,1421 @@
+"""Graph SLAM: full SLAM as sparse nonlinear least squares.
+
+The full SLAM posterior ``p(x_{0:T}, m | z_{1:T}, u_{1:T})`` with Gaussian
+motion and measurement noise is, up to a constant, ``exp(-F/2)`` with
+
+``F(x) = sum_k e_k(x)^T Omega_k e_k(x)``,
+
+one term per *edge* (constraint) ``k``: a relative-pose measurement between two
+poses (odometry, scan matching, loop closure) or a range-bearing sighting of a
+landmark from a pose. Its maximum (the MAP estimate) minimises ``F``, a sum of
+squared Mahalanobis errors. ``F`` is what g2o and this module call ``chi2``.
+
+Edges (Grisetti et al. 2010, the formulation of g2o):
+
+* **Pose-pose** (``EDGE_SE2``): pose ``j`` measured from pose ``i`` as
+  ``z = [dx, dy, dtheta]`` with information ``Omega (3, 3)``; the error is
+  ``e = t2v(Z^-1 (X_i^-1 X_j))``, i.e.
+  ``e = [R(theta_z)^T (R(theta_i)^T (t_j - t_i) - t_z), wrap(theta_j - theta_i - theta_z)]``.
+* **Pose-landmark**: a range-bearing sighting ``z = [r, phi]`` of landmark
+  ``m`` from pose ``x``, ``e = [r_hat - r, wrap(phi_hat - phi)]`` with
+  ``[r_hat, phi_hat]`` the measurement model of :mod:`slamlib.sensors`
+  (Eq. 6.40) and ``Omega = Q^-1``.
+
+Linearising every error at the current estimate, ``e_k(x + dx) ~ e_k + J_k dx``,
+turns ``F`` into a quadratic whose minimiser solves the normal equations
+``H dx = -b`` with ``H = sum J_k^T Omega_k J_k`` and ``b = sum J_k^T Omega_k e_k``.
+Each edge touches two variables only, so ``H`` is sparse: a ``3 x 3`` block per
+pose, one off-diagonal block per edge. The edge errors and Jacobians of all
+edges are computed at once (arrays over edges, no Python loop), ``H`` and ``b``
+are assembled in coordinate (COO) form into a compressed-column matrix whose
+pattern is computed once per graph, and the system is solved by a sparse LU
+factorisation (SuperLU) with a fill-reducing column ordering (COLAMD), which
+on ``H`` (symmetric positive definite) is effectively a sparse Cholesky.
+
+Gauge freedom: ``F`` depends only on relative quantities, so moving all poses
+and landmarks together by one rigid transform leaves it unchanged and ``H`` is
+singular (rank ``3n - 3`` for a connected pose graph). The gauge is fixed by
+holding the first pose where it is (``fixed=(0,)``): its rows and columns are
+removed from the system.
+
+Two optimisers: Gauss-Newton (solve ``H dx = -b``, step, repeat) and
+Levenberg-Marquardt (solve ``(H + lambda diag(H)) dx = -b``, accept the step
+only if it lowers ``F``, adapt ``lambda`` with Nielsen's rule). Both stop when
+``F`` changes by less than ``rtol`` relative to its value, or after
+``max_iter`` iterations. Robust kernels (Huber, Cauchy) replace each squared
+error ``s_k = e_k^T Omega_k e_k`` by ``rho(s_k)``, minimised by iteratively
+reweighted least squares: each iteration scales ``Omega_k`` by
+``w_k = rho'(s_k)`` at the current estimate.
+
+References
+----------
+G. Grisetti, R. Kuemmerle, C. Stachniss, W. Burgard, "A tutorial on graph-based
+SLAM", IEEE ITS Magazine 2(4):31-43, 2010 (Eqs. 21-30, Algorithm 1).
+R. Kuemmerle, G. Grisetti, H. Strasdat, K. Konolige, W. Burgard, "g2o: A
+general framework for graph optimization", ICRA 2011. Thrun, Burgard & Fox,
+*Probabilistic Robotics* (2005), Ch. 11 (GraphSLAM, Table 11.1-11.5;
+Eq. 11.17 the full-SLAM negative log posterior). K. Madsen, H. B. Nielsen,
+O. Tingleff, *Methods for non-linear least squares problems* (2004),
+Sec. 3.2 (Levenberg-Marquardt damping rule). T. A. Davis et al., "A column
+approximate minimum degree ordering algorithm", ACM TOMS 30(3), 2004 (COLAMD).
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+import time
+from typing import NamedTuple
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse import csgraph
+from scipy.sparse.linalg import splu
+from scipy.stats import chi2 as _chi2_dist
+
+from ._checks import as_array, as_covariance, as_scalar
+from .angles import wrap_angle
+from .motion import velocity_motion
+from .scoring import dead_reckoning, score_run
+from .sensors import landmark_from_measurement, landmark_measurement
+
+__all__ = [
+    "v2t",
+    "t2v",
+    "compose",
+    "relative",
+    "edge_error",
+    "build_linear_system",
+    "gauss_newton_step",
+    "pose_graph_errors",
+    "pose_graph_chi2",
+    "pose_graph_initial_guess",
+    "check_pose_graph_connected",
+    "PoseGraphResult",
+    "optimize_pose_graph",
+    "pose_graph_marginals",
+    "robust_weights",
+    "LandmarkGraph",
+    "LandmarkGraphResult",
+    "landmark_graph_errors",
+    "landmark_graph_chi2",
+    "optimize_landmark_graph",
+    "landmark_graph_from_run",
+    "run_landmark_graph_slam",
+    "landmark_graph_slam_row",
+]
+
+#: Solver options of SuperLU. ``H`` is symmetric positive definite, so the factorisation
+#: pivots on the diagonal (no row exchanges: in effect a sparse Cholesky factorisation) and
+#: keeps the symmetric order; the fill-reducing order is computed once per graph on its
+#: blocks (:func:`_fill_reducing_order`) and built into the system, so SuperLU factorises it
+#: as it comes ("NATURAL"). Chosen by measurement (``benchmarks/bench_graph_slam.py``).
+SPLU_OPTIONS = dict(permc_spec="NATURAL", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
+#: Kernel widths (on the Mahalanobis distance ``sqrt(s)``) used when ``robust_scale`` is None:
+#: the square root of the 95 % quantile of the chi-square distribution with the edge's dimension.
+DEFAULT_ROBUST_SCALE = {2: math.sqrt(_chi2_dist.ppf(0.95, 2)), 3: math.sqrt(_chi2_dist.ppf(0.95, 3))}
+
+
+# =========================================================================== SE(2)
+def v2t(x):
+    """Homogeneous transform of a pose.
+
+    Parameters
+    ----------
+    x : ndarray, shape (3,) or (..., 3)
+        Pose(s) ``[x, y, theta]``.
+
+    Returns
+    -------
+    ndarray, shape (..., 3, 3)
+        ``[[cos, -sin, x], [sin, cos, y], [0, 0, 1]]``.
+
+    References
+    ----------
+    Grisetti et al. (2010), Sec. IV-A (``v2t``).
+    """
+    x = _poses(x, "x")
+    c, s = np.cos(x[..., 2]), np.sin(x[..., 2])
+    T = np.zeros(x.shape[:-1] + (3, 3))
+    T[..., 0, 0], T[..., 0, 1], T[..., 0, 2] = c, -s, x[..., 0]
+    T[..., 1, 0], T[..., 1, 1], T[..., 1, 2] = s, c, x[..., 1]
+    T[..., 2, 2] = 1.0
+    return T
+
+
+def t2v(T):
+    """Pose of a homogeneous transform (inverse of :func:`v2t`).
+
+    Parameters
+    ----------
+    T : ndarray, shape (3, 3) or (..., 3, 3)
+        Homogeneous rigid transforms.
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+        ``[T[0, 2], T[1, 2], atan2(T[1, 0], T[0, 0])]``, heading in ``[-pi, pi)``.
+
+    References
+    ----------
+    Grisetti et al. (2010), Sec. IV-A (``t2v``).
+    """
+    T = as_array(T, "T", ndim=range(2, 33))
+    if T.shape[-2:] != (3, 3):
+        raise ValueError(f"T must have shape (3, 3) or (..., 3, 3), got {T.shape}")
+    out = np.empty(T.shape[:-2] + (3,))
+    out[..., 0] = T[..., 0, 2]
+    out[..., 1] = T[..., 1, 2]
+    out[..., 2] = wrap_angle(np.arctan2(T[..., 1, 0], T[..., 0, 0]))
+    return out
+
+
+def _compose(a, b):
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    # X_a X_b: t = t_a + R(theta_a) t_b, theta = theta_a + theta_b
+    out[..., 0] = a[..., 0] + c * b[..., 0] - s * b[..., 1]
+    out[..., 1] = a[..., 1] + s * b[..., 0] + c * b[..., 1]
+    out[..., 2] = wrap_angle(a[..., 2] + b[..., 2])
+    return out
+
+
+def _relative(a, b):
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    dx, dy = b[..., 0] - a[..., 0], b[..., 1] - a[..., 1]
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    # X_a^-1 X_b: t = R(theta_a)^T (t_b - t_a), theta = theta_b - theta_a
+    out[..., 0] = c * dx + s * dy
+    out[..., 1] = -s * dx + c * dy
+    out[..., 2] = wrap_angle(b[..., 2] - a[..., 2])
+    return out
+
+
+def compose(a, b):
+    """Pose composition ``a (+) b = t2v(v2t(a) v2t(b))``: pose `b`, given in the frame of `a`, in the world.
+
+    Parameters
+    ----------
+    a, b : ndarray, shape (3,) or (..., 3)
+        Poses; they broadcast over leading axes.
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+        ``[t_a + R(theta_a) t_b, wrap(theta_a + theta_b)]``.
+
+    References
+    ----------
+    Grisetti et al. (2010), Sec. IV-A; Smith, Self & Cheeseman's compounding operator.
+    """
+    a, b = _poses(a, "a"), _poses(b, "b")
+    _broadcast(a, b, "a", "b")
+    return _compose(a, b)
+
+
+def relative(a, b):
+    """Relative pose ``a^-1 (+) b = t2v(v2t(a)^-1 v2t(b))``: pose `b` seen from pose `a`.
+
+    Parameters
+    ----------
+    a, b : ndarray, shape (3,) or (..., 3)
+        Poses; they broadcast over leading axes.
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+        ``[R(theta_a)^T (t_b - t_a), wrap(theta_b - theta_a)]``; ``compose(a, relative(a, b)) == b``.
+
+    References
+    ----------
+    Grisetti et al. (2010), Eq. 30 (the prediction ``X_i^-1 X_j`` of an edge).
+    """
+    a, b = _poses(a, "a"), _poses(b, "b")
+    _broadcast(a, b, "a", "b")
+    return _relative(a, b)
+
+
+def _poses(x, name):
+    x = as_array(x, name, ndim=range(1, 33))
+    if x.shape[-1] != 3:
+        raise ValueError(f"{name} must have shape (3,) or (..., 3), got {x.shape}")
+    return x
+
+
+def _broadcast(a, b, na, nb):
+    try:
+        return np.broadcast_shapes(a.shape, b.shape)
+    except ValueError:
+        raise ValueError(f"{na} {a.shape} and {nb} {b.shape} do not broadcast") from None
+
+
+def _rot(a):
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[c, -s], [s, c]])
+
+
+# =========================================================================== the contract (exercise 6)
+def edge_error(xi, xj, z):
+    """Error of one relative-pose edge and its Jacobians (contract function of exercise 6).
+
+    Parameters
+    ----------
+    xi, xj : ndarray, shape (3,)
+        Poses ``i`` and ``j``.
+    z : ndarray, shape (3,)
+        Measurement of pose ``j`` seen from pose ``i``.
+
+    Returns
+    -------
+    e : ndarray, shape (3,)
+        ``[R(theta_z)^T (R(theta_i)^T (t_j - t_i) - t_z), wrap(theta_j - theta_i - theta_z)]``
+        (``t2v(Z^-1 (X_i^-1 X_j))``, g2o's ``EDGE_SE2`` error).
+    A : ndarray, shape (3, 3)
+        ``de / dxi = [[-R_z^T R_i^T, R_z^T dR_i^T/dtheta_i (t_j - t_i)], [0, 0, -1]]``.
+    B : ndarray, shape (3, 3)
+        ``de / dxj = [[R_z^T R_i^T, 0], [0, 0, 1]]``.
+
+    Notes
+    -----
+    This is the teaching version, written with explicit rotation matrices; the
+    optimisers use :func:`pose_graph_errors`, which computes the same numbers
+    for all edges at once.
+
+    References
+    ----------
+    Grisetti et al. (2010), Eqs. 30-32; Kuemmerle et al. (2011) (``EDGE_SE2``).
+    """
+    xi = as_array(xi, "xi", (3,))
+    xj = as_array(xj, "xj", (3,))
+    z = as_array(z, "z", (3,))
+    Ri, Rz = _rot(xi[2]), _rot(z[2])
+    dRi_T = np.array([[-np.sin(xi[2]), np.cos(xi[2])], [-np.cos(xi[2]), -np.sin(xi[2])]])  # d R_i^T / d theta_i
+    d = xj[:2] - xi[:2]
+    e = np.empty(3)
+    # e = t2v(Z^-1 (X_i^-1 X_j))  (Grisetti et al. 2010, Eq. 30)
+    e[:2] = Rz.T @ (Ri.T @ d - z[:2])
+    e[2] = wrap_angle(xj[2] - xi[2] - z[2])
+    # A = de/dx_i, B = de/dx_j  (Grisetti et al. 2010, Eq. 32)
+    A = np.zeros((3, 3))
+    A[:2, :2] = -Rz.T @ Ri.T
+    A[:2, 2] = Rz.T @ dRi_T @ d
+    A[2, 2] = -1.0
+    B = np.zeros((3, 3))
+    B[:2, :2] = Rz.T @ Ri.T
+    B[2, 2] = 1.0
+    return e, A, B
+
+
+def build_linear_system(X, edges, Z, Omega):
+    """Normal equations of a pose graph (contract function of exercise 6).
+
+    Parameters
+    ----------
+    X : ndarray, shape (n, 3)
+        Poses.
+    edges : int ndarray, shape (E, 2)
+        Index pairs ``(i, j)``, ``i != j``.
+    Z : ndarray, shape (E, 3)
+        Relative-pose measurements (pose ``j`` seen from pose ``i``).
+    Omega : ndarray, shape (E, 3, 3)
+        Information matrices (symmetric positive definite).
+
+    Returns
+    -------
+    H : scipy.sparse.csc_matrix, shape (3n, 3n)
+        ``sum_k J_k^T Omega_k J_k``, ``J_k (3, 3n)`` holding ``A_k`` in the
+        columns of pose ``i`` and ``B_k`` in those of pose ``j``. No pose is
+        fixed (``H`` is singular: the gauge is free).
+    b : ndarray, shape (3n,)
+        ``sum_k J_k^T Omega_k e_k``.
+
+    References
+    ----------
+    Grisetti et al. (2010), Eqs. 21-28 and Algorithm 1 lines 4-11.
+    """
+    X, edges, Z, Omega = _check_pose_graph(X, edges, Z, Omega)
+    layout = _Layout(3 * X.shape[0], [(3 * edges[:, 0], 3, 3 * edges[:, 1], 3)], fixed_vars=())
+    e, A, B = _se2_edges(X[edges[:, 0]], X[edges[:, 1]], Z)
+    return layout.assemble([(A, B, e, Omega)])
+
+
+def gauss_newton_step(X, edges, Z, Omega):
+    """One Gauss-Newton iteration on a pose graph, first pose fixed (contract function of exercise 6).
+
+    Parameters
+    ----------
+    X : ndarray, shape (n, 3)
+        Current poses.
+    edges, Z, Omega
+        As in :func:`build_linear_system`.
+
+    Returns
+    -------
+    ndarray, shape (n, 3)
+        ``X`` with ``dx`` added to poses ``1..n-1``, where ``H[3:, 3:] dx = -b[3:]``;
+        pose 0 unchanged; headings wrapped.
+
+    References
+    ----------
+    Grisetti et al. (2010), Algorithm 1 (one iteration; the first pose anchored as in its line 12).
+    """
+    X, edges, Z, Omega = _check_pose_graph(X, edges, Z, Omega)
+    _require_connected(X.shape[0], edges, (0,))
+    layout = _Layout(3 * X.shape[0], [(3 * edges[:, 0], 3, 3 * edges[:, 1], 3)], fixed_vars=(0, 1, 2), order=True)
+    e, A, B = _se2_edges(X[edges[:, 0]], X[edges[:, 1]], Z)
+    data, b = layout.values([(A, B, e, Omega)])
+    dx = layout.solve(data, -b)  # H dx = -b  (Grisetti et al. 2010, Algorithm 1 line 13)
+    return _update_poses(X, layout.expand(dx))
+
+
+# =========================================================================== batched edge cores
+def _se2_edges(xi, xj, z):
+    """Errors and Jacobians of relative-pose edges, all at once (no loop over edges).
+
+    ``xi``, ``xj``, ``z`` of shape (E, 3); returns ``e (E, 3)``, ``A (E, 3, 3)``, ``B (E, 3, 3)``.
+    Uses ``R_z^T R_i^T = R(theta_i + theta_z)^T``.
+    """
+    E = xi.shape[0]
+    a = xi[:, 2] + z[:, 2]
+    ca, sa = np.cos(a), np.sin(a)
+    cz, sz = np.cos(z[:, 2]), np.sin(z[:, 2])
+    dx = xj[:, 0] - xi[:, 0]
+    dy = xj[:, 1] - xi[:, 1]
+    e = np.empty((E, 3))
+    # e_t = R(theta_i + theta_z)^T (t_j - t_i) - R_z^T t_z  (Grisetti et al. 2010, Eq. 30)
+    e[:, 0] = ca * dx + sa * dy - (cz * z[:, 0] + sz * z[:, 1])
+    e[:, 1] = -sa * dx + ca * dy - (-sz * z[:, 0] + cz * z[:, 1])
+    e[:, 2] = wrap_angle(xj[:, 2] - xi[:, 2] - z[:, 2])
+    # B = [[R^T, 0], [0, 1]], A = [[-R^T, dR^T/dtheta_i (t_j - t_i)], [0, -1]]  (Eq. 32)
+    B = np.zeros((E, 3, 3))
+    B[:, 0, 0] = ca
+    B[:, 0, 1] = sa
+    B[:, 1, 0] = -sa
+    B[:, 1, 1] = ca
+    B[:, 2, 2] = 1.0
+    A = -B
+    A[:, 0, 2] = -sa * dx + ca * dy
+    A[:, 1, 2] = -ca * dx - sa * dy
+    return e, A, B
+
+
+def _landmark_edges(x, m, z):
+    """Errors ``h(x, m) - z`` (bearing wrapped) and Jacobians of range-bearing edges, all at once."""
+    z_hat, Hx, Hm = landmark_measurement(x, m)  # (Eq. 6.40, Table 7.2 line 13)
+    e = z_hat - z
+    e[:, 1] = wrap_angle(e[:, 1])
+    return e, Hx, Hm
+
+
+def _chi2_terms(e, Omega):
+    """``s_k = e_k^T Omega_k e_k`` for every edge."""
+    return np.einsum("ki,kij,kj->k", e, Omega, e)
+
+
+# --------------------------------------------------------------------------- robust kernels
+def _kernel(s, robust, k):
+    """Robust cost ``rho(s)`` and weight ``rho'(s)`` of squared Mahalanobis errors ``s``."""
+    if robust is None:
+        return s, np.ones_like(s)
+    r = np.sqrt(s)
+    if robust == "huber":
+        # rho(s) = s for sqrt(s) <= k, 2 k sqrt(s) - k^2 beyond; rho'(s) = min(1, k / sqrt(s))
+        inside = r <= k
+        return np.where(inside, s, 2.0 * k * r - k * k), np.where(inside, 1.0, k / np.maximum(r, k))
+    # Cauchy: rho(s) = k^2 log(1 + s / k^2); rho'(s) = 1 / (1 + s / k^2)
+    return k * k * np.log1p(s / (k * k)), 1.0 / (1.0 + s / (k * k))
+
+
+def robust_weights(s, robust, scale=None, *, dim=3):
+    """IRLS weights ``rho'(s)`` of a robust kernel for squared Mahalanobis errors.
+
+    Parameters
+    ----------
+    s : ndarray, shape (E,)
+        ``e_k^T Omega_k e_k``, non-negative.
+    robust : {"huber", "cauchy"} or None
+        Kernel; None for plain least squares (weights 1).
+    scale : float, optional
+        Kernel width ``k`` on the Mahalanobis distance ``sqrt(s)``; default
+        :data:`DEFAULT_ROBUST_SCALE` for edges of dimension `dim`.
+    dim : int, keyword-only
+        Dimension of the edge errors (2 or 3), for the default scale.
+
+    Returns
+    -------
+    ndarray, shape (E,)
+        Huber: ``min(1, k / sqrt(s))``; Cauchy: ``1 / (1 + s / k^2)``.
+
+    References
+    ----------
+    P. J. Huber, "Robust estimation of a location parameter", 1964; Grisetti et al.
+    (2010) and Kuemmerle et al. (2011) (robust kernels in g2o); Z. Zhang, "Parameter
+    estimation techniques", Image Vision Comput. 15(1), 1997 (IRLS weights).
+    """
+    s = as_array(s, "s", ndim=1)
+    if np.any(s < 0):
+        raise ValueError("s must be non-negative squared errors")
+    robust, k = _robust_args(robust, scale, dim)
+    return _kernel(s, robust, k)[1]
+
+
+def _robust_args(robust, scale, dim):
+    if robust is not None and robust not in ("huber", "cauchy"):
+        raise ValueError(f"robust must be None, 'huber' or 'cauchy', got {robust!r}")
+    if scale is None:
+        return robust, DEFAULT_ROBUST_SCALE[dim]
+    return robust, as_scalar(scale, "robust_scale", positive=True)
+
+
+# =========================================================================== sparse assembly
+class _Layout:
+    """Sparsity pattern of ``H`` for one graph, computed once.
+
+    ``terms`` lists edge types as ``(offset_a (E,), p, offset_b (E,), q)``: each
+    edge touches the variables ``offset_a .. offset_a + p`` and
+    ``offset_b .. offset_b + q``. Values of the blocks ``A^T W A``, ``A^T W B``,
+    ``B^T W A``, ``B^T W B`` are summed into the compressed-column data of
+    ``H`` by one ``bincount`` (entries of fixed variables go to a dump slot).
+    """
+
+    def __init__(self, n_var, terms, fixed_vars, *, order=False):
+        free = np.ones(n_var, dtype=bool)
+        free[list(fixed_vars)] = False
+        self.n_var = n_var
+        self.free_idx = np.flatnonzero(free)
+        n = self.n = int(self.free_idx.size)
+        new = np.full(n_var, -1, dtype=np.int64)
+        new[self.free_idx] = _fill_reducing_order(n_var, terms, free) if order else np.arange(n)
+        self.new = new  # variable -> row of the reduced system (-1 for fixed variables)
+        rows, cols, brow = [], [], []
+        for oa, p, ob, q in terms:
+            va = np.asarray(oa, dtype=np.int64)[:, None] + np.arange(p)  # (E, p) variable indices
+            vb = np.asarray(ob, dtype=np.int64)[:, None] + np.arange(q)
+            for r, c in ((va, va), (va, vb), (vb, va), (vb, vb)):
+                rows.append(np.broadcast_to(r[:, :, None], (r.shape[0], r.shape[1], c.shape[1])).ravel())
+                cols.append(np.broadcast_to(c[:, None, :], (r.shape[0], r.shape[1], c.shape[1])).ravel())
+            brow += [va.ravel(), vb.ravel()]
+        rows = new[np.concatenate(rows)]
+        cols = new[np.concatenate(cols)]
+        keep = (rows >= 0) & (cols >= 0)
+        key = cols * n + rows  # column-major order: sorted keys are CSC order
+        uniq, inv = np.unique(key[keep], return_inverse=True)
+        self.nnz = int(uniq.size)
+        self.slot = np.full(rows.size, self.nnz, dtype=np.int64)  # dump slot for fixed entries
+        self.slot[keep] = inv
+        self.indices = (uniq % n).astype(np.int32)
+        self.indptr = np.searchsorted(uniq // n, np.arange(n + 1)).astype(np.int32)
+        bvar = new[np.concatenate(brow)]
+        self.bslot = np.where(bvar >= 0, bvar, n)
+        self.diag = np.searchsorted(uniq, np.arange(n) * (n + 1))  # data positions of the diagonal
+
+    def values(self, blocks):
+        """Data of ``H`` (CSC order) and ``b`` from ``[(A, B, e, W), ...]``, one per term."""
+        hv, bv = [], []
+        for A, B, e, W in blocks:
+            WA = W @ A
+            WB = W @ B
+            At = np.swapaxes(A, 1, 2)
+            Bt = np.swapaxes(B, 1, 2)
+            Hab = At @ WB
+            # H += J^T Omega J, b += J^T Omega e  (Grisetti et al. 2010, Eqs. 26-28)
+            hv += [(At @ WA).ravel(), Hab.ravel(), np.swapaxes(Hab, 1, 2).ravel(), (Bt @ WB).ravel()]
+            We = np.einsum("kij,kj->ki", W, e)
+            bv += [np.einsum("kji,kj->ki", A, We).ravel(), np.einsum("kji,kj->ki", B, We).ravel()]
+        data = np.bincount(self.slot, np.concatenate(hv), minlength=self.nnz + 1)[: self.nnz]
+        b = np.bincount(self.bslot, np.concatenate(bv), minlength=self.n + 1)[: self.n]
+        return data, b
+
+    def matrix(self, data):
+        return sp.csc_matrix((data, self.indices, self.indptr), shape=(self.n, self.n))
+
+    def assemble(self, blocks):
+        data, b = self.values(blocks)
+        return self.matrix(data), b
+
+    def expand(self, dx):
+        """A step over the free variables (system order) as a step over all variables (zeros where fixed)."""
+        out = np.zeros(self.n_var)
+        out[self.free_idx] = dx[self.new[self.free_idx]]
+        return out
+
+    def solve(self, data, rhs):
+        """``H^-1 rhs`` by a sparse LU factorisation of ``H`` (system order)."""
+        return splu(self.matrix(data), **SPLU_OPTIONS).solve(rhs)
+
+
+def _fill_reducing_order(n_var, terms, free):
+    """Position of each free variable in a fill-reducing elimination order.
+
+    The order is computed once per graph on the graph of *variable blocks*
+    (poses, landmarks), which has the sparsity pattern of ``H`` with each
+    block shrunk to one entry: minimum-degree ordering on ``A^T + A`` (SuperLU's
+    ``MMD_AT_PLUS_A``), blocks then expanded to their variables. Factorising the
+    permuted ``H`` in natural order then needs no ordering per iteration.
+    """
+    # blocks: a block starts at every offset a term uses; the variables of a block are contiguous
+    starts = np.unique(np.concatenate([np.asarray(o, dtype=np.int64) for t in terms for o in (t[0], t[2])]))
+    block_of = np.searchsorted(starts, np.arange(n_var), side="right") - 1
+    nb = starts.size
+    ea = np.concatenate([block_of[np.asarray(t[0], dtype=np.int64)] for t in terms])
+    eb = np.concatenate([block_of[np.asarray(t[2], dtype=np.int64)] for t in terms])
+    r = np.concatenate([ea, eb, np.arange(nb)])
+    c = np.concatenate([eb, ea, np.arange(nb)])
+    val = np.concatenate([np.ones(2 * ea.size), np.full(nb, 4.0 * ea.size + 1.0)])  # diagonally dominant
+    G = sp.csc_matrix((val, (r, c)), shape=(nb, nb))
+    rank = splu(G, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                options=dict(SymmetricMode=True)).perm_c  # rank[block] = its position
+    # variables sorted by (rank of their block, offset inside it); fixed variables dropped
+    var = np.flatnonzero(free)
+    order = var[np.lexsort((var, rank[block_of[var]]))]
+    pos = np.empty(n_var, dtype=np.int64)
+    pos[order] = np.arange(order.size)
+    return pos[var]
+
+
+def _update_poses(X, dx):
+    out = X + dx.reshape(-1, 3)
+    out[:, 2] = wrap_angle(out[:, 2])
+    return out
+
+
+# =========================================================================== validation
+def _as_edges(edges, n, name="edges"):
+    arr = np.asarray(edges)
+    if arr.dtype.kind not in "iu":
+        if arr.dtype.kind == "f" and arr.size and np.all(np.isfinite(arr)) and np.all(arr == np.round(arr)):
+            arr = arr.astype(np.int64)
+        elif arr.size == 0:
+            arr = arr.astype(np.int64)
+        else:
+            raise TypeError(f"{name} must be an integer array of index pairs, got dtype {arr.dtype}")
+    arr = arr.astype(np.int64, copy=True)
+    if arr.ndim != 2 or arr.shape[1] != 2:
+        raise ValueError(f"{name} must have shape (E, 2), got {arr.shape}")
+    bad = np.flatnonzero((arr < 0).any(axis=1) | (arr >= n).any(axis=1))
+    if bad.size:
+        raise ValueError(f"{name}[{bad[0]}] = {arr[bad[0]].tolist()} refers to a pose outside 0..{n - 1}")
+    loop = np.flatnonzero(arr[:, 0] == arr[:, 1])
+    if loop.size:
+        raise ValueError(f"{name}[{loop[0]}] joins pose {arr[loop[0], 0]} to itself (i == j)")
+    return arr
+
+
+def _as_information(Omega, E, d, name="Omega"):
+    W = as_array(Omega, name, (E, d, d))
+    scale = np.maximum(1.0, np.abs(W).max(axis=(1, 2)))
+    asym = np.flatnonzero(np.abs(W - np.swapaxes(W, 1, 2)).max(axis=(1, 2)) > 1e-9 * scale)
+    if asym.size:
+        raise ValueError(f"{name}[{asym[0]}] must be symmetric")
+    if E:
+        eig = np.linalg.eigvalsh(W)
+        bad = np.flatnonzero(eig[:, 0] <= 1e-12 * eig[:, -1].clip(min=0) + 0.0)
+        if bad.size:
+            raise ValueError(f"{name}[{bad[0]}] must be positive definite "
+                             f"(smallest eigenvalue {eig[bad[0], 0]:.3g})")
+    return W
+
+
+def _check_pose_graph(X, edges, Z, Omega, name_x="X"):
+    X = as_array(X, name_x, (None, 3))
+    if X.shape[0] < 1:
+        raise ValueError(f"{name_x} must hold at least one pose")
+    edges = _as_edges(edges, X.shape[0])
+    E = edges.shape[0]
+    Z = as_array(Z, "Z", (E, 3))
+    Omega = _as_information(Omega, E, 3)
+    return X, edges, Z, Omega
+
+
+def _as_fixed(fixed, n, name="fixed"):
+    try:
+        idx = [int(f) for f in fixed]
+    except TypeError:
+        raise TypeError(f"{name} must be a sequence of pose indices, got {type(fixed).__name__}") from None
+    for f, raw in zip(idx, fixed):
+        if isinstance(raw, bool) or not isinstance(raw, (numbers.Integral, np.integer)):
+            raise TypeError(f"{name} must hold integer pose indices, got {raw!r}")
+        if not 0 <= f < n:
+            raise ValueError(f"{name} holds pose {f}, outside 0..{n - 1}")
+    if not idx:
+        raise ValueError(f"{name} must hold at least one pose: without an anchor H is singular (gauge freedom)")
+    return tuple(sorted(set(idx)))
+
+
+def _components(n, pairs):
+    adj = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    return csgraph.connected_components(adj, directed=False)
+
+
+def _require_connected(n, edges, fixed, what="pose"):
+    n_comp, label = _components(n, edges)
+    anchored = np.zeros(n_comp, dtype=bool)
+    anchored[label[list(fixed)]] = True
+    loose = np.flatnonzero(~anchored[label])
+    if loose.size:
+        raise ValueError(
+            f"the graph is disconnected: {n_comp} connected components, and {loose.size} {what}s "
+            f"(e.g. {what} {loose[0]}) are linked to no fixed pose {tuple(fixed)} by any chain of edges; "
+            "their position is undetermined (add edges or fix a pose in each component)")
+
+
+def check_pose_graph_connected(n, edges, *, fixed=(0,)):
+    """Raise if some pose of a graph is not linked to a fixed pose by a chain of edges.
+
+    Parameters
+    ----------
+    n : int
+        Number of poses.
+    edges : int ndarray, shape (E, 2)
+        Index pairs.
+    fixed : sequence of int, keyword-only
+        Anchored poses (default the first).
+
+    Raises
+    ------
+    ValueError
+        Naming the number of components and a pose that floats free: the
+        normal equations of such a graph are singular, so it is refused before
+        any solve.
+
+    References
+    ----------
+    Grisetti et al. (2010), Sec. IV-B (the gauge and the rank of ``H``).
+    """
+    if isinstance(n, bool) or not isinstance(n, (numbers.Integral, np.integer)) or n < 1:
+        raise ValueError(f"n must be a positive integer, got {n!r}")
+    edges = _as_edges(edges, int(n))
+    _require_connected(int(n), edges, _as_fixed(fixed, int(n)))
+
+
+# =========================================================================== public pose-graph functions
+def pose_graph_errors(X, edges, Z):
+    """Errors and Jacobians of all edges of a pose graph, computed at once.
+
+    Parameters
+    ----------
+    X : ndarray, shape (n, 3)
+        Poses.
+    edges : int ndarray, shape (E, 2)
+        Index pairs.
+    Z : ndarray, shape (E, 3)
+        Measurements.
+
+    Returns
+    -------
+    e : ndarray, shape (E, 3)
+    A : ndarray, shape (E, 3, 3)
+    B : ndarray, shape (E, 3, 3)
+        Row ``k`` equals :func:`edge_error` ``(X[i], X[j], Z[k])`` for ``(i, j) = edges[k]``.
+
+    References
+    ----------
+    Grisetti et al. (2010), Eqs. 30-32.
+    """
+    X = as_array(X, "X", (None, 3))
+    edges = _as_edges(edges, X.shape[0])
+    Z = as_array(Z, "Z", (edges.shape[0], 3))
+    return _se2_edges(X[edges[:, 0]], X[edges[:, 1]], Z)
+
+
+def pose_graph_chi2(X, edges, Z, Omega):
+    """Sum of squared Mahalanobis errors ``chi2 = sum_k e_k^T Omega_k e_k`` of a pose graph.
+
+    Parameters
+    ----------
+    X, edges, Z, Omega
+        As in :func:`build_linear_system`.
+
+    Returns
+    -------
+    float
+        ``chi2``, twice the negative log posterior up to a constant (g2o's ``chi2``;
+        GTSAM's graph error is half of it).
+
+    References
+    ----------
+    Grisetti et al. (2010), Eqs. 21-23; Thrun, Burgard & Fox (2005), Eq. 11.17.
+    """
+    X, edges, Z, Omega = _check_pose_graph(X, edges, Z, Omega)
+    e, _, _ = _se2_edges(X[edges[:, 0]], X[edges[:, 1]], Z)
+    return float(_chi2_terms(e, Omega).sum())
+
+
+def pose_graph_initial_guess(n, edges, Z, *, root=0, x_root=(0.0, 0.0, 0.0)):
+    """Initial guess by composing the measurements along a spanning tree (odometry guess).
+
+    The spanning tree is the minimum spanning tree with edge weights ``|i - j|``,
+    which prefers edges between consecutive poses: with an odometry chain
+    ``(k, k + 1)`` in the graph it is that chain, and the guess is dead
+    reckoning. Each pose is the composition of the measurements along
+    its tree path, an edge ``(i, j)`` read forwards (``X_j = X_i (+) Z``) or
+    backwards (``X_i = X_j (+) Z^-1``). The compositions along the paths are
+    computed by pointer jumping (``log2(depth)`` vectorised rounds), not by a
+    loop over poses.
+
+    Parameters
+    ----------
+    n : int
+        Number of poses.
+    edges : int ndarray, shape (E, 2)
+        Index pairs.
+    Z : ndarray, shape (E, 3)
+        Relative-pose measurements.
+    root : int, keyword-only
+        Pose the tree grows from.
+    x_root : ndarray, shape (3,), keyword-only
+        Pose given to `root`.
+
+    Returns
+    -------
+    ndarray, shape (n, 3)
+        Poses; headings wrapped.
+
+    Raises
+    ------
+    ValueError
+        If some pose is not connected to `root`.
+
+    References
+    ----------
+    Grisetti et al. (2010), Sec. IV (initial guess from odometry); E. Olson, J.
+    Leonard, S. Teller, "Fast iterative alignment of pose graphs with poor initial
+    estimates", ICRA 2006 (spanning-tree initialisation).
+    """
+    if isinstance(n, bool) or not isinstance(n, (numbers.Integral, np.integer)) or n < 1:
+        raise ValueError(f"n must be a positive integer, got {n!r}")
+    n = int(n)
+    edges = _as_edges(edges, n)
+    Z = as_array(Z, "Z", (edges.shape[0], 3))
+    root = _as_fixed((root,), n, "root")[0]
+    x_root = as_array(x_root, "x_root", (3,))
+    _require_connected(n, edges, (root,))
+    E = edges.shape[0]
+    # spanning tree preferring edges between poses close in index (the odometry chain): weight |i - j|
+    w = np.abs(edges[:, 0] - edges[:, 1]).astype(np.float64)
+    tree = csgraph.minimum_spanning_tree(sp.coo_matrix((w, (edges[:, 0], edges[:, 1])), shape=(n, n)).tocsr())
+    order, pred = csgraph.breadth_first_order(tree, root, directed=False, return_predecessors=True)
+    # the tree edge of each pose: the first edge (forward or backward) from its parent to it
+    child = np.setdiff1d(np.arange(n), [root])
+    par = pred[child]
+    fwd_key = edges[:, 0] * n + edges[:, 1]
+    bwd_key = edges[:, 1] * n + edges[:, 0]
+    keys = np.concatenate([fwd_key, bwd_key])
+    sorter = np.argsort(keys, kind="stable")
+    hit = sorter[np.searchsorted(keys, par * n + child, sorter=sorter)]
+    rel = np.empty((n, 3))
+    rel[root] = x_root
+    inv_z = np.empty_like(Z)
+    # Z^-1 = [-R(theta_z)^T t_z, -theta_z]
+    inv_z[:, 0] = -(np.cos(Z[:, 2]) * Z[:, 0] + np.sin(Z[:, 2]) * Z[:, 1])
+    inv_z[:, 1] = -(-np.sin(Z[:, 2]) * Z[:, 0] + np.cos(Z[:, 2]) * Z[:, 1])
+    inv_z[:, 2] = wrap_angle(-Z[:, 2])
+    rel[child] = np.where((hit < E)[:, None], Z[hit % E], inv_z[hit % E])
+    # pointer jumping: T[v] = T[anc[v]] (+) T[v], anc[v] = anc[anc[v]], until every ancestor is the root
+    anc = np.full(n, root)
+    anc[child] = par
+    done = anc == root
+    done[root] = True
+    while not done.all():
+        todo = np.flatnonzero(~done)
+        rel[todo] = _compose(rel[anc[todo]], rel[todo])
+        anc[todo] = anc[anc[todo]]
+        done[todo] = anc[todo] == root
+    out = rel.copy()
+    out[child] = _compose(x_root[None, :], rel[child])
+    return out
+
+
+class PoseGraphResult(NamedTuple):
+    """Result of :func:`optimize_pose_graph` (and :func:`optimize_landmark_graph`).
+
+    Attributes
+    ----------
+    X : ndarray, shape (n, 3)
+        Optimised poses.
+    chi2 : ndarray, shape (iterations + 1,)
+        ``sum_k e_k^T Omega_k e_k`` of the estimate before the first iteration
+        and after each one.
+    cost : ndarray, shape (iterations + 1,)
+        The objective minimised: ``sum_k rho(s_k)`` with a robust kernel, equal
+        to `chi2` without one.
+    iterations : int
+        Linear solves performed (rejected Levenberg-Marquardt steps included).
+    converged : bool
+        True when the relative change of `cost` fell below ``rtol`` (or the cost
+        reached 0) before ``max_iter`` iterations.
+    time : float
+        Wall-clock seconds of the optimisation (validation and set-up included).
+    method : str
+        ``"gn"`` or ``"lm"``.
+    weights : ndarray, shape (E,)
+        Robust weights ``rho'(s_k)`` at the solution (ones without a kernel).
+    """
+
+    X: np.ndarray
+    chi2: np.ndarray
+    cost: np.ndarray
+    iterations: int
+    converged: bool
+    time: float
+    method: str
+    weights: np.ndarray
+
+
+def _optimize(state, evaluate, layout, update, *, method, max_iter, rtol, lm_lambda=1e-7, lm_shrink=1.0 / 3.0):
+    """Gauss-Newton / Levenberg-Marquardt over a problem given by callbacks.
+
+    ``evaluate(state) -> (cost, chi2, blocks, weights)`` where ``blocks`` feed
+    ``layout.values``; ``update(state, dx_full) -> state``.
+    """
+    cost, chi2, blocks, weights = evaluate(state)
+    costs, chi2s = [cost], [chi2]
+    converged = cost == 0.0
+    it = 0
+    lam, nu = lm_lambda, 2.0
+    data, b = layout.values(blocks) if not converged else (None, None)
+    while not converged and it < max_iter:
+        it += 1
+        if method == "gn":
+            dx = layout.solve(data, -b)  # H dx = -b  (Grisetti et al. 2010, Algorithm 1 line 13)
+            state = update(state, layout.expand(dx))
+            new_cost, chi2, blocks, weights = evaluate(state)
+            converged = abs(cost - new_cost) <= rtol * cost or new_cost == 0.0
+            cost = new_cost
+            data, b = layout.values(blocks)
+        else:
+            damped = data.copy()
+            diag = data[layout.diag]
+            # (H + lambda diag(H)) dx = -b  (Marquardt's scaling; Madsen et al. 2004, Sec. 3.2)
+            damped[layout.diag] = diag + lam * diag
+            dx = layout.solve(damped, -b)
+            cand = update(state, layout.expand(dx))
+            new_cost, new_chi2, new_blocks, new_weights = evaluate(cand)
+            # predicted decrease of the quadratic model: -(2 b^T dx + dx^T H dx) = dx^T (lambda D dx - b)
+            predicted = float(dx @ (lam * diag * dx - b))
+            gain = (cost - new_cost) / predicted if predicted > 0 else -1.0
+            if gain > 0:
+                converged = abs(cost - new_cost) <= rtol * cost or new_cost == 0.0
+                state, cost, chi2, weights = cand, new_cost, new_chi2, new_weights
+                data, b = layout.values(new_blocks)
+                # lambda *= max(1/3, 1 - (2 gain - 1)^3), nu = 2  (Madsen et al. 2004, Eq. 3.15)
+                lam *= max(lm_shrink, 1.0 - (2.0 * gain - 1.0) ** 3)
+                nu = 2.0
+            else:
+                lam *= nu
+                nu *= 2.0
+                # no step of any length lowers the cost any more: a minimum to working precision
+                converged = lam > 1e12 or abs(cost - new_cost) <= 1e-15 * cost
+        costs.append(cost)
+        chi2s.append(chi2)
+    return state, np.array(chi2s), np.array(costs), it, bool(converged), weights
+
+
+def _method_args(method, max_iter, rtol):
+    if method not in ("gn", "lm"):
+        raise ValueError(f"method must be 'gn' (Gauss-Newton) or 'lm' (Levenberg-Marquardt), got {method!r}")
+    if isinstance(max_iter, bool) or not isinstance(max_iter, (numbers.Integral, np.integer)) or max_iter < 0:
+        raise ValueError(f"max_iter must be a non-negative integer, got {max_iter!r}")
+    return int(max_iter), as_scalar(rtol, "rtol", nonnegative=True)
+
+
+def optimize_pose_graph(X0, edges, Z, Omega, *, method="lm", max_iter=100, rtol=1e-9, robust=None,
+                        robust_scale=None, fixed=(0,), lm_lambda=1e-7):
+    """Maximum a posteriori poses of a pose graph by Gauss-Newton or Levenberg-Marquardt.
+
+    Minimises ``sum_k rho(e_k^T Omega_k e_k)`` (``rho(s) = s`` without a robust
+    kernel) over the poses, the `fixed` poses held where `X0` puts them.
+
+    Parameters
+    ----------
+    X0 : ndarray, shape (n, 3)
+        Initial guess (e.g. :func:`pose_graph_initial_guess`).
+    edges : int ndarray, shape (E, 2)
+        Index pairs ``(i, j)``, ``i != j``.
+    Z : ndarray, shape (E, 3)
+        Relative-pose measurements: pose ``j`` seen from pose ``i``.
+    Omega : ndarray, shape (E, 3, 3)
+        Information matrices, symmetric positive definite.
+    method : {"lm", "gn"}, keyword-only
+        Levenberg-Marquardt (default; steps that raise the cost are rejected
+        and the damping raised) or Gauss-Newton (every step taken).
+    max_iter : int, keyword-only
+        Largest number of linear solves.
+    rtol : float, keyword-only
+        Stop when an iteration changes the cost by at most ``rtol`` times its
+        value.
+    robust : {None, "huber", "cauchy"}, keyword-only
+        Robust kernel, applied by iteratively reweighted least squares.
+    robust_scale : float, optional, keyword-only
+        Kernel width on the Mahalanobis distance ``sqrt(e^T Omega e)``; default
+        ``sqrt(chi2_3(0.95)) = 2.80``.
+    fixed : sequence of int, keyword-only
+        Poses held fixed (the gauge); default the first pose.
+    lm_lambda : float, keyword-only
+        Initial damping of Levenberg-Marquardt, relative to ``diag(H)``. Small:
+        the first step is nearly a Gauss-Newton step, and the damping grows
+        only where steps fail.
+
+    Returns
+    -------
+    PoseGraphResult
+        ``X``, ``chi2`` and ``cost`` per iteration (initial value first),
+        ``iterations``, ``converged``, ``time``, ``method``, ``weights``.
+
+    Raises
+    ------
+    ValueError
+        For malformed inputs (naming the argument and the first bad edge), an
+        information matrix that is not positive definite, or a disconnected
+        graph (some pose linked to no fixed pose), before any solve.
+
+    References
+    ----------
+    Grisetti et al. (2010), Algorithm 1 and Sec. IV; Kuemmerle et al. (2011);
+    Madsen, Nielsen & Tingleff (2004), Algorithm 3.16 (Levenberg-Marquardt).
+    """
+    start = time.perf_counter()
+    X0, edges, Z, Omega = _check_pose_graph(X0, edges, Z, Omega, name_x="X0")
+    max_iter, rtol = _method_args(method, max_iter, rtol)
+    robust, k = _robust_args(robust, robust_scale, 3)
+    n = X0.shape[0]
+    fixed = _as_fixed(fixed, n)
+    _require_connected(n, edges, fixed)
+    fixed_vars = [3 * f + c for f in fixed for c in range(3)]
+    layout = _Layout(3 * n, [(3 * edges[:, 0], 3, 3 * edges[:, 1], 3)], fixed_vars, order=True)
+    ii, jj = edges[:, 0], edges[:, 1]
+
+    def evaluate(X):
+        e, A, B = _se2_edges(X[ii], X[jj], Z)
+        s = _chi2_terms(e, Omega)
+        rho, w = _kernel(s, robust, k)
+        W = Omega if robust is None else Omega * w[:, None, None]
+        return float(rho.sum()), float(s.sum()), [(A, B, e, W)], w
+
+    X, chi2s, costs, it, conv, w = _optimize(X0, evaluate, layout, _update_poses, method=method,
+                                             max_iter=max_iter, rtol=rtol,
+                                             lm_lambda=as_scalar(lm_lambda, "lm_lambda", positive=True))
+    return PoseGraphResult(X=X, chi2=chi2s, cost=costs, iterations=it, converged=conv,
+                           time=time.perf_counter() - start, method=method, weights=w)
+
+
+def pose_graph_marginals(result_or_X, edges, Z, Omega, *, poses, fixed=(0,), robust=None, robust_scale=None):
+    """Marginal covariances of selected poses, from the inverse of ``H`` at a solution.
+
+    Around the optimum the posterior is approximately Gaussian with information
+    matrix ``H`` (the Gauss-Newton approximation of the Hessian of ``chi2 / 2``);
+    a pose's marginal covariance is its ``3 x 3`` block of ``H^-1``, relative to
+    the fixed poses. Only the columns needed are solved for (one sparse LU, ``3k``
+    right-hand sides), never the dense inverse.
+
+    Parameters
+    ----------
+    result_or_X : PoseGraphResult or ndarray, shape (n, 3)
+        The solution (its ``X``) or poses.
+    edges, Z, Omega
+        The graph, as in :func:`optimize_pose_graph`.
+    poses : sequence of int, keyword-only
+        Poses whose covariances to return.
+    fixed : sequence of int, keyword-only
+        The anchored poses (zero covariance).
+    robust, robust_scale : keyword-only
+        Use the robust weights at the solution in ``H`` (as the optimiser did).
+
+    Returns
+    -------
+    ndarray, shape (k, 3, 3)
+        Covariance of each requested pose, in the world frame, relative to the fixed poses.
+
+    References
+    ----------
+    Grisetti et al. (2010), Sec. IV-B (``H`` as the information matrix of the
+    solution); Thrun, Burgard & Fox (2005), Sec. 11.4 (GraphSLAM covariances).
+    """
+    X = result_or_X.X if isinstance(result_or_X, PoseGraphResult) else result_or_X
+    X, edges, Z, Omega = _check_pose_graph(X, edges, Z, Omega)
+    n = X.shape[0]
+    fixed = _as_fixed(fixed, n)
+    sel = [int(p) for p in np.atleast_1d(np.asarray(poses, dtype=np.int64))]
+    for p in sel:
+        if not 0 <= p < n:
+            raise ValueError(f"poses holds {p}, outside 0..{n - 1}")
+    _require_connected(n, edges, fixed)
+    robust, k = _robust_args(robust, robust_scale, 3)
+    layout = _Layout(3 * n, [(3 * edges[:, 0], 3, 3 * edges[:, 1], 3)], [3 * f + c for f in fixed for c in range(3)],
+                     order=True)
+    e, A, B = _se2_edges(X[edges[:, 0]], X[edges[:, 1]], Z)
+    w = _kernel(_chi2_terms(e, Omega), robust, k)[1]
+    data, _ = layout.values([(A, B, e, Omega * w[:, None, None])])
+    out = np.zeros((len(sel), 3, 3))
+    free_sel = [q for q, p in enumerate(sel) if p not in fixed]
+    if free_sel:
+        cols = np.concatenate([layout.new[3 * sel[q]:3 * sel[q] + 3] for q in free_sel])
+        rhs = np.zeros((layout.n, cols.size))
+        rhs[cols, np.arange(cols.size)] = 1.0
+        sol = layout.solve(data, rhs)  # the needed columns of H^-1
+        for r, q in enumerate(free_sel):
+            blk = sol[cols[3 * r:3 * r + 3], 3 * r:3 * r + 3]
+            out[q] = 0.5 * (blk + blk.T)
+    return out
+
+
+# =========================================================================== landmark graph SLAM
+class LandmarkGraph(NamedTuple):
+    """A full-SLAM problem with poses and point landmarks.
+
+    Attributes
+    ----------
+    X0 : ndarray, shape (n, 3)
+        Initial poses.
+    L0 : ndarray, shape (K, 2)
+        Initial landmark positions (one row per landmark in the graph).
+    odo_edges : int ndarray, shape (E, 2)
+        Pose-pose edges ``(i, j)``.
+    odo_Z : ndarray, shape (E, 3)
+        Their relative-pose measurements.
+    odo_Omega : ndarray, shape (E, 3, 3)
+        Their information matrices.
+    obs_edges : int ndarray, shape (S, 2)
+        Pose-landmark edges ``(pose index, landmark row)``.
+    obs_Z : ndarray, shape (S, 2)
+        Range-bearing measurements ``[r, phi]``.
+    obs_Omega : ndarray, shape (S, 2, 2)
+        Their information matrices (``Q^-1``).
+    landmark_ids : int ndarray, shape (K,)
+        The landmark (of the data set) each row stands for.
+    """
+
+    X0: np.ndarray
+    L0: np.ndarray
+    odo_edges: np.ndarray
+    odo_Z: np.ndarray
+    odo_Omega: np.ndarray
+    obs_edges: np.ndarray
+    obs_Z: np.ndarray
+    obs_Omega: np.ndarray
+    landmark_ids: np.ndarray
+
+
+class LandmarkGraphResult(NamedTuple):
+    """Result of :func:`optimize_landmark_graph`.
+
+    Attributes
+    ----------
+    X : ndarray, shape (n, 3)
+        Optimised poses.
+    landmarks : ndarray, shape (K, 2)
+        Optimised landmarks (rows as in the graph).
+    chi2, cost : ndarray, shape (iterations + 1,)
+        As in :class:`PoseGraphResult`.
+    iterations : int
+    converged : bool
+    time : float
+    method : str
+    """
+
+    X: np.ndarray
+    landmarks: np.ndarray
+    chi2: np.ndarray
+    cost: np.ndarray
+    iterations: int
+    converged: bool
+    time: float
+    method: str
+
+
+def _check_landmark_graph(graph):
+    if not isinstance(graph, LandmarkGraph):
+        raise TypeError(f"graph must be a LandmarkGraph, got {type(graph).__name__}")
+    X0, odo, Zo, Wo = _check_pose_graph(graph.X0, graph.odo_edges, graph.odo_Z, graph.odo_Omega, name_x="graph.X0")
+    L0 = as_array(graph.L0, "graph.L0", (None, 2))
+    obs = np.asarray(graph.obs_edges)
+    if obs.dtype.kind not in "iu" or obs.ndim != 2 or obs.shape[1] != 2:
+        raise ValueError(f"graph.obs_edges must be an integer array of shape (S, 2), got {obs.dtype} {obs.shape}")
+    obs = obs.astype(np.int64)
+    n, K = X0.shape[0], L0.shape[0]
+    bad = np.flatnonzero((obs[:, 0] < 0) | (obs[:, 0] >= n) | (obs[:, 1] < 0) | (obs[:, 1] >= K))
+    if bad.size:
+        raise ValueError(f"graph.obs_edges[{bad[0]}] = {obs[bad[0]].tolist()} refers to a pose outside 0..{n - 1} "
+                         f"or a landmark outside 0..{K - 1}")
+    S = obs.shape[0]
+    Zl = as_array(graph.obs_Z, "graph.obs_Z", (S, 2))
+    Wl = _as_information(graph.obs_Omega, S, 2, "graph.obs_Omega")
+    # connectivity over poses and landmarks together (landmark v is node n + v)
+    pairs = np.concatenate([odo, np.column_stack([obs[:, 0], n + obs[:, 1]])])
+    n_comp, label = _components(n + K, pairs)
+    loose = np.flatnonzero(label != label[0])
+    if loose.size:
+        what = f"pose {loose[0]}" if loose[0] < n else f"landmark row {loose[0] - n}"
+        raise ValueError(f"the graph is disconnected: {n_comp} connected components; {loose.size} poses or "
+                         f"landmarks (e.g. {what}) are linked to pose 0 by no chain of edges")
+    return X0, L0, odo, Zo, Wo, obs, Zl, Wl
+
+
+def landmark_graph_errors(X, L, obs_edges, obs_Z):
+    """Errors and Jacobians of all range-bearing edges of a landmark graph, at once.
+
+    Parameters
+    ----------
+    X : ndarray, shape (n, 3)
+        Poses.
+    L : ndarray, shape (K, 2)
+        Landmarks.
+    obs_edges : int ndarray, shape (S, 2)
+        ``(pose, landmark)`` pairs.
+    obs_Z : ndarray, shape (S, 2)
+        Measurements ``[r, phi]``.
+
+    Returns
+    -------
+    e : ndarray, shape (S, 2)
+        ``h(x, m) - z`` with the bearing wrapped.
+    Hx : ndarray, shape (S, 2, 3)
+        ``de / dx`` (Table 7.2 line 13).
+    Hm : ndarray, shape (S, 2, 2)
+        ``de / dm``.
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Eq. 6.40, Table 7.2 line 13, Table 11.2 lines 18-21
+    (GraphSLAM's measurement terms).
+    """
+    X = as_array(X, "X", (None, 3))
+    L = as_array(L, "L", (None, 2))
+    obs = np.asarray(obs_edges)
+    if obs.dtype.kind not in "iu" or obs.ndim != 2 or obs.shape[1] != 2:
+        raise ValueError(f"obs_edges must be an integer array of shape (S, 2), got {obs.dtype} {obs.shape}")
+    if obs.size and (obs[:, 0].min() < 0 or obs[:, 0].max() >= X.shape[0] or obs[:, 1].min() < 0
+                     or obs[:, 1].max() >= L.shape[0]):
+        raise ValueError("obs_edges refers to a pose or landmark that does not exist")
+    Z = as_array(obs_Z, "obs_Z", (obs.shape[0], 2))
+    return _landmark_edges(X[obs[:, 0]], L[obs[:, 1]], Z)
+
+
+def _landmark_problem(X0, L0, odo, Zo, Wo, obs, Zl, Wl, robust, k, fixed):
+    n, K = X0.shape[0], L0.shape[0]
+    terms = [(3 * odo[:, 0], 3, 3 * odo[:, 1], 3), (3 * obs[:, 0], 3, 3 * n + 2 * obs[:, 1], 2)]
+    layout = _Layout(3 * n + 2 * K, terms, [3 * f + c for f in fixed for c in range(3)], order=True)
+    oi, oj, pi, lj = odo[:, 0], odo[:, 1], obs[:, 0], obs[:, 1]
+
+    def evaluate(state):
+        X, L = state
+        e1, A1, B1 = _se2_edges(X[oi], X[oj], Zo)
+        e2, A2, B2 = _landmark_edges(X[pi], L[lj], Zl)
+        s1, s2 = _chi2_terms(e1, Wo), _chi2_terms(e2, Wl)
+        rho1, w1 = _kernel(s1, robust, k[3])
+        rho2, w2 = _kernel(s2, robust, k[2])
+        W1 = Wo if robust is None else Wo * w1[:, None, None]
+        W2 = Wl if robust is None else Wl * w2[:, None, None]
+        cost = float(rho1.sum() + rho2.sum())
+        return cost, float(s1.sum() + s2.sum()), [(A1, B1, e1, W1), (A2, B2, e2, W2)], (w1, w2)
+
+    def update(state, dx):
+        X, L = state
+        return _update_poses(X, dx[:3 * n]), L + dx[3 * n:].reshape(K, 2)
+
+    return layout, evaluate, update
+
+
+def landmark_graph_chi2(graph, X=None, L=None):
+    """``chi2`` of a landmark graph at given poses and landmarks (default: its initial guess).
+
+    Parameters
+    ----------
+    graph : LandmarkGraph
+    X : ndarray, shape (n, 3), optional
+    L : ndarray, shape (K, 2), optional
+
+    Returns
+    -------
+    float
+        ``sum e^T Omega e`` over pose-pose and pose-landmark edges.
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Eq. 11.17 (the GraphSLAM log posterior).
+    """
+    X0, L0, odo, Zo, Wo, obs, Zl, Wl = _check_landmark_graph(graph)
+    X = X0 if X is None else as_array(X, "X", X0.shape)
+    L = L0 if L is None else as_array(L, "L", L0.shape)
+    e1, _, _ = _se2_edges(X[odo[:, 0]], X[odo[:, 1]], Zo)
+    e2, _, _ = _landmark_edges(X[obs[:, 0]], L[obs[:, 1]], Zl)
+    return float(_chi2_terms(e1, Wo).sum() + _chi2_terms(e2, Wl).sum())
+
+
+def optimize_landmark_graph(graph, *, method="lm", max_iter=100, rtol=1e-9, robust=None, robust_scale=None,
+                            lm_lambda=1e-7):
+    """Maximum a posteriori poses and landmarks of a landmark graph (full SLAM).
+
+    Minimises ``sum rho(e^T Omega e)`` over all pose-pose edges (odometry) and
+    pose-landmark range-bearing edges, with the first pose fixed (the gauge).
+    The same sparse machinery as :func:`optimize_pose_graph`: the variables are
+    the ``3n`` pose coordinates followed by ``2K`` landmark coordinates.
+
+    Parameters
+    ----------
+    graph : LandmarkGraph
+        The problem (e.g. from :func:`landmark_graph_from_run`).
+    method, max_iter, rtol, robust, robust_scale, lm_lambda : keyword-only
+        As in :func:`optimize_pose_graph` (default kernel width per edge
+        dimension: ``sqrt(chi2_3(0.95))`` for pose-pose, ``sqrt(chi2_2(0.95))``
+        for pose-landmark edges).
+
+    Returns
+    -------
+    LandmarkGraphResult
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Sec. 11.2-11.4 (GraphSLAM: Tables 11.1-11.5 build
+    and solve the same information form; here without eliminating the map first);
+    Grisetti et al. (2010), Algorithm 1.
+    """
+    start = time.perf_counter()
+    X0, L0, odo, Zo, Wo, obs, Zl, Wl = _check_landmark_graph(graph)
+    max_iter, rtol = _method_args(method, max_iter, rtol)
+    robust, _ = _robust_args(robust, robust_scale, 3)
+    k = {2: DEFAULT_ROBUST_SCALE[2], 3: DEFAULT_ROBUST_SCALE[3]} if robust_scale is None else \
+        {2: float(robust_scale), 3: float(robust_scale)}
+    layout, evaluate, update = _landmark_problem(X0, L0, odo, Zo, Wo, obs, Zl, Wl, robust, k, (0,))
+    (X, L), chi2s, costs, it, conv, _ = _optimize((X0, L0), evaluate, layout, update, method=method,
+                                                  max_iter=max_iter, rtol=rtol,
+                                                  lm_lambda=as_scalar(lm_lambda, "lm_lambda", positive=True))
+    return LandmarkGraphResult(X=X, landmarks=L, chi2=chi2s, cost=costs, iterations=it, converged=conv,
+                               time=time.perf_counter() - start, method=method)
+
+
+def landmark_graph_from_run(run, *, position_floor=1e-3):
+    """Build the full-SLAM graph of a landmark run (simulated, or MRCLAM) with known correspondences.
+
+    * Poses ``x_0 .. x_T`` (``T = run.n_steps``), initial guess from dead
+      reckoning (:func:`~slamlib.scoring.dead_reckoning`), pose 0 at ``run.x0``.
+    * Odometry edges ``(k, k + 1)``: the displacement of the noise-free
+      velocity motion (Table 5.3) from the origin, ``z_k = g(u_k, 0)``, which is
+      pose ``k + 1`` seen from pose ``k``; covariance ``V_k M V_k^T`` (Table 7.2
+      line 6, control noise mapped to the pose) plus ``position_floor^2`` on
+      ``x`` and ``y``: ``V M V^T`` has rank 2 (a unicycle cannot slip sideways),
+      and the floor turns that hard constraint into a stiff one so that the
+      information matrix exists.
+    * Landmark edges: each sighting ``z[k]`` of landmark ``ids[k]`` from pose
+      ``k + 1``, information ``Q^-1`` (``run.Q``, the matrix the filters use).
+    * Landmarks: only those sighted; initial guess from the first sighting
+      seen from the dead-reckoning pose (the inverse measurement, Table 10.1 line 10).
+
+    Parameters
+    ----------
+    run : LandmarkRun or MRCLAMRun
+        Needs ``x0``, ``u``, ``dt``, ``z``, ``ids``, ``M``, ``Q`` and ``landmarks``
+        (for the number of landmarks).
+    position_floor : float, keyword-only
+        Standard deviation (metres) added to the odometry edges' position
+        noise, positive.
+
+    Returns
+    -------
+    LandmarkGraph
+        Its ``landmark_ids`` give the landmark index of each row of ``L0``.
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Table 11.2 (GraphSLAM_linearize: motion and
+    measurement constraints), Table 5.3, Table 7.2 lines 3-6, Eq. 6.40.
+    """
+    floor = as_scalar(position_floor, "position_floor", positive=True)
+    x0 = as_array(run.x0, "run.x0", (3,))
+    u = as_array(run.u, "run.u", (None, 2))
+    dt = as_scalar(run.dt, "run.dt", positive=True)
+    M = as_covariance(run.M, "run.M", 2)
+    Q = as_covariance(run.Q, "run.Q", 2)
+    T = u.shape[0]
+    if len(run.z) != T or len(run.ids) != T:
+        raise ValueError(f"run.z and run.ids must hold one entry per step ({T})")
+    n_lm = int(np.asarray(run.landmarks).shape[0])
+    X0 = dead_reckoning(x0, u, dt)
+    # odometry edges: z_k = g(u_k, 0), covariance V M V^T + floor  (Table 5.3, Table 7.2 line 6)
+    z_odo, _, V = velocity_motion(np.zeros((T, 3)), u, dt)
+    R = V @ M @ V.T
+    R[:, 0, 0] += floor**2
+    R[:, 1, 1] += floor**2
+    odo = np.column_stack([np.arange(T), np.arange(1, T + 1)])
+    # sightings: z[k] is taken at pose k + 1
+    counts = np.array([len(i) for i in run.ids])
+    if counts.sum() == 0:
+        raise ValueError("the run has no landmark sighting: nothing to map")
+    Z = np.concatenate([np.reshape(zk, (-1, 2)) for zk, c in zip(run.z, counts) if c]).astype(np.float64)
+    ids = np.concatenate([np.asarray(i, dtype=np.int64).reshape(-1) for i in run.ids if len(i)])
+    if ids.min() < 0 or ids.max() >= n_lm:
+        raise ValueError(f"run.ids must index landmarks 0..{n_lm - 1} (known correspondences; no clutter)")
+    pose = np.repeat(np.arange(1, T + 1), counts)
+    seen, first_idx, row = np.unique(ids, return_index=True, return_inverse=True)
+    L0 = landmark_from_measurement(X0[pose[first_idx]], Z[first_idx])  # (Table 10.1 line 10)
+    Wl = np.broadcast_to(np.linalg.inv(Q), (Z.shape[0], 2, 2)).copy()
+    return LandmarkGraph(X0=X0, L0=L0, odo_edges=odo, odo_Z=z_odo, odo_Omega=np.linalg.inv(R),
+                         obs_edges=np.column_stack([pose, row]), obs_Z=Z, obs_Omega=Wl, landmark_ids=seen)
+
+
+def run_landmark_graph_slam(run, *, method="lm", max_iter=100, rtol=1e-9, robust=None, robust_scale=None,
+                            position_floor=1e-3):
+    """Full SLAM of a landmark run: build the graph, optimise it, return the path and the map.
+
+    Parameters
+    ----------
+    run : LandmarkRun or MRCLAMRun
+        Known correspondences (``run.ids`` index ``run.landmarks``).
+    method, max_iter, rtol, robust, robust_scale : keyword-only
+        As in :func:`optimize_landmark_graph`.
+    position_floor : float, keyword-only
+        As in :func:`landmark_graph_from_run`.
+
+    Returns
+    -------
+    x : ndarray, shape (T + 1, 3)
+        The smoothed path.
+    landmarks : ndarray, shape (N, 2)
+        Row ``j`` estimates ``run.landmarks[j]`` (zeros where never seen).
+    seen : bool ndarray, shape (N,)
+        Landmarks sighted at least once.
+    result : LandmarkGraphResult
+        The optimiser's record (chi2 per iteration, time, ...).
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Table 11.5 (GraphSLAM_known_correspondence).
+    """
+    graph = landmark_graph_from_run(run, position_floor=position_floor)
+    res = optimize_landmark_graph(graph, method=method, max_iter=max_iter, rtol=rtol, robust=robust,
+                                  robust_scale=robust_scale)
+    n_lm = int(np.asarray(run.landmarks).shape[0])
+    lm = np.zeros((n_lm, 2))
+    seen = np.zeros(n_lm, dtype=bool)
+    lm[graph.landmark_ids] = res.landmarks
+    seen[graph.landmark_ids] = True
+    return res.X, lm, seen, res
+
+
+def landmark_graph_slam_row(run, *, name="graph SLAM, known", **kw):
+    """A row of the real-data results table for landmark graph SLAM (known correspondences).
+
+    Runs :func:`run_landmark_graph_slam` on `run` and scores it with
+    :func:`~slamlib.scoring.score_run` against ``run.x_true`` and
+    ``run.landmarks`` exactly as the filters are scored (trajectory alignment
+    applied to the map, landmarks scored where seen).
+
+    Parameters
+    ----------
+    run : MRCLAMRun or LandmarkRun
+        With ground truth ``x_true`` and ``landmarks``.
+    name : str, keyword-only
+        Method name in the table.
+    **kw
+        Passed to :func:`run_landmark_graph_slam`.
+
+    Returns
+    -------
+    RunScore
+
+    References
+    ----------
+    Umeyama (1991); Thrun, Burgard & Fox (2005), Sec. 10.1 and Table 11.5.
+    """
+    x, lm, seen, _ = run_landmark_graph_slam(run, **kw)
+    return score_run(name, x, run.x_true, landmarks_est=lm, landmarks_true=run.landmarks, seen=seen)
