@@ -287,13 +287,16 @@ def _transform(pose, pts):
 def _associate(tgt, moved, max_dist, trim, need_normal):
     """Nearest target point of each moved source point; mask of the pairs kept."""
     d, j = tgt.tree.query(moved, k=1, distance_upper_bound=max_dist)
-    keep = np.isfinite(d)
-    j = np.where(keep, j, 0)
+    keep = d <= max_dist  # unmatched points have d = inf and j = N
+    j[~keep] = 0
     if need_normal:
         keep &= tgt.planar[j]
-    if trim < 1.0 and keep.any():
-        # trimmed ICP: keep the best fraction of the gated pairs
-        limit = np.quantile(d[keep], trim)
+    n = int(np.count_nonzero(keep))
+    if trim < 1.0 and n:
+        # trimmed ICP: keep the closest fraction of the gated pairs
+        dk = d[keep]
+        m = max(1, int(np.ceil(trim * n)))
+        limit = np.partition(dk, m - 1)[m - 1]
         keep &= d <= limit
     return d, j, keep
 
