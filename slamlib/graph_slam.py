@@ -39,8 +39,8 @@ holding the first pose where it is (``fixed=(0,)``): its rows and columns are
 removed from the system.
 
 Two optimisers: Gauss-Newton (solve ``H dx = -b``, step, repeat) and
-Levenberg-Marquardt (solve ``(H + lambda diag(H)) dx = -b``, accept the step
-only if it lowers ``F``, adapt ``lambda`` with Nielsen's rule). Both stop when
+Levenberg-Marquardt (solve ``(H + mu I) dx = -b`` with ``mu = lambda mean(diag H)``,
+accept the step only if it lowers ``F``, adapt ``lambda`` with Nielsen's rule). Both stop when
 ``F`` changes by less than ``rtol`` relative to its value, or after
 ``max_iter`` iterations. Robust kernels (Huber, Cauchy) replace each squared
 error ``s_k = e_k^T Omega_k e_k`` by ``rho(s_k)``, minimised by iteratively
@@ -609,7 +609,7 @@ def _as_information(Omega, E, d, name="Omega"):
         raise ValueError(f"{name}[{asym[0]}] must be symmetric")
     if E:
         eig = np.linalg.eigvalsh(W)
-        bad = np.flatnonzero(eig[:, 0] <= 1e-12 * eig[:, -1].clip(min=0) + 0.0)
+        bad = np.flatnonzero(eig[:, 0] <= 1e-15 * eig[:, -1].clip(min=0))
         if bad.size:
             raise ValueError(f"{name}[{bad[0]}] must be positive definite "
                              f"(smallest eigenvalue {eig[bad[0], 0]:.3g})")
@@ -670,6 +670,11 @@ def check_pose_graph_connected(n, edges, *, fixed=(0,)):
         Index pairs.
     fixed : sequence of int, keyword-only
         Anchored poses (default the first).
+
+    Returns
+    -------
+    None
+        Returns quietly when every pose is anchored.
 
     Raises
     ------
@@ -885,14 +890,14 @@ def _optimize(state, evaluate, layout, update, *, method, max_iter, rtol, lm_lam
             data, b = layout.values(blocks)
         else:
             damped = data.copy()
-            diag = data[layout.diag]
-            # (H + lambda diag(H)) dx = -b  (Marquardt's scaling; Madsen et al. 2004, Sec. 3.2)
-            damped[layout.diag] = diag + lam * diag
+            mu = lam * float(data[layout.diag].mean())
+            # (H + mu I) dx = -b, mu = lambda mean(diag H)  (Madsen et al. 2004, Eq. 3.13)
+            damped[layout.diag] += mu
             dx = layout.solve(damped, -b)
             cand = update(state, layout.expand(dx))
             new_cost, new_chi2, new_blocks, new_weights = evaluate(cand)
-            # predicted decrease of the quadratic model: -(2 b^T dx + dx^T H dx) = dx^T (lambda D dx - b)
-            predicted = float(dx @ (lam * diag * dx - b))
+            # predicted decrease of the quadratic model: -(2 b^T dx + dx^T H dx) = dx^T (mu dx - b)
+            predicted = float(dx @ (mu * dx - b))
             gain = (cost - new_cost) / predicted if predicted > 0 else -1.0
             if gain > 0:
                 converged = abs(cost - new_cost) <= rtol * cost or new_cost == 0.0
@@ -952,9 +957,12 @@ def optimize_pose_graph(X0, edges, Z, Omega, *, method="lm", max_iter=100, rtol=
     fixed : sequence of int, keyword-only
         Poses held fixed (the gauge); default the first pose.
     lm_lambda : float, keyword-only
-        Initial damping of Levenberg-Marquardt, relative to ``diag(H)``. Small:
-        the first step is nearly a Gauss-Newton step, and the damping grows
-        only where steps fail.
+        Initial damping ``lambda`` of Levenberg-Marquardt: the system solved is
+        ``(H + mu I) dx = -b`` with ``mu = lambda mean(diag H)``. Small: the
+        first step is nearly a Gauss-Newton step, and the damping grows only
+        where steps fail. (Isotropic damping converged in fewer iterations than
+        Marquardt's ``lambda diag(H)`` on the landmark graph of MRCLAM, and
+        equally fast on Intel and M3500.)
 
     Returns
     -------
@@ -1333,7 +1341,7 @@ def landmark_graph_from_run(run, *, position_floor=1e-3):
     X0 = dead_reckoning(x0, u, dt)
     # odometry edges: z_k = g(u_k, 0), covariance V M V^T + floor  (Table 5.3, Table 7.2 line 6)
     z_odo, _, V = velocity_motion(np.zeros((T, 3)), u, dt)
-    R = V @ M @ V.T
+    R = V @ M @ np.swapaxes(V, 1, 2)
     R[:, 0, 0] += floor**2
     R[:, 1, 1] += floor**2
     odo = np.column_stack([np.arange(T), np.arange(1, T + 1)])

@@ -197,7 +197,7 @@ def load_g2o(path):
     Omega[:, iu[1], iu[0]] = info
     if info.shape[0]:
         eig = np.linalg.eigvalsh(Omega)
-        notpd = np.flatnonzero(eig[:, 0] <= 1e-12 * np.maximum(eig[:, -1], 0.0))
+        notpd = np.flatnonzero(eig[:, 0] <= 1e-15 * np.maximum(eig[:, -1], 0.0))
         if notpd.size:
             k = notpd[0]
             raise ValueError(f"{path}:{eline[k]}: the information matrix of EDGE_SE2 {eij[k, 0]} {eij[k, 1]} is not "
