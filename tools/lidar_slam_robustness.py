@@ -45,7 +45,7 @@ def main():
         dt = time.perf_counter() - t0
         rows = ls.score_lidar_slam(res, ref.scan_index, ref.mean, log.laser_pose, log.ranges, log.angles, grid,
                                    z_max=log.max_range, sensor_offset=log.sensor_offset)
-        cells = " ".join(f"{r.ate:6.2f} / {r.occupied:.2f}" for r in rows)
+        cells = " ".join(f"{r.ate:5.2f} / {r.occupied:.3f}" for r in rows)
         n_loops = len(res.edges) - res.n_sequential
         slam = rows[2]
         ok = slam.occupied >= MAP_THRESHOLD and slam.ate <= rows[0].ate
