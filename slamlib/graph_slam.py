@@ -94,11 +94,14 @@ __all__ = [
     "PoseGraphResult",
     "optimize_pose_graph",
     "pose_graph_marginals",
+    "pose_graph_system",
+    "sparse_factor",
     "robust_weights",
     "LandmarkGraph",
     "LandmarkGraphResult",
     "landmark_graph_errors",
     "landmark_graph_chi2",
+    "landmark_graph_system",
     "optimize_landmark_graph",
     "landmark_graph_from_run",
     "run_landmark_graph_slam",
@@ -1067,6 +1070,75 @@ def pose_graph_marginals(result_or_X, edges, Z, Omega, *, poses, fixed=(0,), rob
     return out
 
 
+def pose_graph_system(X, edges, Z, Omega, *, fixed=(0,), reorder=False):
+    """The normal equations the optimisers solve: ``H`` and ``b`` with the fixed poses removed.
+
+    Parameters
+    ----------
+    X, edges, Z, Omega
+        As in :func:`build_linear_system`.
+    fixed : sequence of int, keyword-only
+        Poses held fixed (their rows and columns are removed).
+    reorder : bool, keyword-only
+        Put the unknowns in the fill-reducing order the optimisers use
+        (minimum degree on the pose blocks); otherwise pose by pose.
+
+    Returns
+    -------
+    H : scipy.sparse.csc_matrix, shape (3(n - f), 3(n - f))
+        Symmetric positive definite for a connected graph.
+    b : ndarray, shape (3(n - f),)
+    order : int ndarray, shape (3(n - f),)
+        ``order[k]`` is the variable (``3 pose + coordinate``) in row ``k``.
+
+    References
+    ----------
+    Grisetti et al. (2010), Eqs. 26-28 and Sec. IV-B; Davis et al. (2004) (fill-reducing orders).
+    """
+    X, edges, Z, Omega = _check_pose_graph(X, edges, Z, Omega)
+    n = X.shape[0]
+    fixed = _as_fixed(fixed, n)
+    _require_connected(n, edges, fixed)
+    layout = _Layout(3 * n, [(3 * edges[:, 0], 3, 3 * edges[:, 1], 3)], [3 * f + c for f in fixed for c in range(3)],
+                     order=bool(reorder))
+    e, A, B = _se2_edges(X[edges[:, 0]], X[edges[:, 1]], Z)
+    H, b = layout.assemble([(A, B, e, Omega)])
+    order = np.empty(layout.n, dtype=np.int64)
+    order[layout.new[layout.free_idx]] = layout.free_idx
+    return H, b, order
+
+
+def sparse_factor(H):
+    """Lower-triangular factor ``L`` of a symmetric positive definite sparse matrix, in the order given.
+
+    ``H = L D L^T`` with unit diagonal ``L`` (SuperLU without pivoting); its
+    non-zeros show the *fill-in*: entries that are zero in ``H`` but not in
+    ``L``. How many depends only on the order of the unknowns.
+
+    Parameters
+    ----------
+    H : scipy.sparse matrix or ndarray, shape (N, N)
+        Symmetric positive definite.
+
+    Returns
+    -------
+    scipy.sparse.csc_matrix, shape (N, N)
+        ``L``.
+
+    References
+    ----------
+    T. A. Davis, *Direct Methods for Sparse Linear Systems*, SIAM 2006, Ch. 4 (fill-in);
+    Dellaert & Kaess (2017), Sec. 3 (variable ordering in factor graphs).
+    """
+    H = sp.csc_matrix(H, dtype=np.float64)
+    if H.shape[0] != H.shape[1]:
+        raise ValueError(f"H must be square, got {H.shape}")
+    lu = splu(H, **SPLU_OPTIONS)
+    if not (np.array_equal(lu.perm_r, np.arange(H.shape[0])) and np.array_equal(lu.perm_c, np.arange(H.shape[0]))):
+        raise ValueError("H needed pivoting: it is not symmetric positive definite")
+    return lu.L.tocsc()
+
+
 # =========================================================================== landmark graph SLAM
 class LandmarkGraph(NamedTuple):
     """A full-SLAM problem with poses and point landmarks.
@@ -1248,6 +1320,40 @@ def landmark_graph_chi2(graph, X=None, L=None):
     e1, _, _ = _se2_edges(X[odo[:, 0]], X[odo[:, 1]], Zo)
     e2, _, _ = _landmark_edges(X[obs[:, 0]], L[obs[:, 1]], Zl)
     return float(_chi2_terms(e1, Wo).sum() + _chi2_terms(e2, Wl).sum())
+
+
+def landmark_graph_system(graph, X=None, L=None):
+    """Normal equations of a landmark graph, first pose fixed, unknowns pose by pose then landmarks.
+
+    Parameters
+    ----------
+    graph : LandmarkGraph
+    X : ndarray, shape (n, 3), optional
+        Poses to linearise at (default ``graph.X0``).
+    L : ndarray, shape (K, 2), optional
+        Landmarks to linearise at (default ``graph.L0``).
+
+    Returns
+    -------
+    H : scipy.sparse.csc_matrix, shape (3(n - 1) + 2K, 3(n - 1) + 2K)
+        The information matrix of poses ``1..n-1`` (rows ``3(k - 1) .. 3k - 1`` for pose ``k``)
+        followed by the landmarks.
+    b : ndarray, shape (3(n - 1) + 2K,)
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Table 11.2 (GraphSLAM_linearize: the information form
+    ``Omega``, ``xi`` of the full SLAM posterior).
+    """
+    X0, L0, odo, Zo, Wo, obs, Zl, Wl = _check_landmark_graph(graph)
+    X = X0 if X is None else as_array(X, "X", X0.shape)
+    L = L0 if L is None else as_array(L, "L", L0.shape)
+    n, K = X0.shape[0], L0.shape[0]
+    terms = [(3 * odo[:, 0], 3, 3 * odo[:, 1], 3), (3 * obs[:, 0], 3, 3 * n + 2 * obs[:, 1], 2)]
+    layout = _Layout(3 * n + 2 * K, terms, (0, 1, 2))
+    e1, A1, B1 = _se2_edges(X[odo[:, 0]], X[odo[:, 1]], Zo)
+    e2, A2, B2 = _landmark_edges(X[obs[:, 0]], L[obs[:, 1]], Zl)
+    return layout.assemble([(A1, B1, e1, Wo), (A2, B2, e2, Wl)])
 
 
 def optimize_landmark_graph(graph, *, method="lm", max_iter=100, rtol=1e-9, robust=None, robust_scale=None,
