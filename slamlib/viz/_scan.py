@@ -1,12 +1,12 @@
 """Plots for scan matching and mapping: two scans before and after ICP, an ICP run as an
-animation, its convergence, a pose graph with its loop closures, and a map laid over a
-reference map.
+animation, its convergence, and a map laid over a reference map (pose graphs are drawn by
+``_graph.plot_pose_graph``).
 
 matplotlib is imported inside the functions only (through ``_core``).
 
 References
 ----------
-Besl & McKay (1992) and Censi (2008) (ICP); Lu & Milios (1997) (pose graphs of scans);
+Besl & McKay (1992) and Censi (2008) (ICP);
 Thrun, Burgard & Fox, *Probabilistic Robotics* (2005), Ch. 9 (Figs. 9.5-9.7: occupancy grid
 maps built from range scans).
 """
@@ -18,7 +18,7 @@ import numpy as np
 from .._checks import as_array
 from ._core import _ax, animate, plot_grid
 
-__all__ = ["plot_scan_match", "animate_icp", "plot_icp_convergence", "plot_pose_graph", "plot_map_overlay"]
+__all__ = ["plot_scan_match", "animate_icp", "plot_icp_convergence", "plot_map_overlay"]
 
 
 def _moved(pose, pts):
@@ -67,7 +67,8 @@ def plot_scan_match(source, target, pose=None, ax=None, *, title=None, s=4.0):
     return ax
 
 
-def animate_icp(source, target, result, *, truth=None, window=None, figsize=(6.0, 4.0), interval=500, dpi=60):
+def animate_icp(source, target, result, *, truth=None, window=None, figsize=(6.0, 4.0), interval=500, dpi=60,
+                max_frames=10):
     """An ICP run as an animation: the source scan moving onto the target, round by round.
 
     Parameters
@@ -84,6 +85,9 @@ def animate_icp(source, target, result, *, truth=None, window=None, figsize=(6.0
         Axes limits.
     figsize, interval, dpi
         Figure size, milliseconds between frames, resolution of the frames.
+    max_frames : int, keyword-only
+        At most this many rounds are shown (evenly spaced, the first and the
+        last included): every frame is an embedded image.
 
     Returns
     -------
@@ -118,8 +122,9 @@ def animate_icp(source, target, result, *, truth=None, window=None, figsize=(6.0
             txt += f": {100 * err:.0f} cm, {np.rad2deg(abs(np.angle(np.exp(1j * (hist[k, 2] - truth[2]))))):.1f} deg off"
         ax.set_title(txt, fontsize=9)
 
+    frames = np.unique(np.round(np.linspace(0, len(hist) - 1, min(len(hist), int(max_frames)))).astype(int))
     update(0)
-    return animate(fig, update, range(len(hist)), interval=interval, dpi=dpi)
+    return animate(fig, update, frames, interval=interval, dpi=dpi)
 
 
 def plot_icp_convergence(results, truth, ax=None):
@@ -151,50 +156,6 @@ def plot_icp_convergence(results, truth, ax=None):
     ax.set_xlabel("ICP round")
     ax.set_ylabel("position error [m]")
     ax.legend()
-    return ax
-
-
-def plot_pose_graph(poses, edges, n_sequential, ax=None, *, grid=None, color="C0", label=None):
-    """A pose graph: the trajectory (sequential edges) and its loop-closure edges.
-
-    Parameters
-    ----------
-    poses : ndarray, shape (n, 3)
-        Poses.
-    edges : ndarray of int, shape (E, 2)
-        Edges; the first `n_sequential` are drawn as the path, the rest as
-        loop closures (thin red lines).
-    n_sequential : int
-        Number of sequential edges.
-    ax : matplotlib.axes.Axes, optional
-        Axes to draw on.
-    grid : OccupancyGrid, keyword-only, optional
-        A map drawn underneath.
-    color, label
-        Path colour and legend label.
-
-    Returns
-    -------
-    matplotlib.axes.Axes
-
-    References
-    ----------
-    Lu & Milios (1997), Fig. 3; Grisetti et al. (2010), Fig. 2 (pose graphs).
-    """
-    X = as_array(poses, "poses", (None, 3))
-    E = np.asarray(edges, dtype=int)
-    ax = _ax(ax)
-    if grid is not None:
-        plot_grid(grid, ax)
-    ax.plot(X[:, 0], X[:, 1], color=color, lw=1.2, label=label, zorder=3)
-    loops = E[int(n_sequential):]
-    for i, j in loops:
-        ax.plot(X[[i, j], 0], X[[i, j], 1], color="C3", lw=0.6, alpha=0.7, zorder=4)
-    if len(loops):
-        ax.plot([], [], color="C3", lw=0.6, label=f"loop closures ({len(loops)})")
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
     return ax
 
 
