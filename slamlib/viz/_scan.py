@@ -159,7 +159,7 @@ def plot_icp_convergence(results, truth, ax=None):
     return ax
 
 
-def plot_map_overlay(grid, reference, transform=None, ax=None, *, occupied=0.6, title=None, s=0.6):
+def plot_map_overlay(grid, reference, transform=None, ax=None, *, occupied=0.6, title=None, s=3.0):
     """A map's occupied cells (red) over a reference map, after a rigid transform.
 
     Parameters
@@ -192,7 +192,8 @@ def plot_map_overlay(grid, reference, transform=None, ax=None, *, occupied=0.6, 
     plot_grid(reference, ax, alpha=0.6)
     rc = np.argwhere(grid.occupied_mask(occupied))
     xy = grid.cell_to_world(rc).reshape(-1, 2) @ np.asarray(R).T + np.asarray(t)
-    ax.scatter(xy[:, 0], xy[:, 1], s=s, color="C3", marker="s", linewidths=0, label="occupied cells of the map")
+    ax.scatter(xy[:, 0], xy[:, 1], s=s, color="C3", marker="s", linewidths=0, label="occupied cells of the map",
+               zorder=3)
     if xy.shape[0]:
         lo, hi = xy.min(axis=0) - 3.0, xy.max(axis=0) + 3.0
         ax.set_xlim(lo[0], hi[0])
