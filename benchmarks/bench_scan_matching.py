@@ -24,9 +24,7 @@ minute.
 
 from __future__ import annotations
 
-import statistics
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -36,20 +34,8 @@ sys.path.insert(0, str(HERE.parent))
 
 import slamlib as sl  # noqa: E402
 from slamlib import mapping as mp  # noqa: E402
-from slamlib import scan_matching as sm  # noqa: E402
 from slamlib.datasets import cmu  # noqa: E402
-
-
-def median_time(fn, repeats, warmup=1):
-    """Median wall time of ``fn()`` over `repeats` calls, after `warmup` calls."""
-    for _ in range(warmup):
-        fn()
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
+from bench_localization import median_time  # noqa: E402  (the same timer as the other benchmarks)
 
 
 # --------------------------------------------------------------------------- baselines

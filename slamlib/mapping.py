@@ -45,7 +45,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from ._checks import as_array, as_scalar
+from ._checks import as_array, as_scalar, as_scan
 from .angles import wrap_angle
 from .maps import OccupancyGrid
 
@@ -167,16 +167,6 @@ def _spec(spec):
     return spec
 
 
-def _check_scan(ranges, angles):
-    ranges = as_array(ranges, "ranges", ndim=1)
-    angles = as_array(angles, "angles", ndim=1)
-    if ranges.shape != angles.shape:
-        raise ValueError(f"ranges {ranges.shape} and angles {angles.shape} must have the same length: one angle per beam")
-    if np.any(ranges < 0):
-        raise ValueError("ranges must be non-negative")
-    return ranges, angles
-
-
 # --------------------------------------------------------------------------- Table 9.2, cell by cell
 def inverse_range_sensor_model(cells, pose, ranges, angles, *, z_max, params=None, sensor_offset=0.0):
     """Table 9.2: the log odds a scan assigns to each cell, evaluated cell by cell.
@@ -215,7 +205,7 @@ def inverse_range_sensor_model(cells, pose, ranges, angles, *, z_max, params=Non
         raise TypeError(f"params must be an OccupancyParams, got {type(params).__name__}")
     cells = as_array(cells, "cells", (None, 2))
     pose = as_array(pose, "pose", (3,))
-    ranges, angles = _check_scan(ranges, angles)
+    ranges, angles = as_scan(ranges, angles)
     z_max = as_scalar(z_max, "z_max", positive=True, finite=False)
     off = as_scalar(sensor_offset, "sensor_offset")
     sx, sy = pose[0] + off * np.cos(pose[2]), pose[1] + off * np.sin(pose[2])
@@ -361,7 +351,7 @@ def scan_update_cells(spec, pose, ranges, angles, *, z_max, params=None, sensor_
     if not isinstance(params, OccupancyParams):
         raise TypeError(f"params must be an OccupancyParams, got {type(params).__name__}")
     pose = as_array(pose, "pose", (3,))
-    ranges, angles = _check_scan(ranges, angles)
+    ranges, angles = as_scan(ranges, angles)
     z_max = as_scalar(z_max, "z_max", positive=True, finite=False)
     off = as_scalar(sensor_offset, "sensor_offset")
     return _scan_cells(spec, pose, ranges, angles, z_max, params, off)

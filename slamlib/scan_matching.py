@@ -48,7 +48,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ._checks import as_array, as_index, as_scalar
+from ._checks import as_array, as_index, as_scalar, as_scan
 from .angles import wrap_angle
 
 __all__ = ["icp_align", "scan_to_points", "ICPResult", "icp"]
@@ -153,12 +153,7 @@ def scan_to_points(ranges, angles, *, max_range, min_range=0.0, sensor_offset=0.
     Thrun, Burgard & Fox (2005), Table 6.3 lines 4-5 (end point of a beam, in
     the robot frame here: pose at the origin).
     """
-    ranges = as_array(ranges, "ranges", ndim=1)
-    angles = as_array(angles, "angles", ndim=1)
-    if ranges.shape != angles.shape:
-        raise ValueError(f"ranges {ranges.shape} and angles {angles.shape} must have the same length: one angle per beam")
-    if np.any(ranges < 0):
-        raise ValueError("ranges must be non-negative")
+    ranges, angles = as_scan(ranges, angles)
     max_range = as_scalar(max_range, "max_range", positive=True, finite=False)
     min_range = as_scalar(min_range, "min_range", nonnegative=True)
     off = as_scalar(sensor_offset, "sensor_offset")

@@ -5,7 +5,6 @@ import pytest
 from scipy.optimize import minimize_scalar
 
 import slamlib as sl
-from slamlib import scan_matching as sm
 
 
 def _rot(a):

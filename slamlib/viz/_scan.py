@@ -1,5 +1,5 @@
-"""Plots for scan matching and mapping: two scans before and after ICP, an ICP run as an
-animation, its convergence, and a map laid over a reference map (pose graphs are drawn by
+"""Plots for scan matching and mapping: an ICP run as an animation, its convergence, and a
+map laid over a reference map (pose graphs are drawn by
 ``_graph.plot_pose_graph``).
 
 matplotlib is imported inside the functions only (through ``_core``).
@@ -18,53 +18,12 @@ import numpy as np
 from .._checks import as_array
 from ._core import _ax, animate, plot_grid
 
-__all__ = ["plot_scan_match", "animate_icp", "plot_icp_convergence", "plot_map_overlay"]
+__all__ = ["animate_icp", "plot_icp_convergence", "plot_map_overlay"]
 
 
 def _moved(pose, pts):
     c, s = np.cos(pose[2]), np.sin(pose[2])
     return pts @ np.array([[c, s], [-s, c]]) + pose[:2]
-
-
-def plot_scan_match(source, target, pose=None, ax=None, *, title=None, s=4.0):
-    """Two point sets: the target (black) and the source moved by `pose` (orange).
-
-    Parameters
-    ----------
-    source : ndarray, shape (N, 2)
-        Points of the scan to move, in its own frame.
-    target : ndarray, shape (M, 2)
-        Reference points.
-    pose : ndarray, shape (3,), optional
-        Pose of the source frame in the target frame (default: identity).
-    ax : matplotlib.axes.Axes, optional
-        Axes to draw on.
-    title : str, keyword-only, optional
-        Axes title.
-    s : float, keyword-only
-        Marker size.
-
-    Returns
-    -------
-    matplotlib.axes.Axes
-
-    References
-    ----------
-    Besl & McKay (1992), Fig. 1 (registration of two point sets).
-    """
-    src = as_array(source, "source", (None, 2))
-    tgt = as_array(target, "target", (None, 2))
-    pose = np.zeros(3) if pose is None else as_array(pose, "pose", (3,))
-    ax = _ax(ax)
-    moved = _moved(pose, src)
-    ax.scatter(tgt[:, 0], tgt[:, 1], s=s, color="k", label="target scan", zorder=3)
-    ax.scatter(moved[:, 0], moved[:, 1], s=s, color="C1", label="source scan", zorder=4)
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    if title is not None:
-        ax.set_title(title)
-    return ax
 
 
 def animate_icp(source, target, result, *, truth=None, window=None, figsize=(6.0, 4.0), interval=500, dpi=60,
