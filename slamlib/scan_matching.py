@@ -42,6 +42,7 @@ Eqs. 39-42. Thrun, Burgard & Fox, *Probabilistic Robotics* (2005), Sec. 6.3
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -54,6 +55,7 @@ from .angles import wrap_angle
 __all__ = ["icp_align", "scan_to_points", "ICPResult", "icp"]
 
 _METHODS = ("point_to_line", "point_to_point")
+_TWO_PI = 2.0 * math.pi
 
 
 # --------------------------------------------------------------------------- closed-form alignment
@@ -331,22 +333,26 @@ def _icp(src, tgt, init, method, max_iter, max_dist, trim, tol_t, tol_r, min_mat
             # Levenberg damping only where H is near-singular (a corridor): the step stays bounded
             H = H + 1e-9 * max(np.trace(H), 1e-12) * np.eye(3)
             delta = -np.linalg.solve(H, g)
-            new = np.array([pose[0] + delta[0], pose[1] + delta[1], wrap_angle(pose[2] + delta[2])])
+            new = pose + delta  # the heading is wrapped once, at the end
         else:
             # closed-form step on the matched pairs  (Besl & McKay 1992, Sec. III.C)
             R, t = _rigid_fit(src[keep], tgt.points[j[keep]])
             new = np.array([t[0], t[1], np.arctan2(R[1, 0], R[0, 0])])
-        step_t = np.hypot(new[0] - pose[0], new[1] - pose[1])
-        step_r = abs(wrap_angle(new[2] - pose[2]))
+        step_t = math.hypot(new[0] - pose[0], new[1] - pose[1])
+        step_r = abs(math.remainder(new[2] - pose[2], _TWO_PI))  # |wrapped difference|, scalar
         # a two-cycle: the associations flip between two sets and the pose between two values
         back = history[-2] if len(history) > 1 else pose
-        cycle = np.hypot(new[0] - back[0], new[1] - back[1]) < tol_t and abs(wrap_angle(new[2] - back[2])) < tol_r
+        cycle = (math.hypot(new[0] - back[0], new[1] - back[1]) < tol_t
+                 and abs(math.remainder(new[2] - back[2], _TWO_PI)) < tol_r)
         pose = new
         history.append(pose.copy())
         if step_t < tol_t and step_r < tol_r or cycle:
             converged = True
             break
-    return pose, it, converged, np.array(history)
+    pose = np.array([pose[0], pose[1], wrap_angle(pose[2])])
+    history = np.array(history)
+    history[:, 2] = wrap_angle(history[:, 2])
+    return pose, it, converged, history
 
 
 def _assess(tgt, src, pose, max_dist, trim, min_matches, degeneracy):
