@@ -497,3 +497,24 @@ def test_mrclam_robot1_row_beats_dead_reckoning():
     dr = sl.score_run("dead reckoning", sl.dead_reckoning(run.x0, run.u, run.dt), run.x_true)
     assert row.name == "graph SLAM, known"
     assert row.ate < 0.2 < dr.ate and row.landmark_rmse < 0.15 and row.n_landmarks == 15
+
+
+def test_sparse_factor_reproduces_H_and_reordering_reduces_fill():
+    g = load_intel()
+    X0 = sl.pose_graph_initial_guess(g.n_poses, g.edges, g.Z)
+    sub = (g.edges < 300).all(axis=1)
+    args = (X0[:300], g.edges[sub], g.Z[sub], g.Omega[sub])
+    H, b, order = sl.pose_graph_system(*args)
+    Hr, br, order_r = sl.pose_graph_system(*args, reorder=True)
+    np.testing.assert_array_equal(order, np.arange(3, 900))
+    # the reordered system is the same system with rows and columns permuted
+    pos = np.searchsorted(order, order_r)
+    np.testing.assert_allclose(Hr.toarray(), H.toarray()[np.ix_(pos, pos)], rtol=1e-12)
+    np.testing.assert_allclose(br, b[pos], rtol=1e-12)
+    for M in (H, Hr):
+        L = sl.sparse_factor(M)
+        d = np.diag(np.linalg.solve(L.toarray(), M.toarray()))  # L^-1 H = D L^T
+        np.testing.assert_allclose((L.toarray() * d) @ L.toarray().T, M.toarray(), rtol=1e-9, atol=1e-6)
+    assert sl.sparse_factor(Hr).nnz < 0.2 * sl.sparse_factor(H).nnz
+    with pytest.raises(ValueError, match="square"):
+        sl.sparse_factor(H[:5])

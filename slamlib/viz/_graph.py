@@ -124,7 +124,7 @@ def plot_pose_graphs(panels, edges=None, *, highlight=None, size=4.2):
     return axes[0]
 
 
-def plot_sparsity(M, ax=None, *, title=None, markersize=None, tol=0.0):
+def plot_sparsity(M, ax=None, *, title=None, resolution=600, tol=0.0):
     """Draw the non-zero pattern of a matrix, with the count in the title.
 
     Parameters
@@ -135,8 +135,9 @@ def plot_sparsity(M, ax=None, *, title=None, markersize=None, tol=0.0):
         Axes to draw on; a new figure if omitted.
     title : str, optional, keyword-only
         Title; the number of non-zeros is appended.
-    markersize : float, optional, keyword-only
-        Marker size (default: from the matrix size).
+    resolution : int, keyword-only
+        Matrices with more rows than this are drawn binned to this many pixels
+        a side, a bin dark if any of its entries is non-zero.
     tol : float, keyword-only
         Entries with ``|m_ij| <= tol * max |m|`` count as zero (for dense matrices).
 
@@ -159,19 +160,21 @@ def plot_sparsity(M, ax=None, *, title=None, markersize=None, tol=0.0):
         A = as_array(M, "M", ndim=2)
         r, c = np.nonzero(np.abs(A) > tol * np.abs(A).max())
         N = A.shape[0]
-    ms = markersize if markersize is not None else max(0.05, min(2.0, 300.0 / N))
-    ax.plot(c, r, "s", ms=ms, mew=0, color="k", rasterized=True)
-    ax.set_xlim(-0.5, N - 0.5)
-    ax.set_ylim(N - 0.5, -0.5)
+    # one pixel per entry up to 600 x 600; larger matrices are binned, a bin dark if any entry in it is
+    B = max(1, min(N, int(resolution)))
+    img = np.zeros((B, B), dtype=bool)
+    img[r * B // N, c * B // N] = True
+    ax.imshow(img, cmap="Greys", vmin=0, vmax=1, interpolation="nearest", extent=(-0.5, N - 0.5, N - 0.5, -0.5))
     ax.set_aspect("equal")
     ax.set_xticks([])
     ax.set_yticks([])
-    frac = r.size / float(N * N)
-    ax.set_title(f"{title + ': ' if title else ''}{r.size:,} non-zeros ({100 * frac:.2g} %)", fontsize=9)
+    pct = 100.0 * r.size / float(N * N)
+    share = f"{pct:.0f} %" if pct >= 10 else f"{pct:.2g} %"
+    ax.set_title(f"{title + ': ' if title else ''}{r.size:,} non-zeros ({share})", fontsize=9)
     return ax
 
 
-def plot_sparsity_panels(matrices, *, size=3.6, tol=0.0, markersize=None):
+def plot_sparsity_panels(matrices, *, size=3.6, tol=0.0, resolution=600):
     """Sparsity patterns side by side (e.g. ``H`` and its factor in two orders).
 
     Parameters
@@ -182,7 +185,7 @@ def plot_sparsity_panels(matrices, *, size=3.6, tol=0.0, markersize=None):
         Width and height of a panel, inches.
     tol : float, keyword-only
         As in :func:`plot_sparsity`.
-    markersize : float, optional, keyword-only
+    resolution : int, keyword-only
         As in :func:`plot_sparsity`.
 
     Returns
@@ -200,7 +203,7 @@ def plot_sparsity_panels(matrices, *, size=3.6, tol=0.0, markersize=None):
     fig, axes = plt.subplots(1, len(matrices), figsize=(size * len(matrices), size + 0.3), layout="constrained",
                              squeeze=False)
     for ax, (name, M) in zip(axes[0], matrices.items()):
-        plot_sparsity(M, ax=ax, title=name, tol=tol, markersize=markersize)
+        plot_sparsity(M, ax=ax, title=name, tol=tol, resolution=resolution)
     return axes[0]
 
 
