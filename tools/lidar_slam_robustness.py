@@ -23,7 +23,7 @@ def main():
     ref = ls.cmu_reference_track(grid, log, rng=np.random.default_rng(99))
     base = ls.LidarSlamParams()
     runs = [("default", {}, {})]
-    runs += [(f"every {k}th beam", {"beam_step": k}, {}) for k in (2, 3)]
+    runs += [(f"one beam in {k}", {"beam_step": k}, {}) for k in (2, 3)]
     runs += [(f"keyframes {d} m", {"min_translation": d}, {}) for d in (0.1, 0.4)]
     runs += [(f"start at scan {s}", {}, {"start": s}) for s in (40, 120)]
     runs += [(f"loop radius {r} m", {"loop_radius": r}, {}) for r in (1.0, 3.0)]
