@@ -12,12 +12,14 @@ Layers, bottom up:
 * :mod:`slamlib.gaussian`, :mod:`slamlib.particle`, :mod:`slamlib.mcl` -- localization
 * :mod:`slamlib.ekf_slam`, :mod:`slamlib.fastslam` -- SLAM
 * :mod:`slamlib.graph_slam` -- full SLAM: pose graphs and landmark graphs as sparse least squares
+* :mod:`slamlib.scan_matching`, :mod:`slamlib.mapping`, :mod:`slamlib.lidar_slam` -- ICP, occupancy grids, lidar SLAM
 * :mod:`slamlib.datasets` -- loaders of the real robot logs shipped in ``slamlib/data``
 * :mod:`slamlib.viz` -- plotting (the only module that imports matplotlib)
 """
 
 from . import angles, bayes, motion, sensors, maps, sim, metrics, scoring, gaussian, particle, mcl, ekf_slam, fastslam
 from . import graph_slam
+from . import scan_matching, mapping, lidar_slam
 from .angles import *  # noqa: F401,F403
 from .bayes import *  # noqa: F401,F403
 from .motion import *  # noqa: F401,F403
@@ -32,6 +34,9 @@ from .mcl import *  # noqa: F401,F403
 from .ekf_slam import *  # noqa: F401,F403
 from .fastslam import *  # noqa: F401,F403
 from .graph_slam import *  # noqa: F401,F403
+from .scan_matching import *  # noqa: F401,F403
+from .mapping import *  # noqa: F401,F403
+from .lidar_slam import *  # noqa: F401,F403
 
 __version__ = "0.1.0"
 
@@ -40,6 +45,7 @@ __all__ = (
     + gaussian.__all__ + particle.__all__ + mcl.__all__ + ekf_slam.__all__ + fastslam.__all__
 )
 __all__ += graph_slam.__all__
+__all__ += scan_matching.__all__ + mapping.__all__ + lidar_slam.__all__
 
 
 def __getattr__(name):

@@ -438,3 +438,18 @@ def as_index(value, name, upper=None, *, lower=0):
         want = f">= {lower}" if upper is None else f"in [{lower}, {upper})"
         raise ValueError(f"{name} must be {want}, got {out}")
     return out
+
+
+def as_scan(ranges, angles):
+    """Return a range scan ``(ranges (K,), angles (K,))`` as new float64 arrays after checking it.
+
+    Ranges must be finite (no NaN) and non-negative, one angle per beam; the
+    errors name the argument.
+    """
+    ranges = as_array(ranges, "ranges", ndim=1)
+    angles = as_array(angles, "angles", ndim=1)
+    if ranges.shape != angles.shape:
+        raise ValueError(f"ranges {ranges.shape} and angles {angles.shape} must have the same length: one angle per beam")
+    if np.any(ranges < 0):
+        raise ValueError("ranges must be non-negative")
+    return ranges, angles

@@ -2,7 +2,7 @@
 
 Functions live in private submodules by topic (``_core``: poses, ellipses,
 particles, landmarks, grids, animations; ``_bayes``; ``_filters``; ``_mcl``;
-``_slam``; ``_fastslam``; ``_real_data``; ``_graph``) and are
+``_slam``; ``_fastslam``; ``_real_data``; ``_graph``; ``_scan``) and are
 re-exported here. Every function takes an optional ``ax`` and returns it.
 """
 
@@ -14,3 +14,4 @@ from ._slam import *  # noqa: F401,F403
 from ._fastslam import *  # noqa: F401,F403
 from ._real_data import *  # noqa: F401,F403
 from ._graph import *  # noqa: F401,F403
+from ._scan import *  # noqa: F401,F403
