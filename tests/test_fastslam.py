@@ -112,41 +112,56 @@ def test_update_wraps_the_bearing_innovation():
     assert np.linalg.norm(mu_new[0] - mu[0]) < 0.2
 
 
-def test_weight_cov_Q_is_the_erratum_and_agrees_only_for_a_certain_landmark():
+def _text_weight(x, mu, Sigma, z, Q):
+    """The course text's Algorithm 3 as printed: det(2 pi S)^(-1/2) exp(-1/2 nu^T Q^-1 nu)."""
+    H = _Hm(x, mu)
+    nu = z - _h(x, mu)
+    nu[1] = _wrap(nu[1])
+    S = H @ Sigma @ H.T + Q
+    return np.exp(-0.5 * nu @ np.linalg.solve(Q, nu)) / np.sqrt(np.linalg.det(2 * np.pi * S))
+
+
+def test_weight_cov_text_is_the_course_texts_formula_and_agrees_only_for_a_certain_landmark():
     rng = np.random.default_rng(2)
     x = _particles(rng, 5)
     mu = x[:, :2] + np.c_[np.cos(x[:, 2]), np.sin(x[:, 2])] * 6.0
     z = np.array([6.3, 0.05])
     certain = np.tile(1e-12 * np.eye(2), (5, 1, 1))
     _, _, wS = sl.fastslam_update_landmark(x, mu, certain, z, Q)
-    _, _, wQ = sl.fastslam_update_landmark(x, mu, certain, z, Q, weight_cov="Q")
-    np.testing.assert_allclose(wQ, wS, rtol=1e-6)
-    for k in range(5):  # the erratum: N(nu; 0, Q) whatever the landmark's covariance
-        nu = z - _h(x[k], mu[k])
-        np.testing.assert_allclose(wQ[k], stats.multivariate_normal(np.zeros(2), Q).pdf(nu), rtol=1e-10)
+    _, _, wT = sl.fastslam_update_landmark(x, mu, certain, z, Q, weight_cov="text")
+    np.testing.assert_allclose(wT, wS, rtol=1e-6)
+    Sigma = _random_spd(rng, 5, 0.3)
+    _, _, wT = sl.fastslam_update_landmark(x, mu, Sigma, z, Q, weight_cov="text")
+    for k in range(5):  # S in the normaliser, Q^-1 in the exponent, whatever the landmark's covariance
+        np.testing.assert_allclose(wT[k], _text_weight(x[k], mu[k], Sigma[k], z, Q), rtol=1e-10)
     # two particles at one pose with a landmark of 1 m standard deviation: A expects z exactly, B's mean is
     # 0.3 m nearer. Under S = H Sigma H^T + Q (range variance 1.01 m^2) B is about as likely as A; the
-    # erratum scores the 0.3 m as three range sigmas of Q and cuts B's relative weight to exp(-4.5).
+    # text's exponent scores the 0.3 m as three range sigmas of Q and cuts B's relative weight to exp(-4.5).
     pose = np.zeros((2, 3))
     mu = np.array([[6.3, 0.0], [6.0, 0.0]])
     z = np.array([6.3, 0.0])
     uncertain = np.tile(np.eye(2), (2, 1, 1))
     m1, s1, wS = sl.fastslam_update_landmark(pose, mu, uncertain, z, Q)
-    m2, s2, wQ = sl.fastslam_update_landmark(pose, mu, uncertain, z, Q, weight_cov="Q")
+    m2, s2, wT = sl.fastslam_update_landmark(pose, mu, uncertain, z, Q, weight_cov="text")
     np.testing.assert_array_equal(m1, m2)  # only the weight differs, never the EKF update
     np.testing.assert_array_equal(s1, s2)
     ratio_S = _ekf(pose[1], mu[1], uncertain[1], z, Q)[2] / _ekf(pose[0], mu[0], uncertain[0], z, Q)[2]
     np.testing.assert_allclose(wS[1] / wS[0], ratio_S, rtol=1e-10)
     assert ratio_S > 0.9
-    np.testing.assert_allclose(wQ[1] / wQ[0], np.exp(-0.5 * 0.3**2 / Q[0, 0]), rtol=1e-10)
+    ratio_T = _text_weight(pose[1], mu[1], uncertain[1], z, Q) / _text_weight(pose[0], mu[0], uncertain[0], z, Q)
+    np.testing.assert_allclose(wT[1] / wT[0], ratio_T, rtol=1e-10)
+    assert ratio_T < 1.1 * np.exp(-0.5 * 0.3**2 / Q[0, 0])
+    with pytest.raises(ValueError, match="weight_cov='text'"):
+        sl.fastslam_update_landmark(pose, mu, uncertain, z, Q, weight_cov="Q")
 
 
 @pytest.mark.parametrize("lam", [3.0, 10.0])
-def test_ess_of_S_and_Q_weights_match_theory(lam):
+def test_ess_of_S_and_text_weights_match_theory(lam):
     # Particles at one pose whose landmark means are spread as their covariance says, mu_k ~ N(m, Sigma),
     # Sigma = lam * H^-1 Q H^-T, so nu_k ~ N(0, lam Q) (to first order). For weights exp(-nu^T C^-1 nu / 2):
     # ESS / M -> det(I + 2 C^-1 A)^(1/2) / det(I + C^-1 A) with A = lam Q; C = S = (1 + lam) Q gives
-    # (1 + 3 lam)(1 + lam) / (1 + 2 lam)^2 (>= 3/4), the erratum C = Q gives (1 + 2 lam) / (1 + lam)^2 (-> 0).
+    # (1 + 3 lam)(1 + lam) / (1 + 2 lam)^2 (>= 3/4), the text's exponent C = Q gives (1 + 2 lam) / (1 + lam)^2
+    # (-> 0).
     x = np.array([0.0, 0.0, 0.3])
     m = np.array([15.0, 8.0])
     z = _h(x, m)
@@ -158,12 +173,13 @@ def test_ess_of_S_and_Q_weights_match_theory(lam):
     mu = m + rng.multivariate_normal(np.zeros(2), Sigma, size=n)
     xs, Sig = np.tile(x, (n, 1)), np.tile(Sigma, (n, 1, 1))
     ess = {}
-    for wc in ("S", "Q"):
+    for wc in ("S", "text"):
         _, _, lw = sl.fastslam_update_landmark(xs, mu, Sig, z, Qs, weight_cov=wc, log=True)
         ess[wc] = sl.effective_sample_size(np.exp(lw - lw.max())) / n
     assert ess["S"] == pytest.approx((1 + 3 * lam) * (1 + lam) / (1 + 2 * lam) ** 2, abs=0.02)
-    assert ess["Q"] == pytest.approx((1 + 2 * lam) / (1 + lam) ** 2, abs=0.02)
-    assert ess["Q"] < 0.6 * ess["S"]
+    # the text's normaliser |2 pi S|^-1/2 is (nearly) the same for all these particles: only its exponent counts
+    assert ess["text"] == pytest.approx((1 + 2 * lam) / (1 + lam) ** 2, abs=0.02)
+    assert ess["text"] < 0.6 * ess["S"]
 
 
 def test_contract_functions_batched_equals_looped():
