@@ -87,6 +87,7 @@ MAX_LANDMARKS = 100_000
 #: Largest memory a particle set's landmark slots may take, ``M x N x 57`` bytes (1 GiB).
 MAX_SLOT_BYTES = 2**30
 _SLOT_BYTES = 57  # mu 16 + Sigma 32 + counts 8 + seen 1
+_MAX_LOG_DET = 600.0  # det Q and 1 / det Q (and those of S) stay far from float64's overflow, e^709
 #: Default per-particle validation gate: the 99.999 % point of chi-square with 2 degrees of freedom,
 #: ``-2 ln 1e-5`` (about 23.0), the same as EKF SLAM's ``DEFAULT_ALPHA``.
 DEFAULT_GATE = float(-2.0 * np.log(1e-5))
@@ -238,13 +239,14 @@ def _check_gate(gate):
 
 def _check_Q(Q):
     Q = as_covariance(Q, "Q", 2)
-    if np.linalg.eigvalsh(Q).min() <= 0:
+    lam = np.linalg.eigvalsh(Q)
+    if lam.min() <= 0:
         raise ValueError("Q must be positive definite")
-    det = Q[0, 0] * Q[1, 1] - Q[0, 1] * Q[1, 0]
-    if not (np.isfinite(det) and det > 0 and np.isfinite(1.0 / det)):
-        raise ValueError(f"Q is out of the representable range: det Q = {det:.3g} (its entries are squared "
-                         "standard deviations, e.g. diag([0.1, 0.02])**2; the weights need det Q and its "
-                         "inverse as finite positive floats)")
+    log_det = float(np.log(lam).sum())
+    if not abs(log_det) < _MAX_LOG_DET:
+        raise ValueError(f"Q is out of the representable range: log det Q = {log_det:.4g} (its entries are "
+                         "squared standard deviations, e.g. diag([0.1, 0.02])**2; the weights need det Q and "
+                         f"its inverse as floats, |log det Q| < {_MAX_LOG_DET})")
     return Q
 
 
