@@ -1282,15 +1282,23 @@ def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rn
     P = [np.ones(n), np.zeros(n), np.ones(n)]  # information of the proposal over eta, prior N(0, I)
     b = [np.zeros(n), np.zeros(n)]
     match = np.full((n, K), -1, dtype=np.int64)  # landmark slot of each measurement, -1: new
-    used = np.flatnonzero(seen.any(axis=0))
-    hi = int(used[-1]) + 1 if used.size else 0
-    if hi and K:
-        sn = seen[:, :hi]
-        mu_s = np.where(sn[..., None], mu[:, :hi], x_hat[:, None, :2] + 1.0)  # keep h defined on empty slots
-        z_bar, G, Qj = _predict_terms(x_hat, B, mu_s, Sigma[:, :hi], Q)  # Table 13.3 lines 5-9, every landmark
+    cols = np.flatnonzero(seen.any(axis=0))
+    if cols.size and K:
+        # candidates: landmarks some particle predicts within reach of the step's ranges, with a margin of
+        # ten standard deviations of sensor, landmark and motion noise; any other has a likelihood below
+        # exp(-50) |2 pi Q|^-1/2, far below p0, and could never be chosen
+        d = np.hypot(mu[:, cols, 0] - x_hat[:, None, 0], mu[:, cols, 1] - x_hat[:, None, 1])
+        spread = np.sqrt(Sigma[:, cols, 0, 0] + Sigma[:, cols, 1, 1])
+        margin = 10.0 * (np.sqrt(Q[0, 0]) + spread + np.sqrt((B * B).sum(axis=(1, 2)))[:, None])
+        near = seen[:, cols] & (d >= z[:, 0].min() - margin) & (d <= z[:, 0].max() + margin)
+        cols = cols[near.any(axis=0)]
+    if cols.size and K:
+        sn = seen[:, cols]
+        mu_s = np.where(sn[..., None], mu[:, cols], x_hat[:, None, :2] + 1.0)  # keep h defined on empty slots
+        z_bar, G, Qj = _predict_terms(x_hat, B, mu_s, Sigma[:, cols], Q)  # Table 13.3 lines 5-9, every candidate
         g00, g01, g10, g11 = G[..., 0, 0], G[..., 0, 1], G[..., 1, 0], G[..., 1, 1]
         avail = sn.copy()
-    for i in range(K if hi else 0):
+    for i in range(K if cols.size else 0):
         zi = z[i]
         _, (c00, c01, c11) = _inv_sym(*P)
         m0 = c00 * b[0] + c01 * b[1]  # proposal mean of eta so far
@@ -1322,7 +1330,7 @@ def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rn
             b[0][k] += b_[0]
             b[1][k] += b_[1]
             avail[k, jk] = False
-            match[k, i] = jk
+            match[k, i] = cols[jk]
     x = _move(x_prev, u, dt, L, _sample_eta(tuple(P), tuple(b), rng, n))  # x_t ~ proposal  (line 12)
     matched = np.zeros_like(seen)
     kk, ii = np.nonzero(match >= 0)
