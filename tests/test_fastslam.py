@@ -775,7 +775,8 @@ def _fs2_case(n, rng):
 
 
 def test_fs2_proposal_is_table_13_3_with_R_equal_V_M_Vt():
-    # Table 13.3 lines 5-11 and 33-34 by np.linalg, with R_t = V M V^T (rank 2: the Woodbury form of line 10)
+    # Table 13.3's proposal and weight by np.linalg, with R_t = V M V^T (rank 2: the Woodbury form of its
+    # Sigma_x = (H_x^T Q_j^-1 H_x + R_t^-1)^-1)
     rng = np.random.default_rng(40)
     x, u, dt, mu, Sigma, z = _fs2_case(6, rng)
     prop = sl.fastslam2_proposal(x, u, dt, M2, mu, Sigma, z, Q2)
@@ -792,7 +793,7 @@ def test_fs2_proposal_is_table_13_3_with_R_equal_V_M_Vt():
         np.testing.assert_allclose(sl.pose_error(prop.x_mean[k], mean), 0.0, atol=1e-12)
         np.testing.assert_allclose(prop.x_cov[k], cov, rtol=1e-9, atol=1e-15)
         np.testing.assert_allclose(prop.log_w[k], stats.multivariate_normal(np.zeros(2), Lk).logpdf(nu), rtol=1e-10)
-        # with a full-rank R the information form of line 10 gives the same covariance
+        # with a full-rank R the information form of Table 13.3 gives the same covariance
         R3 = R + 1e-4 * np.eye(3)
         info = np.linalg.inv(Hx.T @ np.linalg.inv(Qj) @ Hx + np.linalg.inv(R3))
         wood = R3 - R3 @ Hx.T @ np.linalg.inv(Hx @ R3 @ Hx.T + Qj) @ Hx @ R3
