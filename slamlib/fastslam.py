@@ -788,13 +788,19 @@ def fastslam_update_unknown(state, z, Q, *, p0=None, weight_cov="S", max_range=N
     z = _z_matrix(z)
     Q = _check_Q(Q)
     _check_weight_cov(weight_cov)
+    log_p0, max_range, half_fov = _unknown_options(Q, p0, max_range, fov)
+    return _update_unknown_core(state, z, Q, log_p0, weight_cov, max_range, half_fov)
+
+
+def _unknown_options(Q, p0, max_range, fov):
+    """Checked ``log p0``, perceptual range and half field of view of the unknown-correspondence updates."""
     log_p0 = np.log(fastslam_default_p0(Q) if p0 is None else as_scalar(p0, "p0", positive=True))
     if max_range is not None:
         max_range = as_scalar(max_range, "max_range", positive=True)
     half_fov = np.pi if fov is None else 0.5 * as_scalar(fov, "fov", positive=True)
     if fov is not None and max_range is None:
         raise ValueError("fov needs max_range (the perceptual range) as well")
-    return _update_unknown_core(state, z, Q, log_p0, weight_cov, max_range, half_fov)
+    return log_p0, max_range, half_fov
 
 
 def _update_unknown_core(state, z, Q, log_p0, weight_cov, max_range, half_fov, copy=True):
@@ -1252,12 +1258,7 @@ def fastslam2_update_unknown(state, u, dt, z, Q, *, M, rng, p0=None, max_range=N
     Q = _check_Q(Q)
     L = _check_M(M)
     check_rng(rng)
-    log_p0 = np.log(fastslam_default_p0(Q) if p0 is None else as_scalar(p0, "p0", positive=True))
-    if max_range is not None:
-        max_range = as_scalar(max_range, "max_range", positive=True)
-    half_fov = np.pi if fov is None else 0.5 * as_scalar(fov, "fov", positive=True)
-    if fov is not None and max_range is None:
-        raise ValueError("fov needs max_range (the perceptual range) as well")
+    log_p0, max_range, half_fov = _unknown_options(Q, p0, max_range, fov)
     return _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rng)
 
 
