@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._checks import as_array
-from ._core import _ax, animate, plot_grid
+from ._core import _axes, animate, plot_grid
 
 __all__ = ["animate_icp", "plot_icp_convergence", "plot_map_overlay"]
 
@@ -107,7 +107,7 @@ def plot_icp_convergence(results, truth, ax=None):
     Censi (2008), Fig. 4 (convergence of point-to-point and point-to-line ICP).
     """
     truth = as_array(truth, "truth", (3,))
-    ax = _ax(ax)
+    ax = _axes(ax)
     for k, (name, res) in enumerate(results.items()):
         h = np.asarray(res.history)
         err = np.hypot(h[:, 0] - truth[0], h[:, 1] - truth[1])
@@ -147,7 +147,7 @@ def plot_map_overlay(grid, reference, transform=None, ax=None, *, occupied=0.6, 
     Thrun, Burgard & Fox (2005), Sec. 9.2 (occupancy grid maps).
     """
     R, t = (np.eye(2), np.zeros(2)) if transform is None else transform
-    ax = _ax(ax)
+    ax = _axes(ax)
     plot_grid(reference, ax, alpha=0.6)
     rc = np.argwhere(grid.occupied_mask(occupied))
     xy = grid.cell_to_world(rc).reshape(-1, 2) @ np.asarray(R).T + np.asarray(t)
