@@ -196,20 +196,21 @@ def _jcbb(mu, sub_sigma, Z, d, Q, alpha):
 
     `mu` is the state mean, ``sub_sigma(cols)`` returns ``Sigma[cols][:, cols]``,
     ``Z (K, 2)`` the measurements and ``d (K, N)`` their squared Mahalanobis
-    distances to the ``N`` landmarks. Returns the pairing ``(K,)``: a landmark
-    index, :data:`JCBB_NEW` or :data:`JCBB_UNPAIRED`.
+    distances to the ``N`` landmarks. Returns the pairing ``(K,)`` (a landmark
+    index, :data:`JCBB_NEW` or :data:`JCBB_UNPAIRED`) and the joint squared
+    Mahalanobis distance of the pairs it makes.
     """
     K = Z.shape[0]
     compat = d <= alpha  # individual compatibility  (Neira & Tardos 2001, Sec. III)
     pairing = np.where(compat.any(axis=1), JCBB_UNPAIRED, JCBB_NEW)
     pi, pj = np.nonzero(compat)  # candidate pairs (measurement, landmark)
     if pi.size == 0:
-        return pairing
+        return pairing, 0.0
     if np.all(pi == pi[0]):
         # one measurement with candidates: the joint test is the individual one, the best hypothesis the nearest neighbour
         i = int(pi[0])
         pairing[i] = int(np.argmin(np.where(compat[i], d[i], np.inf)))
-        return pairing
+        return pairing, float(d[i, pairing[i]])
     # sub-state: the robot and the candidate landmarks; H of every pair on it, stacked
     cand = np.unique(pj)
     pos = np.searchsorted(cand, pj)
@@ -255,7 +256,7 @@ def _jcbb(mu, sub_sigma, Z, d, Q, alpha):
     search(0, [], frozenset(), 0.0)
     for p in best_pairs:
         pairing[pi[p]] = pj[p]
-    return pairing
+    return pairing, best_d2
 
 
 def jcbb_associate(mu_bar, Sigma_bar, z, n_seen, Q, alpha):
@@ -325,7 +326,7 @@ def _dense_jcbb(mu, Sigma, Z, N, Q, alpha):
         return np.full(Z.shape[0], JCBB_NEW)
     z_hat, Sk = _predicted(mu, *_dense_blocks(Sigma, N), Q)
     d = _nis(Z, z_hat, Sk)
-    return _jcbb(mu, lambda cols: Sigma[np.ix_(cols, cols)], Z, d, Q, alpha)
+    return _jcbb(mu, lambda cols: Sigma[np.ix_(cols, cols)], Z, d, Q, alpha)[0]
 
 
 def joint_mahalanobis(mu_bar, Sigma_bar, z, j, Q):
@@ -1140,7 +1141,7 @@ class EKFSLAM:
     def _jcbb(self, Z, Q, alpha):
         if self.n_landmarks == 0:
             return np.full(Z.shape[0], JCBB_NEW)
-        return _jcbb(self._mu[:self._n], self._sub_sigma, Z, self._distances(Z, Q), Q, alpha)
+        return _jcbb(self._mu[:self._n], self._sub_sigma, Z, self._distances(Z, Q), Q, alpha)[0]
 
     def associate(self, z, Q, alpha):
         """Data association of Algorithm 2, vectorised over landmarks.
