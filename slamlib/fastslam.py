@@ -21,17 +21,30 @@ return a new state and never write into the one they are given.
 
 The importance weight of a measurement of a known landmark is the density of
 the innovation under the *innovation* covariance ``S = H Sigma H^T + Q``.
-The course text's Algorithm 3 prints ``Q^-1`` (the measurement noise) in the
-exponent; that is an erratum (it ignores the landmark's own uncertainty and
-makes the weights far too peaked). ``weight_cov="Q"`` reproduces the erratum
-for demonstrations only.
+The course text's Algorithm 3 writes it
+``det(2 pi S)^(-1/2) exp(-1/2 nu Q^-1 nu)``: ``S`` in the normaliser but
+``Q^-1`` (the measurement noise) in the exponent. That is an erratum (the
+exponent ignores the landmark's own uncertainty and makes the weights far too
+peaked); ``weight_cov="text"`` computes the text's formula for
+demonstrations only.
+
+FastSLAM 2.0 (Thrun et al. Table 13.3; Montemerlo et al. 2003) samples each
+particle's pose from a proposal that includes the step's measurements
+(:func:`fastslam2_proposal`, :func:`fastslam2_update_known`,
+:func:`fastslam2_update_unknown`; ``run_fastslam(..., version=2)``).
+
+Capacity: a particle set holds ``M x N`` landmark slots of 56 bytes each;
+landmark indices must stay below :data:`MAX_LANDMARKS` and a set may not
+exceed :data:`MAX_SLOT_BYTES`, so that a wrong index fails with a message
+instead of an allocation of many gigabytes.
 
 References
 ----------
 Course text, Eq. 17.4 and Algorithm 3 (FastSLAM 1.0).
 Thrun, Burgard & Fox, *Probabilistic Robotics* (2005), Chapter 13 (the
 factored posterior), Table 13.1 (known correspondences), Table 13.2 (unknown
-correspondences). Montemerlo et al. (2002), FastSLAM.
+correspondences), Table 13.3 (FastSLAM 2.0). Montemerlo et al. (2002),
+FastSLAM; Montemerlo et al. (2003), FastSLAM 2.0.
 """
 
 from __future__ import annotations
@@ -39,13 +52,13 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from scipy.special import logsumexp
 
-from .particle import effective_sample_size, low_variance_resample, normalize_log_weights
+from .particle import _normalized, effective_sample_size, low_variance_resample, normalize_log_weights, particle_gaussian
 from ._checks import as_array, as_covariance, as_scalar, check_rng
-from .angles import circular_mean, wrap_angle
-from .motion import _control_sqrt, sample_motion_model_velocity, velocity_motion
+from .angles import wrap_angle
+from .motion import _arc, _arc_pose, _control_sqrt, sample_motion_model_velocity, velocity_motion
 from .sensors import landmark_from_measurement, landmark_measurement
+from .sim import LandmarkRun
 
 __all__ = [
     "fastslam_init_landmark",
@@ -59,12 +72,25 @@ __all__ = [
     "fastslam_estimate",
     "fastslam_map_moments",
     "fastslam_default_p0",
+    "FastSLAM2Proposal",
+    "fastslam2_proposal",
+    "fastslam2_update_known",
+    "fastslam2_update_unknown",
     "FastSLAMResult",
     "run_fastslam",
 ]
 
 _LOG_2PI = float(np.log(2.0 * np.pi))
-_WEIGHT_COVS = ("S", "Q")
+
+#: Largest number of landmark slots per particle (landmark indices must be below it).
+MAX_LANDMARKS = 100_000
+#: Largest memory a particle set's landmark slots may take, ``M x N x 57`` bytes (1 GiB).
+MAX_SLOT_BYTES = 2**30
+_SLOT_BYTES = 57  # mu 16 + Sigma 32 + counts 8 + seen 1
+_MAX_LOG_DET = 600.0  # det Q and 1 / det Q (and those of S) stay far from float64's overflow, e^709
+#: Default per-particle validation gate: the 99.999 % point of chi-square with 2 degrees of freedom,
+#: ``-2 ln 1e-5`` (about 23.0), the same as EKF SLAM's ``DEFAULT_ALPHA``.
+DEFAULT_GATE = float(-2.0 * np.log(1e-5))
 
 
 # --------------------------------------------------------------------------- 2x2 algebra
@@ -138,8 +164,20 @@ def _log_gauss_2(nu0, nu1, C00, C01, C11):
     return -0.5 * maha - _LOG_2PI - 0.5 * np.log(det)
 
 
-def _update_core(x, mu, Sigma, z, Q, weight_cov="S"):
-    """Per-particle landmark EKF update and log importance weight (Table 13.1 lines 12-18)."""
+def _maha_2(nu0, nu1, C00, C01, C11):
+    """Squared Mahalanobis distance ``nu^T C^-1 nu`` of 2-vectors, written out."""
+    return (nu0 * nu0 * C11 - 2.0 * nu0 * nu1 * C01 + nu1 * nu1 * C00) / (C00 * C11 - C01 * C01)
+
+
+def _update_core(x, mu, Sigma, z, Q, weight_cov="S", gate=None):
+    """Per-particle landmark EKF update and log importance weight (Table 13.1 lines 12-18).
+
+    Returns ``(mu_new, Sigma_new, log_w, outlier)``. With a `gate`, a
+    measurement whose squared Mahalanobis distance ``nu^T S^-1 nu`` exceeds it
+    is an outlier for that particle: its landmark is left as it was and its
+    log weight is the density at the gate (``outlier`` is a boolean mask, else
+    ``None``).
+    """
     z_hat, _, H = landmark_measurement(x, mu)  # z_hat = h(mu_j, x), H = h'(mu_j, x)  (Table 13.1 lines 12-13)
     nu0 = z[..., 0] - z_hat[..., 0]
     nu1 = wrap_angle(z[..., 1] - z_hat[..., 1])
@@ -160,25 +198,55 @@ def _update_core(x, mu, Sigma, z, Q, weight_cov="S"):
     Sigma_new[..., 0, 0] = s00 - (K00 * a00 + K01 * a10)
     Sigma_new[..., 0, 1] = Sigma_new[..., 1, 0] = s01 - 0.5 * (K00 * a01 + K01 * a11 + K10 * a00 + K11 * a10)
     Sigma_new[..., 1, 1] = s11 - (K10 * a01 + K11 * a11)
+    # d = nu^T S^-1 nu
+    maha = (nu0 * nu0 * i00 + 2.0 * nu0 * nu1 * i01 + nu1 * nu1 * i11)
+    log_norm = -_LOG_2PI - 0.5 * np.log(det)  # log |2 pi S|^-1/2
     if weight_cov == "S":
         # w = |2 pi S|^-1/2 exp(-1/2 nu^T S^-1 nu)  (Table 13.1 line 18)
-        log_w = _log_gauss_2(nu0, nu1, S00, S01, S11)
+        log_w = log_norm - 0.5 * maha
     else:
-        # erratum of the course text's Algorithm 3: Q^-1 (measurement noise only) in the exponent
-        log_w = _log_gauss_2(nu0, nu1, Q[0, 0], 0.5 * (Q[0, 1] + Q[1, 0]), Q[1, 1])
-    return mu_new, Sigma_new, log_w
+        # the course text's Algorithm 3 as printed: |2 pi S|^-1/2 exp(-1/2 nu Q^-1 nu) (an erratum)
+        log_w = log_norm - 0.5 * _maha_2(nu0, nu1, Q[0, 0], 0.5 * (Q[0, 1] + Q[1, 0]), Q[1, 1])
+    outlier = None
+    if gate is not None:
+        outlier = maha > gate  # per-particle validation gate on nu^T S^-1 nu  (chi-square, 2 dof)
+        if outlier.any():
+            mu_new = np.where(outlier[..., None], mu, mu_new)
+            Sigma_new = np.where(outlier[..., None, None], Sigma, Sigma_new)
+            # outlier likelihood: the Gaussian density at the gate, |2 pi S|^-1/2 exp(-gate / 2)
+            log_w = np.where(outlier, log_norm - 0.5 * gate, log_w)
+    return mu_new, Sigma_new, log_w, outlier
+
+
+_WEIGHT_COVS = ("S", "text")
 
 
 def _check_weight_cov(weight_cov):
-    if weight_cov not in _WEIGHT_COVS:
-        raise ValueError(f"weight_cov must be 'S' (innovation covariance) or 'Q' (the erratum), got {weight_cov!r}")
+    if isinstance(weight_cov, str) and weight_cov == "Q":
+        raise ValueError("weight_cov='Q' is gone: the course text's formula is weight_cov='text' "
+                         "(|2 pi S|^-1/2 exp(-1/2 nu^T Q^-1 nu))")
+    if not isinstance(weight_cov, str) or weight_cov not in _WEIGHT_COVS:
+        raise ValueError(f"weight_cov must be 'S' (innovation covariance) or 'text' (the course text's erratum), "
+                         f"got {weight_cov!r}")
     return weight_cov
+
+
+def _check_gate(gate):
+    if gate is None:
+        return None
+    return as_scalar(gate, "gate", positive=True)
 
 
 def _check_Q(Q):
     Q = as_covariance(Q, "Q", 2)
-    if np.linalg.eigvalsh(Q).min() <= 0:
+    lam = np.linalg.eigvalsh(Q)
+    if lam.min() <= 0:
         raise ValueError("Q must be positive definite")
+    log_det = float(np.log(lam).sum())
+    if not abs(log_det) < _MAX_LOG_DET:
+        raise ValueError(f"Q is out of the representable range: log det Q = {log_det:.4g} (its entries are "
+                         "squared standard deviations, e.g. diag([0.1, 0.02])**2; the weights need det Q and "
+                         f"its inverse as floats, |log det Q| < {_MAX_LOG_DET})")
     return Q
 
 
@@ -229,7 +297,7 @@ def fastslam_init_landmark(x, z, Q):
     return _init_core(x, z, Q)
 
 
-def fastslam_update_landmark(x, mu, Sigma, z, Q, *, weight_cov="S", log=False):
+def fastslam_update_landmark(x, mu, Sigma, z, Q, *, weight_cov="S", log=False, gate=None):
     """EKF update of one landmark in every particle, with the importance weight.
 
     Parameters
@@ -245,14 +313,23 @@ def fastslam_update_landmark(x, mu, Sigma, z, Q, *, weight_cov="S", log=False):
         Measurement ``[r, phi]``.
     Q : ndarray, shape (2, 2)
         Measurement-noise covariance, positive definite.
-    weight_cov : {"S", "Q"}, keyword-only
-        Covariance of the importance weight. ``"S"`` (default, correct):
-        ``S = H Sigma H^T + Q``. ``"Q"`` reproduces the erratum of the course
-        text's Algorithm 3, ``N(nu; 0, Q)``, which ignores the landmark's
-        uncertainty; it exists only to demonstrate why that is wrong.
+    weight_cov : {"S", "text"}, keyword-only
+        ``"S"`` (default, correct): ``w = N(nu; 0, S)``,
+        ``S = H Sigma H^T + Q``. ``"text"`` computes the course text's
+        Algorithm 3 as printed, ``|2 pi S|^-1/2 exp(-1/2 nu^T Q^-1 nu)``
+        (``S`` in the normaliser, the measurement noise ``Q`` in the
+        exponent), an erratum kept only to demonstrate why it is wrong.
     log : bool, keyword-only
         Return ``log w`` instead of ``w`` (what the filter uses: many
         landmarks in view underflow ``w``, never ``log w``).
+    gate : float, optional, keyword-only
+        Per-particle validation gate on the squared Mahalanobis distance
+        ``d = nu^T S^-1 nu`` (e.g. :data:`DEFAULT_GATE`, the 99.999 % point of
+        chi-square with 2 degrees of freedom). Where ``d > gate`` the
+        measurement is an outlier for that particle: its landmark is returned
+        unchanged and its weight is the outlier likelihood
+        ``|2 pi S|^-1/2 exp(-gate / 2)``, the Gaussian's density at the gate.
+        Off by default (the homework contract).
 
     Returns
     -------
@@ -283,9 +360,10 @@ def fastslam_update_landmark(x, mu, Sigma, z, Q, *, weight_cov="S", log=False):
     z = _z_arg(z)
     Q = _check_Q(Q)
     _check_weight_cov(weight_cov)
+    gate = _check_gate(gate)
     if np.any(np.hypot(mu[..., 0] - x[..., 0], mu[..., 1] - x[..., 1]) < 1e-9):
         raise ValueError("mu coincides with a particle pose x: the measurement Jacobian is undefined")
-    mu_new, Sigma_new, log_w = _update_core(x, mu, Sigma, z, Q, weight_cov)
+    mu_new, Sigma_new, log_w, _ = _update_core(x, mu, Sigma, z, Q, weight_cov, gate)
     return mu_new, Sigma_new, (log_w if log else np.exp(log_w))
 
 
@@ -367,7 +445,8 @@ def fastslam_initial_state(x0, n_particles, capacity):
         Number of particles ``M >= 1``.
     capacity : int
         Landmark slots per particle ``N >= 1`` (grown automatically by the
-        unknown-correspondence update when full).
+        updates when full), at most :data:`MAX_LANDMARKS`, with
+        ``n_particles x capacity x 57`` bytes at most :data:`MAX_SLOT_BYTES`.
 
     Returns
     -------
@@ -382,6 +461,7 @@ def fastslam_initial_state(x0, n_particles, capacity):
     x0 = as_array(x0, "x0", (3,))
     M = _as_count(n_particles, "n_particles")
     N = _as_count(capacity, "capacity")
+    _check_capacity(M, N, "capacity")
     x0 = x0.copy()
     x0[2] = wrap_angle(x0[2])
     return FastSLAMState(
@@ -400,10 +480,6 @@ def _as_count(value, name):
     if value < 1:
         raise ValueError(f"{name} must be at least 1, got {value}")
     return int(value)
-
-
-def _normalised(log_w):
-    return log_w - logsumexp(log_w)
 
 
 def fastslam_predict(state, u, dt, *, rng, M=None, alpha=None):
@@ -471,12 +547,26 @@ def _rounds(ids):
     return [np.flatnonzero(occurrence == r) for r in range(int(occurrence.max(initial=-1)) + 1)]
 
 
-def _grow(state, need):
+def _check_capacity(M, N, name):
+    """Refuse a particle set whose landmark slots would exceed the documented limits."""
+    if N > MAX_LANDMARKS:
+        raise ValueError(f"{name} needs {N} landmark slots per particle; at most MAX_LANDMARKS = {MAX_LANDMARKS} "
+                         "are supported (landmark indices must be below it)")
+    if M * N * _SLOT_BYTES > MAX_SLOT_BYTES:
+        raise ValueError(f"{name}: {M} particles x {N} landmark slots would take "
+                         f"{M * N * _SLOT_BYTES / 2**30:.2f} GiB; the limit is MAX_SLOT_BYTES = "
+                         f"{MAX_SLOT_BYTES / 2**30:.0f} GiB (fewer particles or landmarks)")
+
+
+def _grow(state, need, name="ids"):
     """Copy of `state` with at least `need` landmark slots."""
     M, N = state.seen.shape
     if need <= N:
         return state
-    N2 = max(need, 2 * N)
+    _check_capacity(M, need, name)
+    N2 = min(max(need, 2 * N), MAX_LANDMARKS)
+    if M * N2 * _SLOT_BYTES > MAX_SLOT_BYTES:
+        N2 = need
     mu = np.zeros((M, N2, 2))
     Sigma = np.zeros((M, N2, 2, 2))
     seen = np.zeros((M, N2), dtype=bool)
@@ -496,7 +586,19 @@ def _z_matrix(z):
     return z
 
 
-def fastslam_update_known(state, z, ids, Q, *, weight_cov="S"):
+def _ids_arg(ids, K):
+    ids = np.asarray(ids)
+    if ids.shape != (K,) or (ids.size and ids.dtype.kind not in "iu"):
+        raise ValueError(f"ids must be integers of shape ({K},), got {ids.shape} dtype {ids.dtype}")
+    if np.any(ids < 0):
+        raise ValueError("ids must be non-negative landmark indices")
+    if ids.size and ids.max() >= MAX_LANDMARKS:
+        raise ValueError(f"ids must be below MAX_LANDMARKS = {MAX_LANDMARKS} (landmark slots per particle), "
+                         f"got {int(ids.max())}")
+    return ids.astype(np.int64)
+
+
+def fastslam_update_known(state, z, ids, Q, *, weight_cov="S", gate=None, return_outliers=False):
     """Incorporate a step's measurements with known correspondences, all particles at once.
 
     Parameters
@@ -506,13 +608,19 @@ def fastslam_update_known(state, z, ids, Q, *, weight_cov="S"):
     z : ndarray, shape (K, 2)
         Measurements ``[r, phi]`` of the step (``K = 0`` allowed).
     ids : ndarray of int, shape (K,)
-        Landmark index of each measurement (the correspondences ``c_t``);
-        slots are grown if an index exceeds the capacity.
+        Landmark index of each measurement (the correspondences ``c_t``),
+        below :data:`MAX_LANDMARKS`; slots are grown if an index exceeds the
+        capacity (within :data:`MAX_SLOT_BYTES`).
     Q : ndarray, shape (2, 2)
         Measurement-noise covariance.
-    weight_cov : {"S", "Q"}, keyword-only
-        Importance-weight covariance; ``"Q"`` is the course text's erratum,
+    weight_cov : {"S", "text"}, keyword-only
+        Importance-weight covariance; ``"text"`` is the course text's erratum,
         for demonstrations only (see :func:`fastslam_update_landmark`).
+    gate : float, optional, keyword-only
+        Per-particle chi-square gate on ``nu^T S^-1 nu`` (see
+        :func:`fastslam_update_landmark`); off by default.
+    return_outliers : bool, keyword-only
+        Also return the outlier mask.
 
     Returns
     -------
@@ -521,6 +629,10 @@ def fastslam_update_known(state, z, ids, Q, *, weight_cov="S"):
         landmark seen for the first time is initialised (its factor ``p0`` is
         the same for every particle and cancels); measurements of seen
         landmarks multiply the weight by ``N(nu; 0, S)``.
+    outliers : ndarray of bool, shape (M, K)
+        Only with `return_outliers`: which measurement the gate rejected in
+        which particle (measurements with a non-positive range are never
+        outliers; they are skipped).
 
     Notes
     -----
@@ -535,29 +647,34 @@ def fastslam_update_known(state, z, ids, Q, *, weight_cov="S"):
     """
     _check_state(state)
     z = _z_matrix(z)
-    ids = np.asarray(ids)
-    if ids.shape != (z.shape[0],) or (ids.size and ids.dtype.kind not in "iu"):
-        raise ValueError(f"ids must be integers of shape ({z.shape[0]},), got {ids.shape} dtype {ids.dtype}")
-    if np.any(ids < 0):
-        raise ValueError("ids must be non-negative landmark indices")
+    ids = _ids_arg(ids, z.shape[0])
     Q = _check_Q(Q)
     _check_weight_cov(weight_cov)
+    gate = _check_gate(gate)
     keep = z[:, 0] > 0
-    z, ids = z[keep], ids[keep].astype(np.int64)
-    if z.shape[0] == 0:
-        return state
-    state = _grow(state, int(ids.max()) + 1)
-    return _update_known_core(state, z, ids, Q, weight_cov)
+    outliers = np.zeros((state.n_particles, z.shape[0]), dtype=bool)
+    if not keep.any():
+        return (state, outliers) if return_outliers else state
+    state = _grow(state, int(ids[keep].max()) + 1)
+    new, out = _update_known_core(state, z[keep], ids[keep], Q, weight_cov, gate=gate)
+    outliers[:, keep] = out
+    return (new, outliers) if return_outliers else new
 
 
-def _update_known_core(state, z, ids, Q, weight_cov, copy=True):
-    """Known-correspondence update of all particles; ``copy=False`` writes into `state`'s arrays."""
+def _update_known_core(state, z, ids, Q, weight_cov, copy=True, gate=None):
+    """Known-correspondence update of all particles; ``copy=False`` writes into `state`'s arrays.
+
+    Returns the new state and the outlier mask ``(M, K)`` of the per-particle
+    gate (all False without a `gate`).
+    """
     if copy:
         mu, Sigma = state.mu.copy(), state.Sigma.copy()
         seen, counts = state.seen.copy(), state.counts.copy()
     else:
         mu, Sigma, seen, counts = state.mu, state.Sigma, state.seen, state.counts
     log_w = state.log_weights.copy()
+    M = state.n_particles
+    outliers = np.zeros((M, ids.size), dtype=bool)
     x = state.poses[:, None, :]  # (M, 1, 3)
     for obs in _rounds(ids):
         j, zk = ids[obs], z[obs]  # (k,), (k, 2)
@@ -566,9 +683,12 @@ def _update_known_core(state, z, ids, Q, weight_cov, copy=True):
         if np.all(fresh | known):  # the usual case: all particles agree on which landmarks are new
             if known.any():
                 jk = j[known]
-                mu_u, Sigma_u, lw = _update_core(x, mu[:, jk], Sigma[:, jk], zk[known], Q, weight_cov)  # (12-18)
-                mu[:, jk], Sigma[:, jk] = mu_u, Sigma_u
-                log_w = log_w + lw.sum(axis=1)
+                mu_u, Sigma_u, lw, out = _update_core(x, mu[:, jk], Sigma[:, jk], zk[known], Q, weight_cov, gate)
+                mu[:, jk], Sigma[:, jk] = mu_u, Sigma_u  # (Table 13.1 lines 12-17)
+                log_w = log_w + lw.sum(axis=1)  # (Table 13.1 line 18), several measurements multiply
+                if out is not None:
+                    outliers[:, obs[known]] = out
+                    counts[:, jk] -= out  # an outlier is not a sighting of the landmark
             if fresh.any():
                 # mu_j = h^-1(z, x), Sigma_j = H^-1 Q H^-T; w = p0, equal for all particles  (Table 13.1 lines 7-10)
                 mu[:, j[fresh]], Sigma[:, j[fresh]] = _init_core(x, zk[fresh], Q)
@@ -577,13 +697,17 @@ def _update_known_core(state, z, ids, Q, weight_cov, copy=True):
             # the update must not see the placeholder mean of an unseen slot
             mu_old = np.where(new[..., None], mu_init, mu[:, j])
             Sigma_old = np.where(new[..., None, None], Sigma_init, Sigma[:, j])
-            mu_upd, Sigma_upd, lw = _update_core(x, mu_old, Sigma_old, zk, Q, weight_cov)
+            mu_upd, Sigma_upd, lw, out = _update_core(x, mu_old, Sigma_old, zk, Q, weight_cov, gate)
             mu[:, j] = np.where(new[..., None], mu_old, mu_upd)
             Sigma[:, j] = np.where(new[..., None, None], Sigma_old, Sigma_upd)
             log_w = log_w + np.where(new, 0.0, lw).sum(axis=1)  # new: w = p0 for all  (Table 13.1 line 10)
+            if out is not None:
+                out = out & ~new
+                outliers[:, obs] = out
+                counts[:, j] -= out
         seen[:, j] = True
         counts[:, j] += 1
-    return FastSLAMState(state.poses, mu, Sigma, seen, counts, _normalised(log_w))
+    return FastSLAMState(state.poses, mu, Sigma, seen, counts, _normalized(log_w)), outliers
 
 
 def fastslam_default_p0(Q, gate=13.815510557964274):
@@ -628,9 +752,9 @@ def fastslam_update_unknown(state, z, Q, *, p0=None, weight_cov="S", max_range=N
     p0 : float, optional, keyword-only
         Likelihood of a new landmark (Table 13.2 ``p0``); default
         :func:`fastslam_default_p0` of `Q`.
-    weight_cov : {"S", "Q"}, keyword-only
-        Importance-weight covariance of a matched measurement; ``"Q"`` is the
-        course text's erratum (see :func:`fastslam_update_landmark`). The
+    weight_cov : {"S", "text"}, keyword-only
+        Importance weight of a matched measurement; ``"text"`` is the course
+        text's erratum (see :func:`fastslam_update_landmark`). The
         association itself always uses ``S``.
     max_range : float, optional, keyword-only
         Sensor range. When given, the landmark counters are maintained as in
@@ -716,11 +840,11 @@ def _update_unknown_core(state, z, Q, log_p0, weight_cov, max_range, half_fov, c
         if old.any():
             k, jk = rows[old], j[old]
             # EKF update of landmark c_hat  (Table 13.2)
-            mu_n, Sigma_n, lw = _update_core(x[k], mu[k, jk], Sigma[k, jk], zk, Q, weight_cov)
+            mu_n, Sigma_n, lw, _ = _update_core(x[k], mu[k, jk], Sigma[k, jk], zk, Q, weight_cov)
             mu[k, jk], Sigma[k, jk] = mu_n, Sigma_n
             counts[k, jk] += 1  # i_j = i_j + 1  (Table 13.2)
             matched[k, jk] = True
-            # w = max_j w_j  (Table 13.2); the erratum swaps its covariance for Q
+            # w = max_j w_j  (Table 13.2); the text's erratum puts Q^-1 in the exponent
             log_w[k] += best[old] if weight_cov == "S" else lw
             refresh(k, jk)
         if is_new.any():
@@ -734,15 +858,499 @@ def _update_unknown_core(state, z, Q, log_p0, weight_cov, max_range, half_fov, c
             log_w[k] += log_p0  # w = p0  (Table 13.2)
             refresh(k, slot)
     if max_range is not None:
-        mu_safe = np.where(seen[..., None], mu, x[:, None, :2] + 1.0)
-        z_hat, _, _ = landmark_measurement(x[:, None, :], mu_safe)
-        in_view = seen & (z_hat[..., 0] <= max_range) & (np.abs(z_hat[..., 1]) <= half_fov)
-        miss = in_view & ~matched
-        counts = counts - miss  # i_j = i_j - 1 for unmatched landmarks in range  (Table 13.2)
-        drop = seen & (counts < 0)  # discard landmark j when i_j < 0  (Table 13.2)
-        seen = seen & ~drop
-        counts = np.where(seen, counts, 0)
-    return FastSLAMState(x, mu, Sigma, seen, counts, _normalised(log_w))
+        seen, counts = _prune(x, mu, seen, counts, matched, max_range, half_fov)
+    return FastSLAMState(x, mu, Sigma, seen, counts, _normalized(log_w))
+
+
+def _prune(x, mu, seen, counts, matched, max_range, half_fov):
+    """Landmark counters of Table 13.2: a landmark in the perceptual range that no measurement matched
+    loses a count and is discarded below zero."""
+    mu_safe = np.where(seen[..., None], mu, x[:, None, :2] + 1.0)
+    z_hat, _, _ = landmark_measurement(x[:, None, :], mu_safe)
+    in_view = seen & (z_hat[..., 0] <= max_range) & (np.abs(z_hat[..., 1]) <= half_fov)
+    miss = in_view & ~matched
+    counts = counts - miss  # i_j = i_j - 1 for unmatched landmarks in range  (Table 13.2)
+    drop = seen & (counts < 0)  # discard landmark j when i_j < 0  (Table 13.2)
+    seen = seen & ~drop
+    return seen, np.where(seen, counts, 0)
+
+
+# --------------------------------------------------------------------------- FastSLAM 2.0
+# The proposal of Table 13.3 linearises the measurement about the predicted pose x_hat = g(x_{t-1}, u_t).
+# The motion noise here lives in control space (u_t + N(0, M), as in FastSLAM 1.0 and the simulator), so its
+# pose-space covariance R_t = V M V^T (V = dg/du) has rank 2 and no inverse; Table 13.3 line 10 needs
+# R_t^-1. The same Gaussian is computed in the coordinates eta of the control noise, u_t + L eta with
+# L L^T = M and eta ~ N(0, I): the measurement's Jacobian with respect to eta is G = H_x V L, the
+# proposal over eta has information P = I + sum_i G_i^T Q_i^-1 G_i and mean P^-1 b with
+# b = sum_i G_i^T Q_i^-1 (z_i - z_bar_i), and the sampled pose is the exact arc g(x_{t-1}, u_t + L eta).
+# Mapped to pose space to first order this is Table 13.3's N(mu_x, Sigma_x) with R_t = V M V^T (the tests
+# check it against the Woodbury form of lines 10-11); all algebra is on 2x2 blocks.
+
+
+def _inv_sym(C00, C01, C11):
+    """Determinant and inverse ``(i00, i01, i11)`` of symmetric 2x2 blocks."""
+    det = C00 * C11 - C01 * C01
+    return det, (C11 / det, -C01 / det, C00 / det)
+
+
+def _gauss_terms(G, Qj, r0, r1):
+    """``A = G^T Qj^-1 G`` (3 components), ``b = G^T Qj^-1 r`` and ``log N(r; 0, Qj)``, written out."""
+    g00, g01, g10, g11 = G[..., 0, 0], G[..., 0, 1], G[..., 1, 0], G[..., 1, 1]
+    det, (i00, i01, i11) = _inv_sym(*Qj)
+    c00 = g00 * i00 + g10 * i01  # C = G^T Qj^-1
+    c01 = g00 * i01 + g10 * i11
+    c10 = g01 * i00 + g11 * i01
+    c11 = g01 * i01 + g11 * i11
+    A = (c00 * g00 + c01 * g10, c00 * g01 + c01 * g11, c10 * g01 + c11 * g11)
+    b = (c00 * r0 + c01 * r1, c10 * r0 + c11 * r1)
+    log_n = -0.5 * (r0 * r0 * i00 + 2.0 * r0 * r1 * i01 + r1 * r1 * i11) - _LOG_2PI - 0.5 * np.log(det)
+    return A, b, log_n
+
+
+def _predict_terms(x_hat, B, mu, Sigma, Q):
+    """Table 13.3 lines 6-9 for every (particle, landmark): ``z_bar``, ``G = H_x V L`` and ``Q_j``.
+
+    ``x_hat (M, 3)``, ``B = V L (M, 3, 2)``, ``mu (M, K, 2)``, ``Sigma (M, K, 2, 2)``.
+    """
+    z_bar, Hx, Hm = landmark_measurement(x_hat[:, None, :], mu)  # z_bar = h(mu_j, x_hat), H_x, H_m  (lines 6-8)
+    _, Qj, _ = _innovation(Hm, Sigma, Q)  # Q_j = Q_t + H_m Sigma_j H_m^T  (line 9)
+    G = np.empty(Hm.shape)  # G = H_x V L: the measurement's Jacobian with respect to the control noise eta
+    b = B[:, None]
+    for i in range(2):
+        for c in range(2):
+            G[..., i, c] = Hx[..., i, 0] * b[..., 0, c] + Hx[..., i, 1] * b[..., 1, c] + Hx[..., i, 2] * b[..., 2, c]
+    return z_bar, G, Qj
+
+
+def _sample_eta(P, b, rng, n):
+    """Draw ``eta ~ N(P^-1 b, P^-1)`` for 2x2 information blocks ``P = (P00, P01, P11)``; one
+    ``rng.standard_normal((n, 2))``."""
+    _, (c00, c01, c11) = _inv_sym(*P)  # Sigma_eta = P^-1  (Table 13.3 line 10)
+    m0 = c00 * b[0] + c01 * b[1]  # mean = P^-1 b  (line 11)
+    m1 = c01 * b[0] + c11 * b[1]
+    l00 = np.sqrt(c00)  # Cholesky factor of P^-1
+    l10 = c01 / l00
+    l11 = np.sqrt(np.maximum(c11 - l10 * l10, 0.0))
+    e = rng.standard_normal((n, 2))
+    eta = np.empty((n, 2))
+    eta[:, 0] = m0 + l00 * e[:, 0]  # eta ~ N(mean, P^-1)  (line 12)
+    eta[:, 1] = m1 + l10 * e[:, 0] + l11 * e[:, 1]
+    return eta
+
+
+def _posterior_log_factor(P, b):
+    """``1/2 b^T P^-1 b - 1/2 log det P``: with ``sum_i log N(r_i; 0, Q_i)`` the log of
+    ``N(r; 0, G G^T + Q)`` (matrix determinant lemma and Woodbury)."""
+    det, (c00, c01, c11) = _inv_sym(*P)
+    return 0.5 * (b[0] * b[0] * c00 + 2.0 * b[0] * b[1] * c01 + b[1] * b[1] * c11) - 0.5 * np.log(det)
+
+
+def _motion_terms(x_prev, u, dt, L):
+    """``x_hat = g(x_{t-1}, u_t)`` and ``B = V L`` (Table 13.3 line 5; ``V = dg/du``)."""
+    x_hat, _, V = _arc(x_prev, u, dt)
+    B = np.einsum("...ij,jk->...ik", V, L)
+    return x_hat, B
+
+
+def _move(x_prev, u, dt, L, eta):
+    """The sampled pose: the exact arc of the control ``u + L eta``."""
+    return _arc_pose(x_prev, u + eta @ L.T, dt)
+
+
+class FastSLAM2Proposal(NamedTuple):
+    """FastSLAM 2.0's proposal for one measurement of a known landmark (see :func:`fastslam2_proposal`).
+
+    Attributes
+    ----------
+    u_mean : ndarray, shape (M, 2)
+        Mean of the noisy control ``u_t + L eta`` the pose is moved by.
+    u_cov : ndarray, shape (M, 2, 2)
+        Its covariance ``L P^-1 L^T``.
+    x_mean : ndarray, shape (M, 3)
+        First-order pose-space mean ``x_hat + V (u_mean - u_t)`` (Table 13.3 line 11).
+    x_cov : ndarray, shape (M, 3, 3)
+        First-order pose-space covariance ``V u_cov V^T`` (Table 13.3 line 10 with ``R_t = V M V^T``).
+    log_w : ndarray, shape (M,)
+        Log importance weight ``log N(z - z_bar; 0, L)``,
+        ``L = H_x R_t H_x^T + H_m Sigma H_m^T + Q`` (Table 13.3 lines 33-34).
+    """
+
+    u_mean: np.ndarray
+    u_cov: np.ndarray
+    x_mean: np.ndarray
+    x_cov: np.ndarray
+    log_w: np.ndarray
+
+
+def fastslam2_proposal(x, u, dt, M, mu, Sigma, z, Q):
+    """FastSLAM 2.0's pose proposal and importance weight for one measurement of a known landmark.
+
+    Parameters
+    ----------
+    x : ndarray, shape (P, 3)
+        Particle poses at ``t - 1``.
+    u : ndarray, shape (2,)
+        Commanded control ``[v, omega]``.
+    dt : float
+        Duration of the control (seconds).
+    M : ndarray, shape (2, 2)
+        Control-noise covariance: the motion is the exact arc of ``u + N(0, M)``.
+    mu : ndarray, shape (P, 2)
+        Each particle's mean of the measured landmark.
+    Sigma : ndarray, shape (P, 2, 2)
+        Its covariance.
+    z : ndarray, shape (2,)
+        Measurement ``[r, phi]``.
+    Q : ndarray, shape (2, 2)
+        Measurement-noise covariance.
+
+    Returns
+    -------
+    FastSLAM2Proposal
+        The Gaussian the pose is drawn from, in control space (what the
+        filter samples: ``x_t = g(x_{t-1}, u_mean + chol(u_cov) n)``) and to
+        first order in pose space, and the log weight.
+
+    Notes
+    -----
+    With ``x_hat = g(x_{t-1}, u)``, ``z_bar = h(mu, x_hat)``, ``H_x``, ``H_m``
+    its Jacobians, ``V = dg/du`` and ``R_t = V M V^T``: the proposal is
+    ``N(x_hat + Sigma_x H_x^T Q_j^-1 (z - z_bar), Sigma_x)`` with
+    ``Sigma_x = (H_x^T Q_j^-1 H_x + R_t^-1)^-1`` and
+    ``Q_j = Q + H_m Sigma H_m^T`` (Table 13.3 lines 5-11), computed in the
+    coordinates of the control noise because ``R_t`` is singular here.
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Table 13.3 lines 5-12 and 33-34,
+    Eqs. 13.45-13.53. Montemerlo et al. (2003), FastSLAM 2.0.
+    """
+    x = _poses_arg(x)
+    if x.ndim != 2:
+        raise ValueError(f"x must have shape (P, 3), got {x.shape}")
+    n = x.shape[0]
+    u = as_array(u, "u", (2,))
+    dt = as_scalar(dt, "dt", nonnegative=True)
+    L = _control_sqrt(as_covariance(M, "M", 2))
+    mu = as_array(mu, "mu", (n, 2))
+    Sigma = as_array(Sigma, "Sigma", (n, 2, 2))
+    z = _z_arg(z)
+    Q = _check_Q(Q)
+    x_hat, B = _motion_terms(x, u, dt, L)
+    if np.any(np.hypot(mu[:, 0] - x_hat[:, 0], mu[:, 1] - x_hat[:, 1]) < 1e-9):
+        raise ValueError("mu coincides with a predicted pose: the measurement Jacobian is undefined")
+    z_bar, G, Qj = _predict_terms(x_hat, B, mu[:, None], Sigma[:, None], Q)
+    r0 = z[0] - z_bar[:, 0, 0]
+    r1 = wrap_angle(z[1] - z_bar[:, 0, 1])
+    A, b, log_n = _gauss_terms(G[:, 0], tuple(q[:, 0] for q in Qj), r0, r1)
+    P = (1.0 + A[0], A[1], 1.0 + A[2])
+    _, (c00, c01, c11) = _inv_sym(*P)
+    eta_mean = np.stack([c00 * b[0] + c01 * b[1], c01 * b[0] + c11 * b[1]], axis=-1)
+    eta_cov = np.stack([np.stack([c00, c01], -1), np.stack([c01, c11], -1)], -2)
+    u_mean = u + eta_mean @ L.T
+    u_cov = L @ eta_cov @ L.T
+    x_mean = x_hat + np.einsum("kij,kj->ki", B, eta_mean)
+    x_mean[:, 2] = wrap_angle(x_mean[:, 2])
+    x_cov = B @ eta_cov @ _T(B)
+    log_w = log_n + _posterior_log_factor(P, b)
+    return FastSLAM2Proposal(u_mean, 0.5 * (u_cov + _T(u_cov)), x_mean, 0.5 * (x_cov + _T(x_cov)), log_w)
+
+
+def _check_M(M):
+    return _control_sqrt(as_covariance(M, "M", 2))
+
+
+def fastslam2_update_known(state, u, dt, z, ids, Q, *, M, rng, gate=None, return_outliers=False):
+    """One FastSLAM 2.0 step with known correspondences: pose proposal, landmark updates, weights.
+
+    Parameters
+    ----------
+    state : FastSLAMState
+        Particle set at ``t - 1`` (FastSLAM 2.0 moves the particles itself:
+        its proposal needs the measurements).
+    u : ndarray, shape (2,)
+        Commanded control ``[v, omega]``.
+    dt : float
+        Duration of the control (seconds).
+    z : ndarray, shape (K, 2)
+        Measurements ``[r, phi]`` taken at ``t`` (``K = 0`` allowed: then the
+        step is FastSLAM 1.0's motion sample, with the same draw).
+    ids : ndarray of int, shape (K,)
+        Landmark index of each measurement, below :data:`MAX_LANDMARKS`.
+    Q : ndarray, shape (2, 2)
+        Measurement-noise covariance.
+    M : ndarray, shape (2, 2), keyword-only
+        Control-noise covariance (the motion is the exact arc of ``u + N(0, M)``).
+    rng : numpy.random.Generator, keyword-only
+        Draws one ``standard_normal((n_particles, 2))``.
+    gate : float, optional, keyword-only
+        Per-particle chi-square gate on ``nu^T L^-1 nu`` (``L`` the
+        innovation covariance with the pose uncertainty, Table 13.3 line 33):
+        a measurement beyond it is an outlier for that particle: left out of
+        its proposal, no landmark update, weight the density at the gate.
+    return_outliers : bool, keyword-only
+        Also return the outlier mask ``(M, K)``.
+
+    Returns
+    -------
+    FastSLAMState
+        Sampled poses, updated maps and normalised log weights.
+
+    Notes
+    -----
+    The proposal of every particle uses all measurements of landmarks the
+    particle has seen (first occurrence of each landmark in the step): its
+    information adds up over them (the several-measurement form of
+    Table 13.3 lines 10-11), and the weight is their joint marginal
+    likelihood given ``x_{t-1}``, ``N(r; 0, G G^T + Q_stack)``, which for one
+    measurement is Table 13.3 line 34 with ``L`` evaluated at the predicted
+    pose. The landmarks are then updated by FastSLAM 1.0's EKF at the
+    sampled pose (the map given the path). A landmark new to a particle does
+    not inform its proposal and is initialised at the sampled pose
+    (lines 21-26; its ``p0`` cancels). A second measurement of the same
+    landmark in one step is applied afterwards as a FastSLAM 1.0 update at
+    the sampled pose, weighted by ``N(nu; 0, S)``; that keeps the weight
+    exact (proposal and target share the first measurement).
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Table 13.3 (with known correspondences),
+    Eqs. 13.45-13.61. Montemerlo et al. (2003), FastSLAM 2.0.
+    """
+    _check_state(state)
+    u = as_array(u, "u", (2,))
+    dt = as_scalar(dt, "dt", nonnegative=True)
+    z = _z_matrix(z)
+    ids = _ids_arg(ids, z.shape[0])
+    Q = _check_Q(Q)
+    L = _check_M(M)
+    check_rng(rng)
+    gate = _check_gate(gate)
+    keep = z[:, 0] > 0
+    if keep.any():
+        state = _grow(state, int(ids[keep].max()) + 1)
+    new, out = _update2_known_core(state, u, dt, L, z[keep], ids[keep], Q, rng, gate=gate)
+    outliers = np.zeros((state.n_particles, z.shape[0]), dtype=bool)
+    outliers[:, keep] = out
+    return (new, outliers) if return_outliers else new
+
+
+def _update2_known_core(state, u, dt, L, z, ids, Q, rng, gate=None, copy=True):
+    """FastSLAM 2.0 step with known correspondences; returns the state and the outlier mask ``(M, K)``."""
+    n = state.n_particles
+    x_prev = state.poses
+    outliers = np.zeros((n, ids.size), dtype=bool)
+    x_hat, B = _motion_terms(x_prev, u, dt, L)
+    if ids.size == 0:
+        eta = _sample_eta((np.ones(n), np.zeros(n), np.ones(n)), (np.zeros(n), np.zeros(n)), rng, n)
+        return state._replace(poses=_move(x_prev, u, dt, L, eta)), outliers
+    if copy:
+        mu, Sigma = state.mu.copy(), state.Sigma.copy()
+        seen, counts = state.seen.copy(), state.counts.copy()
+    else:
+        mu, Sigma, seen, counts = state.mu, state.Sigma, state.seen, state.counts
+    log_w = state.log_weights.copy()
+    rounds = _rounds(ids)
+    first = rounds[0]
+    j, zk = ids[first], z[first]
+    known = seen[:, j]  # (M, k)
+    mu_j = np.where(known[..., None], mu[:, j], x_hat[:, None, :2] + 1.0)  # keep h defined on empty slots
+    Sigma_j = np.where(known[..., None, None], Sigma[:, j], np.eye(2))
+    z_bar, G, Qj = _predict_terms(x_hat, B, mu_j, Sigma_j, Q)
+    r0 = zk[:, 0] - z_bar[..., 0]  # z_t - z_bar_j  (Table 13.3 line 11)
+    r1 = wrap_angle(zk[:, 1] - z_bar[..., 1])
+    A, b, log_n = _gauss_terms(G, Qj, r0, r1)
+    use = known
+    if gate is not None:
+        # d = nu^T L^-1 nu with L = G G^T + Q_j, each measurement alone  (Table 13.3 line 33)
+        L00 = G[..., 0, 0] ** 2 + G[..., 0, 1] ** 2 + Qj[0]
+        L01 = G[..., 0, 0] * G[..., 1, 0] + G[..., 0, 1] * G[..., 1, 1] + Qj[1]
+        L11 = G[..., 1, 0] ** 2 + G[..., 1, 1] ** 2 + Qj[2]
+        out = known & (_maha_2(r0, r1, L00, L01, L11) > gate)
+        if out.any():
+            use = known & ~out
+            # outlier likelihood: the density of N(0, L) at the gate
+            log_out = -0.5 * gate - _LOG_2PI - 0.5 * np.log(L00 * L11 - L01 * L01)
+            log_w = log_w + np.where(out, log_out, 0.0).sum(axis=1)
+            outliers[:, first] = out
+    # information of the proposal over eta: P = I + sum_i G_i^T Q_i^-1 G_i, b = sum_i G_i^T Q_i^-1 r_i
+    P = (1.0 + np.where(use, A[0], 0.0).sum(axis=1), np.where(use, A[1], 0.0).sum(axis=1),
+         1.0 + np.where(use, A[2], 0.0).sum(axis=1))
+    bs = (np.where(use, b[0], 0.0).sum(axis=1), np.where(use, b[1], 0.0).sum(axis=1))
+    # w = N(r; 0, G M G^T + Q_stack), the marginal likelihood given x_{t-1}  (Table 13.3 lines 33-34)
+    log_w = log_w + np.where(use, log_n, 0.0).sum(axis=1) + _posterior_log_factor(P, bs)
+    x = _move(x_prev, u, dt, L, _sample_eta(P, bs, rng, n))  # x_t ~ N(mu_x, Sigma_x)  (line 12)
+    xs = x[:, None, :]
+    # landmark EKF at the sampled pose (lines 29-31; the map given the path, as in FastSLAM 1.0)
+    mu_u, Sigma_u, _, _ = _update_core(xs, mu_j, Sigma_j, zk, Q)
+    mu_i, Sigma_i = _init_core(xs, zk, Q)  # new landmark at the sampled pose  (lines 22-24)
+    new = ~known
+    mu[:, j] = np.where(use[..., None], mu_u, np.where(new[..., None], mu_i, mu[:, j]))
+    Sigma[:, j] = np.where(use[..., None, None], Sigma_u, np.where(new[..., None, None], Sigma_i, Sigma[:, j]))
+    seen[:, j] = True
+    counts[:, j] += use | new  # i_j = i_j + 1, or 1 for a new landmark  (lines 25, 32)
+    mid = FastSLAMState(x, mu, Sigma, seen, counts, _normalized(log_w))
+    if len(rounds) > 1:  # repeated landmarks: FastSLAM 1.0 updates at the sampled pose
+        rest = np.concatenate(rounds[1:])
+        mid, out2 = _update_known_core(mid, z[rest], ids[rest], Q, "S", copy=False, gate=gate)
+        outliers[:, rest] = out2
+    return mid, outliers
+
+
+def fastslam2_update_unknown(state, u, dt, z, Q, *, M, rng, p0=None, max_range=None, fov=None):
+    """One FastSLAM 2.0 step with unknown correspondences (per-particle maximum-likelihood association).
+
+    Parameters
+    ----------
+    state : FastSLAMState
+        Particle set at ``t - 1``.
+    u : ndarray, shape (2,)
+        Commanded control ``[v, omega]``.
+    dt : float
+        Duration of the control (seconds).
+    z : ndarray, shape (K, 2)
+        Measurements ``[r, phi]`` taken at ``t``, associated one after the other.
+    Q : ndarray, shape (2, 2)
+        Measurement-noise covariance.
+    M : ndarray, shape (2, 2), keyword-only
+        Control-noise covariance.
+    rng : numpy.random.Generator, keyword-only
+        Draws one ``standard_normal((n_particles, 2))``.
+    p0 : float, optional, keyword-only
+        New-landmark likelihood; default :func:`fastslam_default_p0` of `Q`.
+    max_range, fov : float, optional, keyword-only
+        Perceptual range for the landmark counters, as in
+        :func:`fastslam_update_unknown`.
+
+    Returns
+    -------
+    FastSLAMState
+        Sampled poses, updated maps and normalised log weights.
+
+    Notes
+    -----
+    For each measurement in turn and each particle, every landmark ``j`` the
+    particle holds is scored by ``pi_j = N(z - z_bar_j - G_j m; 0, L_j)``,
+    ``L_j = G_j C G_j^T + Q_j``, where ``N(m, C)`` is the particle's
+    proposal over the control noise given the measurements associated so far
+    (the sequential form of Table 13.3 lines 5-14, with the pose uncertainty
+    in the score); the correspondence is ``argmax`` over the landmarks and
+    ``p0`` (lines 16-17), the weight is multiplied by the winner, and a
+    matched measurement adds its information to the proposal. A landmark
+    takes at most one measurement per step and particle, and a landmark
+    started in this step is not a candidate until the next one (it is placed
+    after the pose is drawn). The pose is then drawn once, matched landmarks
+    get the EKF update at the sampled pose and new ones are initialised there
+    (lines 20-32); the counters follow Table 13.2.
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Table 13.3. Montemerlo et al. (2003).
+    """
+    _check_state(state)
+    u = as_array(u, "u", (2,))
+    dt = as_scalar(dt, "dt", nonnegative=True)
+    z = _z_matrix(z)
+    Q = _check_Q(Q)
+    L = _check_M(M)
+    check_rng(rng)
+    log_p0 = np.log(fastslam_default_p0(Q) if p0 is None else as_scalar(p0, "p0", positive=True))
+    if max_range is not None:
+        max_range = as_scalar(max_range, "max_range", positive=True)
+    half_fov = np.pi if fov is None else 0.5 * as_scalar(fov, "fov", positive=True)
+    if fov is not None and max_range is None:
+        raise ValueError("fov needs max_range (the perceptual range) as well")
+    return _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rng)
+
+
+def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rng, copy=True):
+    """FastSLAM 2.0 step with unknown correspondences; ``copy=False`` may write into `state`'s arrays."""
+    z = z[z[:, 0] > 0]
+    n = state.n_particles
+    K = z.shape[0]
+    x_prev = state.poses
+    x_hat, B = _motion_terms(x_prev, u, dt, L)
+    need = int(state.seen.sum(axis=1).max(initial=0)) + K
+    grown = _grow(state, need, "the landmarks of a particle")
+    if copy and grown is state:
+        mu, Sigma = state.mu.copy(), state.Sigma.copy()
+        seen, counts = state.seen.copy(), state.counts.copy()
+    else:
+        mu, Sigma, seen, counts = grown.mu, grown.Sigma, grown.seen, grown.counts
+    log_w = state.log_weights.copy()
+    rows = np.arange(n)
+    P = [np.ones(n), np.zeros(n), np.ones(n)]  # information of the proposal over eta, prior N(0, I)
+    b = [np.zeros(n), np.zeros(n)]
+    match = np.full((n, K), -1, dtype=np.int64)  # landmark slot of each measurement, -1: new
+    cols = np.flatnonzero(seen.any(axis=0))
+    if cols.size and K:
+        # candidates: landmarks some particle predicts within reach of the step's ranges, with a margin of
+        # ten standard deviations of sensor, landmark and motion noise; any other has a likelihood below
+        # exp(-50) |2 pi Q|^-1/2, far below p0, and could never be chosen
+        d = np.hypot(mu[:, cols, 0] - x_hat[:, None, 0], mu[:, cols, 1] - x_hat[:, None, 1])
+        spread = np.sqrt(Sigma[:, cols, 0, 0] + Sigma[:, cols, 1, 1])
+        margin = 10.0 * (np.sqrt(Q[0, 0]) + spread + np.sqrt((B * B).sum(axis=(1, 2)))[:, None])
+        near = seen[:, cols] & (d >= z[:, 0].min() - margin) & (d <= z[:, 0].max() + margin)
+        cols = cols[near.any(axis=0)]
+    if cols.size and K:
+        sn = seen[:, cols]
+        mu_s = np.where(sn[..., None], mu[:, cols], x_hat[:, None, :2] + 1.0)  # keep h defined on empty slots
+        z_bar, G, Qj = _predict_terms(x_hat, B, mu_s, Sigma[:, cols], Q)  # Table 13.3 lines 5-9, every candidate
+        g00, g01, g10, g11 = G[..., 0, 0], G[..., 0, 1], G[..., 1, 0], G[..., 1, 1]
+        avail = sn.copy()
+    for i in range(K if cols.size else 0):
+        zi = z[i]
+        _, (c00, c01, c11) = _inv_sym(*P)
+        m0 = c00 * b[0] + c01 * b[1]  # proposal mean of eta so far
+        m1 = c01 * b[0] + c11 * b[1]
+        y0 = zi[0] - z_bar[..., 0]
+        y1 = wrap_angle(zi[1] - z_bar[..., 1])
+        r0 = y0 - (g00 * m0[:, None] + g01 * m1[:, None])  # innovation against the proposal mean
+        r1 = wrap_angle(y1 - (g10 * m0[:, None] + g11 * m1[:, None]))
+        # L_j = G_j C G_j^T + Q_j  (Table 13.3 line 33, with the proposal's covariance C so far)
+        a00 = g00 * c00[:, None] + g01 * c01[:, None]
+        a01 = g00 * c01[:, None] + g01 * c11[:, None]
+        a10 = g10 * c00[:, None] + g11 * c01[:, None]
+        a11 = g10 * c01[:, None] + g11 * c11[:, None]
+        L00 = a00 * g00 + a01 * g01 + Qj[0]
+        L01 = a00 * g10 + a01 * g11 + Qj[1]
+        L11 = a10 * g10 + a11 * g11 + Qj[2]
+        # pi_j = N(r_j; 0, L_j)  (line 14); pi_new = p0  (line 16)
+        ll = np.where(avail, _log_gauss_2(r0, r1, L00, L01, L11), -np.inf)
+        j = np.argmax(ll, axis=1)  # c_hat = argmax_j pi_j  (line 17); ties: smallest index
+        best = ll[rows, j]
+        old = best >= log_p0
+        log_w += np.where(old, best, log_p0)  # w = pi_c_hat, or p0 for a new landmark  (lines 26, 34)
+        if old.any():
+            k, jk = rows[old], j[old]
+            A_, b_, _ = _gauss_terms(G[k, jk], (Qj[0][k, jk], Qj[1][k, jk], Qj[2][k, jk]), y0[k, jk], y1[k, jk])
+            P[0][k] += A_[0]
+            P[1][k] += A_[1]
+            P[2][k] += A_[2]
+            b[0][k] += b_[0]
+            b[1][k] += b_[1]
+            avail[k, jk] = False
+            match[k, i] = cols[jk]
+    x = _move(x_prev, u, dt, L, _sample_eta(tuple(P), tuple(b), rng, n))  # x_t ~ proposal  (line 12)
+    matched = np.zeros_like(seen)
+    kk, ii = np.nonzero(match >= 0)
+    if kk.size:
+        jj = match[kk, ii]
+        # EKF update of the matched landmarks at the sampled pose  (lines 28-32)
+        mu[kk, jj], Sigma[kk, jj], _, _ = _update_core(x[kk], mu[kk, jj], Sigma[kk, jj], z[ii], Q)
+        counts[kk, jj] += 1
+        matched[kk, jj] = True
+    for i in range(K):
+        k = np.flatnonzero(match[:, i] < 0)
+        if k.size:
+            slot = np.argmin(seen[k], axis=1)  # first free slot
+            mu[k, slot], Sigma[k, slot] = _init_core(x[k], z[i], Q)  # new landmark at the sampled pose  (lines 21-24)
+            seen[k, slot] = True
+            counts[k, slot] = 1  # i_j = 1  (line 25)
+            matched[k, slot] = True
+    if max_range is not None:
+        seen, counts = _prune(x, mu, seen, counts, matched, max_range, half_fov)
+    return FastSLAMState(x, mu, Sigma, seen, counts, _normalized(log_w))
 
 
 def fastslam_resample(state, *, rng, indices=None):
@@ -820,14 +1428,8 @@ def fastslam_estimate(state):
     posterior; a point estimate is read off it).
     """
     _check_state(state)
-    return _estimate(state.poses, state.weights)
-
-
-def _estimate(poses, w):
-    pose = np.empty(3)
-    pose[:2] = w @ poses[:, :2]
-    pose[2] = circular_mean(poses[:, 2], w)
-    return pose, int(np.argmax(w))
+    g = particle_gaussian(state.poses, state.log_weights, angles=(2,))  # the one weighted pose summary
+    return g.mean, int(np.argmax(state.log_weights))
 
 
 def fastslam_map_moments(state, slots):
@@ -839,7 +1441,8 @@ def fastslam_map_moments(state, slots):
         Weighted particle set; the landmarks in `slots` must be seen in every
         particle.
     slots : ndarray of int, shape (L,)
-        Landmark slots to include, in this order.
+        Landmark slots to include, in this order (``L = 0`` gives an empty
+        mean ``(0,)`` and covariance ``(0, 0)``).
 
     Returns
     -------
@@ -861,6 +1464,8 @@ def fastslam_map_moments(state, slots):
     idx = np.asarray(slots)
     if idx.ndim != 1 or (idx.size and idx.dtype.kind not in "iu"):
         raise ValueError(f"slots must be a 1-D array of integers, got shape {idx.shape} dtype {idx.dtype}")
+    if idx.size == 0:  # no landmark: the empty mean and covariance
+        return np.zeros(0), np.zeros((0, 0))
     if np.any(idx < 0) or np.any(idx >= state.capacity):
         raise ValueError(f"slots must lie in [0, {state.capacity})")
     if not state.seen[:, idx].all():
@@ -908,6 +1513,12 @@ class FastSLAMResult(NamedTuple):
         paths (path degeneracy: it decays to 1 going back in time).
     state : FastSLAMState
         The particle set after the last update (before any final resampling).
+    rejected : ndarray, shape (T,)
+        Measurements the per-particle gate rejected at each step, averaged
+        over the particles with their weights before the step (0 where the
+        gate is off; ``rejected.sum()`` is the run's count).
+    gate : float or None
+        The gate that was used.
     """
 
     x_est: np.ndarray
@@ -921,12 +1532,8 @@ class FastSLAMResult(NamedTuple):
     n_landmarks: np.ndarray
     n_ancestors: np.ndarray
     state: FastSLAMState
-
-
-def _pose_cov(poses, w, mean):
-    d = poses - mean
-    d[:, 2] = wrap_angle(d[:, 2])
-    return np.einsum("k,ki,kj->ij", w, d, d)
+    rejected: np.ndarray
+    gate: float | None
 
 
 def _run_attr(run, name):
@@ -936,13 +1543,14 @@ def _run_attr(run, name):
 
 
 def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=None, p0=None, weight_cov="S",
-                 resample_threshold=0.5, capacity=None, max_range=None, fov=None):
-    """Run FastSLAM 1.0 over a simulated landmark run.
+                 resample_threshold=0.5, capacity=None, max_range=None, fov=None, version=1, gate="auto"):
+    """Run FastSLAM 1.0 or 2.0 over a landmark run (simulated or a real log).
 
     Parameters
     ----------
-    run : LandmarkRun
-        From :func:`slamlib.simulate_landmark_run`: uses ``x0``, ``dt``, the
+    run : LandmarkRun or MRCLAMRun
+        From :func:`slamlib.simulate_landmark_run` or a loader such as
+        :func:`slamlib.datasets.mrclam.load_mrclam`: uses ``x0``, ``dt``, the
         commanded controls ``u (T, 2)``, measurements ``z`` (``T`` arrays of
         shape ``(K_t, 2)``) and, with `known`, their landmark ``ids``
         (measurements with id ``-1``, clutter, are skipped then). Measurements
@@ -953,18 +1561,20 @@ def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=Non
     rng : numpy.random.Generator, keyword-only
         Source of motion noise and resampling.
     known : bool, keyword-only
-        Known correspondences (Table 13.1) or per-particle maximum-likelihood
-        association (Table 13.2).
+        Known correspondences (Tables 13.1, 13.3) or per-particle
+        maximum-likelihood association (Tables 13.2, 13.3).
     M : ndarray, shape (2, 2), optional, keyword-only
         Control-noise covariance assumed by the filter; default the run's ``M``.
     alpha : ndarray, shape (6,), optional, keyword-only
-        Sample the motion with Table 5.3's parameters instead of `M`.
+        Sample the motion with Table 5.3's parameters instead of `M`
+        (FastSLAM 1.0 only).
     Q : ndarray, shape (2, 2), optional, keyword-only
         Measurement noise assumed by the filter; default the run's ``Q``.
     p0 : float, optional, keyword-only
         New-landmark likelihood (unknown correspondences).
-    weight_cov : {"S", "Q"}, keyword-only
-        ``"Q"`` is the course text's erratum, for demonstrations only.
+    weight_cov : {"S", "text"}, keyword-only
+        ``"text"`` is the course text's erratum (FastSLAM 1.0 only), for
+        demonstrations.
     resample_threshold : float, keyword-only
         Resample when the effective sample size is below
         ``resample_threshold * M``; ``1.0`` resamples after every update with
@@ -973,20 +1583,39 @@ def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=Non
         Initial landmark slots (default: the run's number of landmarks).
     max_range, fov : float, optional, keyword-only
         Perceptual range for the landmark counters of Table 13.2.
+    version : {1, 2}, keyword-only
+        FastSLAM 1.0 (the motion model as proposal; default) or 2.0 (the
+        proposal includes the step's measurements, Table 13.3).
+    gate : float, None or "auto", keyword-only
+        Per-particle chi-square gate on the innovation of a known
+        correspondence (:func:`fastslam_update_known`,
+        :func:`fastslam2_update_known`); ``None`` turns it off. ``"auto"``
+        (default): :data:`DEFAULT_GATE` (99.999 % of chi-square, 2 dof) for a
+        real log and off for a simulated :class:`slamlib.LandmarkRun`, whose
+        noise is exactly the Gaussian the filter assumes. Real sightings
+        include gross errors (a bearing off by pi, a range off by metres)
+        that a Gaussian likelihood turns into a collapse of the weights onto
+        whichever particle explains the blunder best, and into a landmark
+        pulled metres away in every particle; the gate caps such a
+        measurement's influence at that of an innovation on the gate. Not
+        used with unknown correspondences (there ``p0`` plays that role).
 
     Returns
     -------
     FastSLAMResult
-        Estimated trajectory, map, ESS and degeneracy over time.
+        Estimated trajectory, map, ESS and degeneracy over time, and the
+        measurements the gate rejected.
 
     References
     ----------
-    Course text, Algorithm 3. Thrun, Burgard & Fox (2005), Tables 13.1
-    and 13.2.
+    Course text, Algorithm 3. Thrun, Burgard & Fox (2005), Tables 13.1,
+    13.2 and 13.3. Montemerlo et al. (2003).
     """
     n = _as_count(n_particles, "n_particles")
     check_rng(rng)
     _check_weight_cov(weight_cov)
+    if isinstance(version, bool) or version not in (1, 2):
+        raise ValueError(f"version must be 1 (FastSLAM 1.0) or 2 (FastSLAM 2.0), got {version!r}")
     thr = as_scalar(resample_threshold, "resample_threshold", nonnegative=True)
     x0 = as_array(_run_attr(run, "x0"), "run.x0", (3,))
     dt = as_scalar(_run_attr(run, "dt"), "run.dt", positive=True)
@@ -999,13 +1628,21 @@ def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=Non
     if alpha is not None:
         if M is not None:
             raise ValueError("give at most one of M and alpha")
+        if version == 2:
+            raise ValueError("version=2 needs the control-noise covariance M (alpha is for FastSLAM 1.0 only)")
         alpha = as_array(alpha, "alpha", (6,))
         if np.any(alpha < 0):
             raise ValueError("alpha must be non-negative")
         L = None
     else:
         L = _control_sqrt(as_covariance(_run_attr(run, "M") if M is None else M, "M", 2))
+    if version == 2 and weight_cov != "S":
+        raise ValueError("weight_cov='text' is FastSLAM 1.0's erratum; version=2 has its own weight")
     Q = _check_Q(_run_attr(run, "Q") if Q is None else Q)
+    if isinstance(gate, str) and gate == "auto":
+        gate = None if isinstance(run, LandmarkRun) else DEFAULT_GATE
+    else:
+        gate = _check_gate(gate)
     if capacity is None:
         capacity = max(1, int(np.asarray(_run_attr(run, "landmarks")).shape[0]))
     log_p0 = None
@@ -1023,32 +1660,48 @@ def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=Non
     ess = np.empty(T)
     resampled = np.zeros(T, dtype=bool)
     n_lm = np.zeros(T + 1, dtype=np.int64)
+    rejected = np.zeros(T)
     poses_hist[0] = state.poses
     x_est[0] = state.poses[0]
     identity = np.arange(n)
     parents[:2] = identity
     for t in range(T):
-        if L is None:
-            poses = sample_motion_model_velocity(state.poses, u[t], dt, alpha, rng=rng)
-        else:
-            poses = _sample_arc(state.poses, u[t], dt, L, rng)
-        state = state._replace(poses=poses)
         zt = _z_matrix(zs[t])
+        out = None
         if known:
             idt = np.asarray(ids[t])
             if idt.shape != (zt.shape[0],) or (idt.size and idt.dtype.kind not in "iu"):
                 raise ValueError(f"run.ids[{t}] must be integers of shape ({zt.shape[0]},), got {idt.shape}")
             keep = (zt[:, 0] > 0) & (idt >= 0)  # id -1 marks clutter (slamlib.add_clutter)
-            zt, idt = zt[keep], idt[keep]
+            zt, idt = zt[keep], idt[keep].astype(np.int64)
+            if idt.size and idt.max() >= MAX_LANDMARKS:
+                raise ValueError(f"run.ids[{t}] must be below MAX_LANDMARKS = {MAX_LANDMARKS}")
             if zt.shape[0]:
-                idt = idt.astype(np.int64)
-                state = _update_known_core(_grow(state, int(idt.max()) + 1), zt, idt, Q, weight_cov, copy=False)
+                state = _grow(state, int(idt.max()) + 1, f"run.ids[{t}]")
+        prior_w = np.exp(state.log_weights)
+        if version == 2:
+            if known:
+                state, out = _update2_known_core(state, u[t], dt, L, zt, idt, Q, rng, gate=gate, copy=False)
+            else:
+                state = _update2_unknown_core(state, u[t], dt, L, zt, Q, log_p0, max_range, half_fov, rng,
+                                              copy=False)
         else:
-            state = _update_unknown_core(state, zt, Q, log_p0, weight_cov, max_range, half_fov, copy=False)
+            if L is None:
+                poses = sample_motion_model_velocity(state.poses, u[t], dt, alpha, rng=rng)
+            else:
+                poses = _sample_arc(state.poses, u[t], dt, L, rng)
+            state = state._replace(poses=poses)
+            if known:
+                if zt.shape[0]:
+                    state, out = _update_known_core(state, zt, idt, Q, weight_cov, copy=False, gate=gate)
+            else:
+                state = _update_unknown_core(state, zt, Q, log_p0, weight_cov, max_range, half_fov, copy=False)
+        if out is not None and out.size:
+            rejected[t] = prior_w @ out.sum(axis=1)  # measurements rejected, averaged over the prior weights
         poses_hist[t + 1] = state.poses
         w = np.exp(state.log_weights)  # normalised: logsumexp(log_weights) = 0
-        x_est[t + 1], best = _estimate(state.poses, w)
-        x_cov[t + 1] = _pose_cov(state.poses, w, x_est[t + 1])
+        x_est[t + 1], x_cov[t + 1] = particle_gaussian(state.poses, state.log_weights, angles=(2,))
+        best = int(np.argmax(w))
         n_lm[t + 1] = int(state.seen[best].sum())
         ess[t] = effective_sample_size(w)
         if t == T - 1:
@@ -1058,10 +1711,10 @@ def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=Non
             resampled[t] = True
         else:
             parents[t + 2] = identity
-    return _finish(state, poses_hist, parents, x_est, x_cov, ess, resampled, n_lm)
+    return _finish(state, poses_hist, parents, x_est, x_cov, ess, resampled, n_lm, rejected, gate)
 
 
-def _finish(last, poses_hist, parents, x_est, x_cov, ess, resampled, n_lm):
+def _finish(last, poses_hist, parents, x_est, x_cov, ess, resampled, n_lm, rejected, gate):
     T = poses_hist.shape[0] - 1
     best = int(np.argmax(last.log_weights))
     lineage = np.arange(last.n_particles)  # each final particle's ancestor in row h
@@ -1086,4 +1739,6 @@ def _finish(last, poses_hist, parents, x_est, x_cov, ess, resampled, n_lm):
         n_landmarks=n_lm,
         n_ancestors=n_anc,
         state=last,
+        rejected=rejected,
+        gate=gate,
     )

@@ -112,41 +112,56 @@ def test_update_wraps_the_bearing_innovation():
     assert np.linalg.norm(mu_new[0] - mu[0]) < 0.2
 
 
-def test_weight_cov_Q_is_the_erratum_and_agrees_only_for_a_certain_landmark():
+def _text_weight(x, mu, Sigma, z, Q):
+    """The course text's Algorithm 3 as printed: det(2 pi S)^(-1/2) exp(-1/2 nu^T Q^-1 nu)."""
+    H = _Hm(x, mu)
+    nu = z - _h(x, mu)
+    nu[1] = _wrap(nu[1])
+    S = H @ Sigma @ H.T + Q
+    return np.exp(-0.5 * nu @ np.linalg.solve(Q, nu)) / np.sqrt(np.linalg.det(2 * np.pi * S))
+
+
+def test_weight_cov_text_is_the_course_texts_formula_and_agrees_only_for_a_certain_landmark():
     rng = np.random.default_rng(2)
     x = _particles(rng, 5)
     mu = x[:, :2] + np.c_[np.cos(x[:, 2]), np.sin(x[:, 2])] * 6.0
     z = np.array([6.3, 0.05])
     certain = np.tile(1e-12 * np.eye(2), (5, 1, 1))
     _, _, wS = sl.fastslam_update_landmark(x, mu, certain, z, Q)
-    _, _, wQ = sl.fastslam_update_landmark(x, mu, certain, z, Q, weight_cov="Q")
-    np.testing.assert_allclose(wQ, wS, rtol=1e-6)
-    for k in range(5):  # the erratum: N(nu; 0, Q) whatever the landmark's covariance
-        nu = z - _h(x[k], mu[k])
-        np.testing.assert_allclose(wQ[k], stats.multivariate_normal(np.zeros(2), Q).pdf(nu), rtol=1e-10)
+    _, _, wT = sl.fastslam_update_landmark(x, mu, certain, z, Q, weight_cov="text")
+    np.testing.assert_allclose(wT, wS, rtol=1e-6)
+    Sigma = _random_spd(rng, 5, 0.3)
+    _, _, wT = sl.fastslam_update_landmark(x, mu, Sigma, z, Q, weight_cov="text")
+    for k in range(5):  # S in the normaliser, Q^-1 in the exponent, whatever the landmark's covariance
+        np.testing.assert_allclose(wT[k], _text_weight(x[k], mu[k], Sigma[k], z, Q), rtol=1e-10)
     # two particles at one pose with a landmark of 1 m standard deviation: A expects z exactly, B's mean is
     # 0.3 m nearer. Under S = H Sigma H^T + Q (range variance 1.01 m^2) B is about as likely as A; the
-    # erratum scores the 0.3 m as three range sigmas of Q and cuts B's relative weight to exp(-4.5).
+    # text's exponent scores the 0.3 m as three range sigmas of Q and cuts B's relative weight to exp(-4.5).
     pose = np.zeros((2, 3))
     mu = np.array([[6.3, 0.0], [6.0, 0.0]])
     z = np.array([6.3, 0.0])
     uncertain = np.tile(np.eye(2), (2, 1, 1))
     m1, s1, wS = sl.fastslam_update_landmark(pose, mu, uncertain, z, Q)
-    m2, s2, wQ = sl.fastslam_update_landmark(pose, mu, uncertain, z, Q, weight_cov="Q")
+    m2, s2, wT = sl.fastslam_update_landmark(pose, mu, uncertain, z, Q, weight_cov="text")
     np.testing.assert_array_equal(m1, m2)  # only the weight differs, never the EKF update
     np.testing.assert_array_equal(s1, s2)
     ratio_S = _ekf(pose[1], mu[1], uncertain[1], z, Q)[2] / _ekf(pose[0], mu[0], uncertain[0], z, Q)[2]
     np.testing.assert_allclose(wS[1] / wS[0], ratio_S, rtol=1e-10)
     assert ratio_S > 0.9
-    np.testing.assert_allclose(wQ[1] / wQ[0], np.exp(-0.5 * 0.3**2 / Q[0, 0]), rtol=1e-10)
+    ratio_T = _text_weight(pose[1], mu[1], uncertain[1], z, Q) / _text_weight(pose[0], mu[0], uncertain[0], z, Q)
+    np.testing.assert_allclose(wT[1] / wT[0], ratio_T, rtol=1e-10)
+    assert ratio_T < 1.1 * np.exp(-0.5 * 0.3**2 / Q[0, 0])
+    with pytest.raises(ValueError, match="weight_cov='text'"):
+        sl.fastslam_update_landmark(pose, mu, uncertain, z, Q, weight_cov="Q")
 
 
 @pytest.mark.parametrize("lam", [3.0, 10.0])
-def test_ess_of_S_and_Q_weights_match_theory(lam):
+def test_ess_of_S_and_text_weights_match_theory(lam):
     # Particles at one pose whose landmark means are spread as their covariance says, mu_k ~ N(m, Sigma),
     # Sigma = lam * H^-1 Q H^-T, so nu_k ~ N(0, lam Q) (to first order). For weights exp(-nu^T C^-1 nu / 2):
     # ESS / M -> det(I + 2 C^-1 A)^(1/2) / det(I + C^-1 A) with A = lam Q; C = S = (1 + lam) Q gives
-    # (1 + 3 lam)(1 + lam) / (1 + 2 lam)^2 (>= 3/4), the erratum C = Q gives (1 + 2 lam) / (1 + lam)^2 (-> 0).
+    # (1 + 3 lam)(1 + lam) / (1 + 2 lam)^2 (>= 3/4), the text's exponent C = Q gives (1 + 2 lam) / (1 + lam)^2
+    # (-> 0).
     x = np.array([0.0, 0.0, 0.3])
     m = np.array([15.0, 8.0])
     z = _h(x, m)
@@ -158,12 +173,13 @@ def test_ess_of_S_and_Q_weights_match_theory(lam):
     mu = m + rng.multivariate_normal(np.zeros(2), Sigma, size=n)
     xs, Sig = np.tile(x, (n, 1)), np.tile(Sigma, (n, 1, 1))
     ess = {}
-    for wc in ("S", "Q"):
+    for wc in ("S", "text"):
         _, _, lw = sl.fastslam_update_landmark(xs, mu, Sig, z, Qs, weight_cov=wc, log=True)
         ess[wc] = sl.effective_sample_size(np.exp(lw - lw.max())) / n
     assert ess["S"] == pytest.approx((1 + 3 * lam) * (1 + lam) / (1 + 2 * lam) ** 2, abs=0.02)
-    assert ess["Q"] == pytest.approx((1 + 2 * lam) / (1 + lam) ** 2, abs=0.02)
-    assert ess["Q"] < 0.6 * ess["S"]
+    # the text's normaliser |2 pi S|^-1/2 is (nearly) the same for all these particles: only its exponent counts
+    assert ess["text"] == pytest.approx((1 + 2 * lam) / (1 + lam) ** 2, abs=0.02)
+    assert ess["text"] < 0.6 * ess["S"]
 
 
 def test_contract_functions_batched_equals_looped():
@@ -434,7 +450,8 @@ def test_unknown_correspondences_recover_the_landmark_count(world):
     assert np.median(d) < 0.5 and d.max() < 1.0
 
 
-def test_unknown_correspondences_match_known_ones_for_one_noiseless_particle():
+@pytest.mark.parametrize("version", [1, 2])
+def test_unknown_correspondences_match_known_ones_for_one_noiseless_particle(version):
     # no control noise in the world either: the one particle is the true path, and with landmarks at
     # least 3 m apart and 1 cm / 0.01 rad measurements maximum likelihood always picks the right one
     rng = np.random.default_rng(18)
@@ -444,8 +461,8 @@ def test_unknown_correspondences_match_known_ones_for_one_noiseless_particle():
     run = sl.simulate_landmark_run(landmarks, sl.loop_controls(200, v=1.0, omega=0.15), 0.2,
                                    x0=np.array([0.0, -6.5, 0.0]), M=zero, Q=np.diag([0.01, 0.01]) ** 2,
                                    max_range=7.0, fov=np.pi, rng=rng)
-    known = sl.run_fastslam(run, n_particles=1, M=zero, rng=np.random.default_rng(0))
-    unknown = sl.run_fastslam(run, n_particles=1, M=zero, known=False, rng=np.random.default_rng(0))
+    known = sl.run_fastslam(run, n_particles=1, M=zero, version=version, rng=np.random.default_rng(0))
+    unknown = sl.run_fastslam(run, n_particles=1, M=zero, known=False, version=version, rng=np.random.default_rng(0))
     a = known.landmarks[known.seen]
     b = unknown.landmarks[unknown.seen]
     assert a.shape == b.shape
@@ -638,3 +655,330 @@ def test_update_unknown_batched_equals_per_particle():
                                    both.log_weights[k] - both.log_weights[0], rtol=1e-10, atol=1e-9)
     # the measurement of the far point started a new landmark everywhere; the others matched slots 2 and 0
     assert both.seen[:, 4].all() and (both.counts[:, [0, 2]] == 2).all()
+
+
+# --------------------------------------------------------------------------- gating, capacity, bad numbers
+def test_gate_rejects_an_outlier_per_particle_and_weights_it_at_the_gate():
+    x = np.zeros((2, 3))
+    mu = np.array([[5.0, 0.0], [5.0, 0.1]])
+    Sigma = np.tile(0.01 * np.eye(2), (2, 1, 1))
+    gate = sl.fastslam.DEFAULT_GATE
+    z = np.array([5.0, 0.02])  # close to particle 0's and particle 1's prediction: an inlier for both
+    free = sl.fastslam_update_landmark(x, mu, Sigma, z, Q, log=True)
+    gated = sl.fastslam_update_landmark(x, mu, Sigma, z, Q, log=True, gate=gate)
+    for a, b in zip(free, gated):
+        np.testing.assert_array_equal(a, b)
+    z = np.array([7.5, 0.0])  # 2.5 m long: an outlier for both
+    mu_g, Sigma_g, lw = sl.fastslam_update_landmark(x, mu, Sigma, z, Q, log=True, gate=gate)
+    np.testing.assert_array_equal(mu_g, mu)
+    np.testing.assert_array_equal(Sigma_g, Sigma)
+    for k in range(2):
+        S = _Hm(x[k], mu[k]) @ Sigma[k] @ _Hm(x[k], mu[k]).T + Q
+        nu = z - _h(x[k], mu[k])
+        assert nu @ np.linalg.solve(S, nu) > gate
+        np.testing.assert_allclose(lw[k], -0.5 * gate - 0.5 * np.log(np.linalg.det(2 * np.pi * S)), rtol=1e-12)
+
+
+def _with_blunders(run, every, rng):
+    """The same run with every `every`-th sighting replaced by a gross error (bearing off by pi, range +3 m)."""
+    import dataclasses
+    z = []
+    count = 0
+    for zt in run.z:
+        zt = zt.copy()
+        for i in range(len(zt)):
+            count += 1
+            if count % every == 0:
+                zt[i] = [zt[i, 0] + 3.0, sl.wrap_angle(zt[i, 1] + np.pi)]
+        z.append(zt)
+    return dataclasses.replace(run, z=tuple(z)), count // every
+
+
+@pytest.mark.parametrize("version", [1, 2])
+def test_gate_in_the_run_counts_and_survives_gross_errors(world, version):
+    bad, n_bad = _with_blunders(world, 40, np.random.default_rng(0))
+    ate = {}
+    for gate in (None, sl.fastslam.DEFAULT_GATE):
+        res = sl.run_fastslam(bad, n_particles=30, gate=gate, version=version, rng=np.random.default_rng(5))
+        ate[gate] = sl.ate_rmse(res.x_est, world.x_true)
+        if gate is None:
+            assert res.rejected.sum() == 0 and res.gate is None
+        else:
+            # every blunder of a landmark seen before is rejected by (nearly) every particle, and few good ones
+            assert 0.8 * n_bad <= res.rejected.sum() <= n_bad + 0.01 * sum(len(z) for z in world.z)
+    assert ate[sl.fastslam.DEFAULT_GATE] < 0.5 * ate[None]
+    # "auto": off on a simulated LandmarkRun (its noise is the Gaussian the filter assumes)
+    assert sl.run_fastslam(world, n_particles=3, version=version, rng=np.random.default_rng(1)).gate is None
+
+
+def test_capacity_limits_give_a_clear_error_instead_of_gigabytes():
+    st = sl.fastslam_initial_state(np.zeros(3), 100, 2)
+    z = np.array([[3.0, 0.1]])
+    with pytest.raises(ValueError, match="ids must be below MAX_LANDMARKS"):
+        sl.fastslam_update_known(st, z, np.array([3_000_000]), Q)
+    with pytest.raises(ValueError, match="ids must be below MAX_LANDMARKS"):
+        sl.fastslam_update_known(st, z, np.array([10**9]), Q)
+    with pytest.raises(ValueError, match="ids must be integers"):
+        sl.fastslam_update_known(st, z, np.array([1e9]), Q)
+    big = sl.fastslam_initial_state(np.zeros(3), 20_000, 2)
+    with pytest.raises(ValueError, match="MAX_SLOT_BYTES"):
+        sl.fastslam_update_known(big, z, np.array([99_999]), Q)
+    with pytest.raises(ValueError, match="capacity"):
+        sl.fastslam_initial_state(np.zeros(3), 10, sl.fastslam.MAX_LANDMARKS + 1)
+    with pytest.raises(ValueError, match="ids must be below"):
+        sl.fastslam2_update_known(st, [1.0, 0.0], 0.1, z, np.array([3_000_000]), Q, M=np.eye(2) * 1e-3,
+                                  rng=np.random.default_rng())
+
+
+def test_huge_or_tiny_Q_is_refused_instead_of_nan_weights():
+    x = np.zeros((1, 3))
+    for scale in (1e300, 1e-300):
+        with pytest.raises(ValueError, match="Q is out of the representable range"):
+            sl.fastslam_update_landmark(x, np.array([[3.0, 0.0]]), np.eye(2)[None], np.array([3.0, 0.0]), Q * scale)
+    # large but representable: finite log weights
+    _, _, lw = sl.fastslam_update_landmark(x, np.array([[3.0, 0.0]]), np.eye(2)[None], np.array([3.0, 0.0]),
+                                           Q * 1e100, log=True)
+    assert np.isfinite(lw).all()
+
+
+def test_map_moments_of_no_landmark_are_empty():
+    st = sl.fastslam_initial_state(np.zeros(3), 4, 3)
+    mean, cov = sl.fastslam_map_moments(st, [])
+    assert mean.shape == (0,) and cov.shape == (0, 0)
+
+
+def test_estimate_is_particle_gaussian():
+    rng = np.random.default_rng(30)
+    st = _state_with_maps(7, 2, rng)
+    pose, best = sl.fastslam_estimate(st)
+    g = sl.particle_gaussian(st.poses, st.log_weights, angles=(2,))
+    np.testing.assert_allclose(pose, g.mean, rtol=1e-12)
+    assert best == int(np.argmax(st.log_weights))
+
+
+# --------------------------------------------------------------------------- FastSLAM 2.0
+M2 = np.diag([0.15, 0.08]) ** 2
+Q2 = np.diag([0.05, 0.01]) ** 2
+
+
+def _fs2_case(n, rng):
+    x = np.empty((n, 3))
+    x[:, :2] = rng.normal(scale=0.5, size=(n, 2))
+    x[:, 2] = rng.uniform(-np.pi, np.pi, size=n)
+    u, dt = np.array([1.0, 0.3]), 0.5
+    ahead = sl.velocity_motion(x, np.tile(u, (n, 1)), dt)[0]
+    mu = ahead[:, :2] + 4.0 * np.c_[np.cos(ahead[:, 2] + 0.4), np.sin(ahead[:, 2] + 0.4)]
+    mu += rng.normal(scale=0.1, size=(n, 2))
+    Sigma = _random_spd(rng, n, 0.08)
+    z = np.array([4.2, 0.35])
+    return x, u, dt, mu, Sigma, z
+
+
+def test_fs2_proposal_is_table_13_3_with_R_equal_V_M_Vt():
+    # Table 13.3 lines 5-11 and 33-34 by np.linalg, with R_t = V M V^T (rank 2: the Woodbury form of line 10)
+    rng = np.random.default_rng(40)
+    x, u, dt, mu, Sigma, z = _fs2_case(6, rng)
+    prop = sl.fastslam2_proposal(x, u, dt, M2, mu, Sigma, z, Q2)
+    for k in range(6):
+        x_hat, _, V = sl.velocity_motion(x[k], u, dt)
+        R = V @ M2 @ V.T
+        z_bar, Hx, Hm = sl.landmark_measurement(x_hat, mu[k])
+        Qj = Q2 + Hm @ Sigma[k] @ Hm.T
+        nu = z - z_bar
+        nu[1] = _wrap(nu[1])
+        Lk = Hx @ R @ Hx.T + Qj
+        Kx = R @ Hx.T @ np.linalg.inv(Lk)
+        mean, cov = x_hat + Kx @ nu, R - Kx @ Hx @ R
+        np.testing.assert_allclose(sl.pose_error(prop.x_mean[k], mean), 0.0, atol=1e-12)
+        np.testing.assert_allclose(prop.x_cov[k], cov, rtol=1e-9, atol=1e-15)
+        np.testing.assert_allclose(prop.log_w[k], stats.multivariate_normal(np.zeros(2), Lk).logpdf(nu), rtol=1e-10)
+        # with a full-rank R the information form of line 10 gives the same covariance
+        R3 = R + 1e-4 * np.eye(3)
+        info = np.linalg.inv(Hx.T @ np.linalg.inv(Qj) @ Hx + np.linalg.inv(R3))
+        wood = R3 - R3 @ Hx.T @ np.linalg.inv(Hx @ R3 @ Hx.T + Qj) @ Hx @ R3
+        np.testing.assert_allclose(info, wood, rtol=1e-6, atol=1e-12)
+
+
+def _grid_posterior(x, u, dt, mu, Sigma, z, Q, M, n=601, width=7.0):
+    """Brute force on a dense grid of the control noise eta ~ N(0, I), u + L eta: the target
+    p(z | x_t, m-marginal) p(x_t | x_{t-1}, u), its pose moments and its integral (the exact weight)."""
+    Lc = np.linalg.cholesky(M)
+    g = np.linspace(-width, width, n)
+    E = np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)
+    prior = np.exp(-0.5 * (E**2).sum(1)) / (2 * np.pi) * (g[1] - g[0]) ** 2
+    poses = sl.velocity_motion(np.tile(x, (len(E), 1)), u + E @ Lc.T, dt)[0]
+    z_hat, _, Hm = sl.landmark_measurement(poses, np.tile(mu, (len(E), 1)))
+    C = Q + Hm @ Sigma @ np.swapaxes(Hm, 1, 2)  # the landmark integrated out at each pose
+    nu = z - z_hat
+    nu[:, 1] = _wrap(nu[:, 1])
+    lik = np.exp(-0.5 * np.einsum("ni,nij,nj->n", nu, np.linalg.inv(C), nu)) / np.sqrt(np.linalg.det(2 * np.pi * C))
+    w = lik * prior
+    Z = w.sum()
+    w = w / Z
+    mean = w @ poses
+    d = poses - mean
+    return mean, np.einsum("n,ni,nj->ij", w, d, d), Z
+
+
+@pytest.mark.parametrize("scale", [1.0, 0.25])
+def test_fs2_proposal_and_weight_against_brute_force(scale):
+    # The filter's samples (the exact arc of the sampled control) against the dense-grid posterior of the
+    # pose; the first-order proposal approaches it as the noise shrinks (linear-Gaussian limit).
+    rng = np.random.default_rng(41)
+    x, u, dt, mu, Sigma, _ = _fs2_case(1, rng)
+    M, Qs, Sig = M2 * scale**2, Q2 * scale**2, Sigma[0] * scale**2
+    x_hat = sl.velocity_motion(x[0], u, dt)[0]
+    z = sl.landmark_measurement(x_hat, mu[0])[0] + scale * np.array([0.15, -0.06])  # ~2 sigma off the prediction
+    mean_g, cov_g, Z = _grid_posterior(x[0], u, dt, mu[0], Sig, z, Qs, M)
+    prop = sl.fastslam2_proposal(x, u, dt, M, mu, Sig[None], z, Qs)
+    std = np.sqrt(np.diag(cov_g))
+    assert np.all(np.abs(prop.x_mean[0] - mean_g) < 0.05 * std)
+    np.testing.assert_allclose(prop.x_cov[0][:2, :2], cov_g[:2, :2], rtol=0.06, atol=0.06 * std[0] * std[1])
+    np.testing.assert_allclose(np.sqrt(np.diag(prop.x_cov[0])), std, rtol=0.03)
+    np.testing.assert_allclose(np.exp(prop.log_w[0]), Z, rtol=0.03)
+    # the filter draws from it: 100 000 copies of the particle with the landmark known
+    n = 100_000
+    st = sl.fastslam_initial_state(x[0], n, 1)
+    st = st._replace(mu=np.tile(mu[0], (n, 1, 1)), Sigma=np.tile(Sig, (n, 1, 1, 1)), seen=np.ones((n, 1), bool),
+                     counts=np.ones((n, 1), np.int64))
+    new = sl.fastslam2_update_known(st, u, dt, z[None], np.array([0]), Qs, M=M, rng=np.random.default_rng(2))
+    emp_mean = new.poses.mean(axis=0)
+    assert np.all(np.abs(emp_mean - mean_g) < 0.05 * std + 4 * std / np.sqrt(n))
+    np.testing.assert_allclose(np.sqrt(np.diag(np.cov(new.poses.T))), std, rtol=0.04)
+    # the motion model alone (FastSLAM 1.0's proposal) is much wider
+    prior = sl.fastslam_predict(st, u, dt, M=M, rng=np.random.default_rng(3)).poses
+    assert np.linalg.det(np.cov(prior[:, :2].T)) > 1.5 * np.linalg.det(cov_g[:2, :2])
+
+
+def test_fs2_weight_of_several_measurements_is_their_joint_marginal():
+    rng = np.random.default_rng(42)
+    n = 5
+    x, u, dt, _, _, _ = _fs2_case(n, rng)
+    lms = np.array([[4.0, 2.0], [1.0, -4.0], [-3.0, 3.0]])
+    Sig = _random_spd(rng, 3 * n, 0.1).reshape(n, 3, 2, 2)
+    mu = lms + rng.normal(scale=0.1, size=(n, 3, 2))
+    z = sl.landmark_measurement(np.zeros(3), lms)[0] + np.array([0.02, -0.01])
+    st = sl.fastslam_initial_state(np.zeros(3), n, 3)
+    st = st._replace(poses=x, mu=mu, Sigma=Sig, seen=np.ones((n, 3), bool), counts=np.ones((n, 3), np.int64))
+    new = sl.fastslam2_update_known(st, u, dt, z, np.array([0, 1, 2]), Q2, M=M2, rng=np.random.default_rng(0))
+    logw = []
+    for k in range(n):
+        x_hat, _, V = sl.velocity_motion(x[k], u, dt)
+        R = V @ M2 @ V.T
+        rows, Hs, D = [], [], np.zeros((6, 6))
+        for i in range(3):
+            z_bar, Hx, Hm = sl.landmark_measurement(x_hat, mu[k, i])
+            nu = z[i] - z_bar
+            nu[1] = _wrap(nu[1])
+            rows.append(nu)
+            Hs.append(Hx)
+            D[2 * i:2 * i + 2, 2 * i:2 * i + 2] = Q2 + Hm @ Sig[k, i] @ Hm.T
+        H = np.vstack(Hs)
+        logw.append(stats.multivariate_normal(np.zeros(6), H @ R @ H.T + D).logpdf(np.concatenate(rows)))
+    logw = np.array(logw)
+    np.testing.assert_allclose(new.log_weights, logw - logsumexp(logw), rtol=1e-9, atol=1e-9)
+
+
+def test_fs2_new_landmark_uses_the_motion_model_and_is_initialised_at_the_sampled_pose():
+    rng = np.random.default_rng(43)
+    n = 50
+    st = sl.fastslam_initial_state(np.array([0.0, 0.0, 0.2]), n, 3)
+    u, dt = np.array([1.0, 0.2]), 0.5
+    z = np.array([[3.0, 0.4], [5.0, -0.2]])
+    new = sl.fastslam2_update_known(st, u, dt, z, np.array([2, 0]), Q2, M=M2, rng=np.random.default_rng(7))
+    moved = sl.fastslam_predict(st, u, dt, M=M2, rng=np.random.default_rng(7))  # the same draw
+    np.testing.assert_allclose(new.poses, moved.poses, atol=1e-12)
+    for i, j in enumerate((2, 0)):
+        m, S = sl.fastslam_init_landmark(new.poses, z[i], Q2)
+        np.testing.assert_allclose(new.mu[:, j], m, atol=1e-12)
+        np.testing.assert_allclose(new.Sigma[:, j], S, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(new.log_weights, -np.log(n))  # w = p0 for every particle: uniform
+    assert new.seen[:, [0, 2]].all() and not new.seen[:, 1].any() and (new.counts[:, [0, 2]] == 1).all()
+    # unknown correspondences on an empty map: the same
+    unk = sl.fastslam2_update_unknown(st, u, dt, z, Q2, M=M2, rng=np.random.default_rng(7))
+    np.testing.assert_allclose(unk.poses, moved.poses, atol=1e-12)
+    assert (unk.seen.sum(axis=1) == 2).all()
+
+
+def test_fs2_one_particle_without_motion_noise_matches_ekf_slam(world):
+    run = world
+    zero = np.zeros((2, 2))
+    ekf = sl.run_ekf_slam(run, known=True, M=zero)
+    fs = sl.run_fastslam(run, n_particles=1, M=zero, version=2, rng=np.random.default_rng(0))
+    np.testing.assert_allclose(fs.x_est, ekf.x, atol=1e-9)
+    np.testing.assert_allclose(fs.landmarks[ekf.landmark_ids], ekf.landmarks, rtol=0, atol=1e-4)
+    np.testing.assert_allclose(fs.landmark_cov[ekf.landmark_ids], ekf.landmark_cov, rtol=1e-3, atol=1e-9)
+
+
+def test_fs2_one_particle_pose_is_an_ekf_localization_draw():
+    # one particle, a perfectly known landmark (Sigma -> 0), one measurement: the proposal is the EKF
+    # localization update of N(x_hat, V M V^T) by that measurement (Table 7.2 lines 9-17 with Q_t)
+    x = np.array([[0.0, 0.0, 0.1]])
+    u, dt = np.array([1.0, 0.1]), 1.0
+    m = np.array([[5.0, 2.0]])
+    z = np.array([4.3, 0.2])
+    prop = sl.fastslam2_proposal(x, u, dt, M2, m, 1e-14 * np.eye(2)[None], z, Q2)
+    mu_bar, Sigma_bar = sl.ekf_predict(x[0], np.zeros((3, 3)), u, dt, M2)
+    mu_e, Sigma_e = sl.ekf_update(mu_bar, Sigma_bar, z, m[0], Q2)
+    np.testing.assert_allclose(sl.pose_error(prop.x_mean[0], mu_e), 0.0, atol=1e-9)
+    np.testing.assert_allclose(prop.x_cov[0], Sigma_e, rtol=1e-6, atol=1e-12)
+
+
+def _fs2_state(n, rng):
+    st = _state_with_maps(n, 6, rng)
+    seen = np.tile(np.arange(6) < 4, (n, 1))
+    seen[::3, 3] = False  # landmark 3 is new to some particles only
+    return st._replace(poses=rng.normal(scale=[0.05, 0.05, 0.01], size=(n, 3)),
+                       mu=np.array([[5.0, 1.0], [3.0, -3.0], [-4.0, 2.0], [6.0, -1.0], [0, 0], [0, 0]])
+                       + rng.normal(scale=0.1, size=(n, 6, 2)),
+                       Sigma=np.tile(0.02 * np.eye(2), (n, 6, 1, 1)), seen=seen, counts=seen.astype(np.int64))
+
+
+@pytest.mark.parametrize("known", [True, False])
+def test_fs2_batched_equals_per_particle(known):
+    rng = np.random.default_rng(44)
+    n = 7
+    st = _fs2_state(n, rng)
+    u, dt = np.array([0.5, 0.05]), 0.2
+    pose = sl.velocity_motion(np.zeros(3), u, dt)[0]
+    lms = np.array([[5.0, 1.0], [3.0, -3.0], [6.0, -1.0], [6.0, 5.0], [5.0, 1.0]])
+    z = sl.landmark_measurement(pose, lms)[0] + rng.normal(scale=0.01, size=(5, 2))
+    z[2, 0] += 4.0  # a blunder: an outlier for the gate
+    ids = np.array([0, 1, 3, 4, 0])  # landmark 0 twice, 3 new to some particles, 4 new to all
+
+    def step(s, r):
+        if known:
+            return sl.fastslam2_update_known(s, u, dt, z, ids, Q2, M=M2, rng=r, gate=sl.fastslam.DEFAULT_GATE,
+                                             return_outliers=True)
+        return sl.fastslam2_update_unknown(s, u, dt, z[:4], Q2, M=M2, rng=r, max_range=30.0), None
+
+    both, out = step(st, np.random.default_rng(9))
+    for k in range(n):
+        r = np.random.default_rng(9)
+        r.standard_normal(2 * k)  # skip the draws of particles 0..k-1
+        one, out1 = step(sl.FastSLAMState(*(a[[k]] for a in st[:-1]), np.zeros(1)), r)
+        for field in ("poses", "mu", "Sigma", "seen", "counts"):
+            np.testing.assert_allclose(getattr(one, field)[0], getattr(both, field)[k], rtol=1e-11, atol=1e-11)
+        if known:
+            np.testing.assert_array_equal(out1[0], out[k])
+        else:  # the weights do not depend on the sampled pose: a pair (0, k) gives the batch's weight ratio
+            pair = sl.FastSLAMState(*(a[[0, k]] for a in st[:-1]),
+                                    st.log_weights[[0, k]] - logsumexp(st.log_weights[[0, k]]))
+            two, _ = step(pair, np.random.default_rng(9))
+            np.testing.assert_allclose(two.log_weights[1] - two.log_weights[0],
+                                       both.log_weights[k] - both.log_weights[0], rtol=1e-9, atol=1e-9)
+    if known:  # the blunder is an outlier wherever landmark 3 was known, nothing else is
+        np.testing.assert_array_equal(out[:, 2], st.seen[:, 3])
+        assert not out[:, [0, 1, 3, 4]].any()
+
+
+def test_fs2_keeps_more_diversity_than_fs1_with_a_precise_sensor(world):
+    # a sensor 20x more precise than the motion: 1.0's particles mostly miss, 2.0's are drawn near the truth
+    rng = np.random.default_rng(45)
+    run = sl.simulate_landmark_run(world.landmarks, world.u[:120], world.dt, x0=world.x0, M=np.diag([0.3, 0.15]) ** 2,
+                                   Q=np.diag([0.02, 0.003]) ** 2, max_range=8.0, fov=np.pi, rng=rng)
+    ess = {}
+    for v in (1, 2):
+        res = [sl.run_fastslam(run, n_particles=100, version=v, rng=np.random.default_rng(s)) for s in range(2)]
+        ess[v] = np.mean([np.median(r.ess) for r in res])
+    assert ess[2] > 3 * ess[1]
