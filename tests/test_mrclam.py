@@ -463,3 +463,59 @@ def test_fastslam_beats_dead_reckoning(window):
     assert max(ate) < 0.7 * dr.ate, ate
     assert np.median(ate) < 0.5 * dr.ate, ate
     assert np.median(rmse) < 0.6 * dr.ate, rmse
+
+
+# --------------------------------------------------------------------------- noise calibration and association scoring
+def test_calibrate_noise_recovers_white_noise_of_a_simulated_run():
+    rng = np.random.default_rng(50)
+    landmarks = sl.make_landmark_world(20, extent=20.0, min_separation=2.0, rng=rng)
+    M = np.diag([0.08**2, 0.12**2])
+    Q = np.diag([0.2**2, 0.03**2])
+    run = sl.simulate_landmark_run(landmarks, sl.loop_controls(3000, v=0.8, omega=0.1), 0.1, x0=[0.0, -8.0, 0.0],
+                                   M=M, Q=Q, max_range=8.0, fov=np.pi, rng=rng)
+    cal = sl.calibrate_noise(run, windows=(10, 30))  # long enough runs of blocks for a 7 % standard error
+    assert np.all(np.abs(cal.rho) < 0.1)  # white: consecutive sightings uncorrelated
+    np.testing.assert_allclose(np.sqrt(np.diag(cal.Q)), [0.2, 0.03], rtol=0.12)
+    np.testing.assert_allclose(np.sqrt(np.diag(cal.M)), [0.08, 0.12], rtol=0.15)
+    assert cal.n_outliers == 0 and cal.control_std.shape == (2, 2)
+
+
+def test_sighting_correlation_of_an_ar1_sequence():
+    rng = np.random.default_rng(51)
+    n, rho = 4000, 0.8
+    e = np.empty((n, 2))
+    e[0] = rng.standard_normal(2)
+    for k in range(1, n):
+        e[k] = rho * e[k - 1] + np.sqrt(1 - rho**2) * rng.standard_normal(2)
+    ids = tuple(np.array([0]) for _ in range(n))  # one landmark, one sighting per step
+    np.testing.assert_allclose(sl.sighting_correlation(e, ids), rho, atol=0.03)
+    # sightings further apart than max_gap are not paired: every other step empty, max_gap=1 leaves nothing
+    sparse = tuple(np.array([0]) if k % 2 == 0 else np.array([], dtype=int) for k in range(2 * n))
+    with pytest.raises(ValueError, match="fewer than 3 pairs"):
+        sl.sighting_correlation(e, sparse, max_gap=1)
+
+
+def test_calibrated_noise_of_the_shipped_constants():
+    cal = sl.calibrate_noise(load_mrclam(1))
+    # the loader's constants are robot 1's calibration, rounded
+    np.testing.assert_allclose(np.sqrt(np.diag(cal.M)), np.sqrt(np.diag(MRCLAM_M)), rtol=0.05)
+    np.testing.assert_allclose(np.sqrt(np.diag(cal.Q)), np.sqrt(np.diag(MRCLAM_Q)), rtol=0.08)
+    assert cal.rho[0] > 0.9  # range errors persist over a pass
+
+
+def test_association_errors_counts_against_majority_labels():
+    assoc = (np.array([0, 1]), np.array([0, -1]), np.array([1, 1, 2]))
+    truth = (np.array([5, 6]), np.array([5, 7]), np.array([6, 7, 5]))
+    # slot 0: labels 5, 5 -> 5; slot 1: 6, 6, 7 -> 6 (one wrong); slot 2: 5 -> 5 (a second copy of 5)
+    assert sl.association_errors(assoc, np.arange(3), truth) == (1, 6, 1)
+    with pytest.raises(ValueError, match="one entry per measurement"):
+        sl.association_errors(assoc, np.arange(3), truth[:2])
+
+
+def test_gate_rescues_known_correspondences_on_robot_3():
+    run = load_mrclam(3)
+    gated = sl.run_ekf_slam(run, known=True)  # the run's gate
+    plain = sl.run_ekf_slam(run, known=True, gate=np.inf)
+    assert gated.n_gated == 4 and plain.n_gated == 0
+    ate_g, ate_p = (sl.score_trajectory(r.x, run.x_true).ate for r in (gated, plain))
+    assert ate_g < 0.3 < ate_p
