@@ -72,6 +72,7 @@ __all__ = [
     "EKFSLAMResult",
     "run_ekf_slam",
     "DEFAULT_ALPHA",
+    "JCBB_ALPHA",
     "DEFAULT_PRIOR_VAR",
 ]
 
@@ -80,6 +81,10 @@ __all__ = [
 #: ``-2 ln(1e-5)`` (about 23.0). A run makes thousands of measurements, so a
 #: 99 % or 99.9 % gate would split landmarks in two now and then.
 DEFAULT_ALPHA = float(-2.0 * np.log(1e-5))
+#: Default compatibility threshold of JCBB in :func:`run_ekf_slam`: the 99 % quantile of the
+#: chi-square distribution with 2 degrees of freedom, ``-2 ln(0.01)`` (about 9.21), as Neira and
+#: Tardos use.
+JCBB_ALPHA = float(-2.0 * np.log(0.01))
 #: Default prior variance (m^2) of a landmark before its first sighting (the
 #: finite stand-in for the infinite ``Sigma_0`` entries of Algorithm 1).
 DEFAULT_PRIOR_VAR = 1e4
@@ -1301,7 +1306,8 @@ class EKFSLAMResult(NamedTuple):
 
 
 def run_ekf_slam(run, *, known=True, fast=True, alpha=DEFAULT_ALPHA, confirm=1, window=10, M=None, Q=None,
-                 Sigma0=None, prior_var=DEFAULT_PRIOR_VAR, capacity=16, snapshots=(), association="nn", gate=None):
+                 Sigma0=None, prior_var=DEFAULT_PRIOR_VAR, capacity=16, snapshots=(), association="nn", gate=None,
+                 Q_association=None, jcbb_alpha=None):
     """Run EKF SLAM over a simulated landmark run.
 
     Parameters
@@ -1356,6 +1362,26 @@ def run_ekf_slam(run, *, known=True, fast=True, alpha=DEFAULT_ALPHA, confirm=1, 
         only acts when it is below `alpha`: distances between `gate` and
         `alpha` are then neither a match nor a new landmark, and rejected.
 
+    Q_association : ndarray, shape (2, 2), optional, keyword-only
+        Unknown correspondences only: the measurement noise used in the
+        association distances (``S = H Sigma_bar H^T + Q_association``, for
+        Algorithm 2, JCBB and the provisional list); default `Q`. A `Q`
+        inflated for errors that are correlated in time (so that repeated
+        sightings are not over-counted in the update) widens the
+        association gates far beyond the spread of one sighting; pass the
+        spread of one sighting here to keep them tight.
+
+    jcbb_alpha : float, optional, keyword-only
+        Individual compatibility threshold of JCBB (squared Mahalanobis
+        distance, 2 degrees of freedom; the joint test uses the same tail
+        probability with ``2k`` degrees of freedom). Default
+        :data:`JCBB_ALPHA`, the 99 % quantile. JCBB prefers the hypothesis
+        with the most pairings, so a loose threshold (such as `alpha`, which
+        only guards against splitting a landmark in two) lets it pair a
+        sighting with a neighbour several standard deviations away rather
+        than leave it unpaired; a measurement compatible with nothing at
+        this level goes through Algorithm 2's test with `alpha`.
+
     Returns
     -------
     EKFSLAMResult
@@ -1399,6 +1425,8 @@ def run_ekf_slam(run, *, known=True, fast=True, alpha=DEFAULT_ALPHA, confirm=1, 
     if association not in ("nn", "jcbb"):
         raise ValueError(f"association must be 'nn' or 'jcbb', got {association!r}")
     gate = _check_gate(getattr(run, "gate", None) if gate is None else gate)
+    Qa = Q if Q_association is None else as_covariance(Q_association, "Q_association", 2)
+    alpha_j = JCBB_ALPHA if jcbb_alpha is None else as_scalar(jcbb_alpha, "jcbb_alpha", nonnegative=True, finite=False)
     zs = [as_array(z, f"run.z[{t}]", (None, 2)) for t, z in enumerate(run.z)]
     ids = [np.asarray(i, dtype=int) for i in run.ids]
     for t, (z, i) in enumerate(zip(zs, ids)):
@@ -1434,7 +1462,7 @@ def run_ekf_slam(run, *, known=True, fast=True, alpha=DEFAULT_ALPHA, confirm=1, 
         predict(u[t], dt, M)  # (Table 10.1 lines 2-5)
         slots = np.full(len(ids[t]), -1)
         if not known and association == "jcbb" and len(ids[t]) > 1:
-            pairing = jcbb(zs[t], Q, alpha)  # all measurements of the step, jointly  (Neira & Tardos 2001)
+            pairing = jcbb(zs[t], Qa, alpha_j)  # all measurements of the step, jointly  (Neira & Tardos 2001)
         else:
             pairing = None
         for m, (z, i) in enumerate(zip(zs[t], ids[t])):  # for all observed features  (Table 10.1 line 7)
@@ -1451,9 +1479,9 @@ def run_ekf_slam(run, *, known=True, fast=True, alpha=DEFAULT_ALPHA, confirm=1, 
                     n_gated += 1
                     continue
                 if j == JCBB_NEW:
-                    j = associate(z, Q, alpha)  # (Algorithm 2; Table 10.2 lines 16-20)
+                    j = associate(z, Qa, alpha)  # (Algorithm 2; Table 10.2 lines 16-20)
                 if j == filt.n_landmarks:  # new landmark hypothesis wins
-                    if not provisional.observe(filt.x, z, Q, alpha, t):
+                    if not provisional.observe(filt.x, z, Qa, alpha, t):
                         n_rejected += 1
                         continue
                     j = add(z)

@@ -785,5 +785,20 @@ def test_run_rejects_an_unknown_association_and_a_bad_gate(run):
         sl.run_ekf_slam(run, known=False, association="jjcb")
     with pytest.raises(ValueError, match="gate must be non-negative"):
         sl.run_ekf_slam(run, gate=-1.0)
+    with pytest.raises(ValueError, match="Q_association must be positive semi-definite"):
+        sl.run_ekf_slam(run, known=False, Q_association=-Q)
+    with pytest.raises(ValueError, match="jcbb_alpha must be non-negative"):
+        sl.run_ekf_slam(run, known=False, association="jcbb", jcbb_alpha=-1.0)
     with pytest.raises(ValueError, match="j must hold distinct landmark indices"):
         sl.joint_mahalanobis(*random_state(np.random.default_rng(0), 2), [[1.0, 0.0], [1.0, 0.1]], [0, 0], Q)
+
+
+def test_association_noise_only_changes_the_association(run):
+    same = sl.run_ekf_slam(run, known=False, Q_association=Q)
+    default = sl.run_ekf_slam(run, known=False)
+    np.testing.assert_array_equal(same.x, default.x)
+    # a much wider association noise merges landmarks that the default keeps apart
+    wide = sl.run_ekf_slam(run, known=False, Q_association=400 * Q)
+    assert len(wide.landmarks) < len(default.landmarks)
+    # with known correspondences it is not used at all
+    np.testing.assert_array_equal(sl.run_ekf_slam(run, Q_association=400 * Q).x, sl.run_ekf_slam(run).x)

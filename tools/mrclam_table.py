@@ -5,7 +5,7 @@ Usage: ``python tools/mrclam_table.py [--seeds 8] [--particles 50] [--out chapte
 For each robot (the shipped logs, ``dt = 0.1`` s, the loader's calibrated ``M``, ``Q`` and gate)
 it runs dead reckoning, EKF SLAM with known correspondences, EKF SLAM with unknown
 correspondences (Algorithm 2's nearest neighbour and JCBB, both with the provisional list off, as
-in the chapter), and FastSLAM 1.0 and 2.0 with known correspondences over ``--seeds`` seeds
+in the chapter, and association gates of the width of one sighting, ``MRCLAM_Q_SIGHTING``), and FastSLAM 1.0 and 2.0 with known correspondences over ``--seeds`` seeds
 (seed ``s`` is ``numpy.random.default_rng(s)``), and scores them as the chapter does: ATE after the
 rigid alignment of the trajectory, landmark RMSE in that frame (unknown correspondences: the
 estimated landmarks matched to the true ones within 1 m), landmarks in the map, and for unknown
@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 import slamlib as sl
-from slamlib.datasets.mrclam import MRCLAM_ROBOTS, load_mrclam
+from slamlib.datasets.mrclam import MRCLAM_Q_SIGHTING, MRCLAM_ROBOTS, load_mrclam
 
 ROOT = Path(__file__).resolve().parents[1]
 OLD_M = np.diag([0.05**2, 0.15**2])  # the book's former noise: commands rounded up, Q near the 95th percentile
@@ -55,7 +55,7 @@ def row(score, **extra):
     return out
 
 
-def robot_rows(robot, seeds, particles):
+def robot_rows(robot, seeds, particles, fastslam_rows=None):
     run = load_mrclam(robot)
     L = run.landmarks
     rows = {}
@@ -75,7 +75,7 @@ def robot_rows(robot, seeds, particles):
 
     for assoc, name in (("nn", "EKF SLAM, unknown (NN)"), ("jcbb", "EKF SLAM, unknown (JCBB)")):
         t0 = time.perf_counter()
-        res = sl.run_ekf_slam(run, known=False, association=assoc)
+        res = sl.run_ekf_slam(run, known=False, association=assoc, Q_association=MRCLAM_Q_SIGHTING)
         elapsed = time.perf_counter() - t0
         wrong, used, split = sl.association_errors(res.associations, res.landmark_ids, run.ids)
         rows[name] = row(sl.score_run(name, res.x, run.x_true, landmarks_est=res.landmarks, landmarks_true=L,
@@ -83,6 +83,9 @@ def robot_rows(robot, seeds, particles):
                          n_wrong=wrong, n_used=used, n_split=split, n_gated=res.n_gated, seconds=elapsed)
 
     for version in (1, 2):
+        if fastslam_rows is not None:
+            rows[f"FastSLAM {version}.0, known"] = fastslam_rows[f"FastSLAM {version}.0, known"]
+            continue
         runs = []
         for s in range(seeds):
             f = sl.run_fastslam(run, n_particles=particles, rng=np.random.default_rng(s), known=True, version=version)
@@ -128,13 +131,20 @@ def main(argv=None):
     ap.add_argument("--particles", type=int, default=50)
     ap.add_argument("--robots", type=int, nargs="+", default=list(MRCLAM_ROBOTS))
     ap.add_argument("--out", type=Path, default=ROOT / "chapters" / "data" / "mrclam_table.json")
+    ap.add_argument("--fastslam-from", type=Path, default=None,
+                    help="copy the FastSLAM rows from this earlier output (same seeds and particles) instead of "
+                         "recomputing them")
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
     data = {"command": "python tools/mrclam_table.py " + f"--seeds {args.seeds} --particles {args.particles}",
             "seeds": args.seeds, "particles": args.particles, "fail_ate": FAIL_ATE, "robots": {}}
     args.out.parent.mkdir(parents=True, exist_ok=True)
+    earlier = json.loads(args.fastslam_from.read_text()) if args.fastslam_from else None
+    if earlier and (earlier["seeds"], earlier["particles"]) != (args.seeds, args.particles):
+        raise SystemExit(f"{args.fastslam_from} has {earlier['seeds']} seeds and {earlier['particles']} particles")
     for r in args.robots:
-        data["robots"][str(r)] = robot_rows(r, args.seeds, args.particles)
+        fs = earlier["robots"][str(r)]["rows"] if earlier else None
+        data["robots"][str(r)] = robot_rows(r, args.seeds, args.particles, fs)
         print(f"robot {r} done after {time.perf_counter() - t0:.0f} s", flush=True)
         args.out.write_text(json.dumps(data, indent=1, sort_keys=False) + "\n")  # after each robot
     print_table(data)

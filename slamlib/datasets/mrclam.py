@@ -45,7 +45,7 @@ from .._checks import as_covariance, as_scalar
 from ..angles import wrap_angle
 from . import data_path
 
-__all__ = ["MRCLAMRun", "load_mrclam", "MRCLAM_ROBOTS", "MRCLAM_DT", "MRCLAM_M", "MRCLAM_Q", "MRCLAM_GATE"]
+__all__ = ["MRCLAMRun", "load_mrclam", "MRCLAM_ROBOTS", "MRCLAM_DT", "MRCLAM_M", "MRCLAM_Q", "MRCLAM_Q_SIGHTING", "MRCLAM_GATE"]
 
 #: Robots whose logs the package ships: all five of Dataset 6.
 MRCLAM_ROBOTS = (1, 2, 3, 4, 5)
@@ -70,6 +70,11 @@ MRCLAM_M = np.diag([0.07**2, 0.10**2])
 #: error persists while the robot keeps seeing it, so repeated sightings carry far less information
 #: than independent ones would.
 MRCLAM_Q = np.diag([0.6**2, 0.05**2])
+#: Spread of a single sighting, ``diag(0.12^2, 0.02^2)``: robot 1's RMS residuals against Vicon without
+#: the inflation of :data:`MRCLAM_Q`. Data association compares one sighting with the map, so its
+#: gates should have the width of one sighting's error (``run_ekf_slam(..., Q_association=...)``).
+MRCLAM_Q_SIGHTING = np.diag([0.12**2, 0.02**2])
+MRCLAM_Q_SIGHTING.setflags(write=False)
 #: Validation gate the filters apply to this data set by default (:attr:`MRCLAMRun.gate`): the
 #: 99.999 % quantile of the chi-square distribution with 2 degrees of freedom, ``-2 ln(1e-5)``
 #: (about 23.0), on the normalised innovation squared of a sighting. A few sightings are grossly
