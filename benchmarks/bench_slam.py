@@ -17,7 +17,8 @@ at ``N = 100`` and 1.08 s at ``N = 400``.
 
 Data association on a real log: an ordinary MRCLAM step (robot 2 of Dataset 6,
 ``dt = 0.1`` s, the loader's noise and gate) with unknown correspondences, from
-the filter state Algorithm 2 has built after 300 s: a prediction, the
+the filter state Algorithm 2 has built after 300 s (association gates of one
+sighting's width, ``MRCLAM_Q_SIGHTING``, as in chapter 9): a prediction, the
 association of the step's sightings and the updates. Nearest neighbour
 (Algorithm 2, one sighting at a time) against JCBB (all sightings of the step
 jointly), over the next 3000 steps (all steps, and only those with two or more
@@ -151,33 +152,34 @@ JCBB_TARGET = 3.0
 
 def bench_association(repeats=5):
     """Median ms per MRCLAM step with NN and with JCBB association, from the same filter state."""
-    from slamlib.datasets.mrclam import load_mrclam
+    from slamlib.datasets.mrclam import MRCLAM_Q_SIGHTING, load_mrclam
 
     run = load_mrclam(2)
     t0, n = 3000, 3000
-    prefix = sl.run_ekf_slam(run, known=False, snapshots=(t0,))
+    Qa = np.array(MRCLAM_Q_SIGHTING)  # association gates of one sighting's width, as in chapter 9
+    prefix = sl.run_ekf_slam(run, known=False, snapshots=(t0,), Q_association=Qa)
     mu, Sigma, _ = prefix.snapshots[t0]
     base = sl.EKFSLAM.from_state(mu, Sigma)
-    alpha, gate, Q_run, M_run = sl.DEFAULT_ALPHA, run.gate, np.array(run.Q), np.array(run.M)
+    alpha, alpha_j, gate, Q_run, M_run = sl.DEFAULT_ALPHA, sl.JCBB_ALPHA, run.gate, np.array(run.Q), np.array(run.M)
     steps = [(run.u[t], np.asarray(run.z[t])) for t in range(t0, t0 + n)]
     multi = [k for k, (_, z) in enumerate(steps) if len(z) >= 2]
 
     def nn_step(f, u, Z):
         f._predict(u, run.dt, M_run)
         for z in Z:
-            j = f._associate(z, Q_run, alpha)
+            j = f._associate(z, Qa, alpha)
             if j == f.n_landmarks:
                 j = f._add_landmark(z)
             f._update(z, j, Q_run, gate)
 
     def jcbb_step(f, u, Z):
         f._predict(u, run.dt, M_run)
-        pairing = f._jcbb(Z, Q_run, alpha) if len(Z) > 1 else np.full(len(Z), sl.JCBB_NEW)
+        pairing = f._jcbb(Z, Qa, alpha_j) if len(Z) > 1 else np.full(len(Z), sl.JCBB_NEW)
         for z, j in zip(Z, pairing.tolist()):
             if j == sl.JCBB_UNPAIRED:
                 continue
             if j == sl.JCBB_NEW:
-                j = f._associate(z, Q_run, alpha)
+                j = f._associate(z, Qa, alpha)
             if j == f.n_landmarks:
                 j = f._add_landmark(z)
             f._update(z, j, Q_run, gate)

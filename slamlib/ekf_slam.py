@@ -23,8 +23,13 @@ Two implementations of the same mathematics live here.
   landmark does not copy the covariance.
 
 :func:`run_ekf_slam` runs either version over a simulated
-:class:`~slamlib.sim.LandmarkRun`, with known or unknown correspondences and an
-optional provisional landmark list that keeps clutter out of the map.
+:class:`~slamlib.sim.LandmarkRun` or a real log, with known or unknown
+correspondences, an optional provisional landmark list that keeps clutter out
+of the map, a chi-square validation gate on the innovation that rejects gross
+outliers (on by default for real logs, which carry a ``gate``), and either
+Algorithm 2's nearest neighbour or Joint Compatibility Branch and Bound
+(:func:`jcbb_associate`) for the association. The JCBB search works on any
+EKF SLAM state ``(mu, Sigma)`` of this layout.
 
 A landmark not seen yet has the course's ``Sigma_0`` entry "infinity"; here it
 gets the large finite variance ``prior_var`` on the diagonal and no
@@ -431,6 +436,12 @@ def ekf_slam_predict(mu, Sigma, u, dt, M):
     Teaching version: builds the ``(3+2N, 3+2N)`` matrix ``G`` and multiplies
     densely, ``O(N^3)``. :meth:`EKFSLAM.predict` computes the same in ``O(N)``.
 
+    Raises
+    ------
+    ValueError
+        If ``Sigma`` is not a symmetric positive semi-definite ``(3+2N, 3+2N)``
+        matrix (the message names it), or another argument is malformed.
+
     References
     ----------
     Course text, Algorithm 1; Thrun, Burgard & Fox (2005),
@@ -559,6 +570,12 @@ def ekf_slam_update(mu_bar, Sigma_bar, z, j, Q):
     Teaching version: dense ``(I - K H) Sigma_bar``, ``O(N^3)``.
     :meth:`EKFSLAM.update` computes the same in ``O(N^2)``.
 
+    Raises
+    ------
+    ValueError
+        If ``Sigma_bar`` is not a symmetric positive semi-definite ``(3+2N, 3+2N)``
+        matrix (the message names it), or another argument is malformed.
+
     References
     ----------
     Course text, Algorithm 1, Eqs. 17.2, 17.3; Thrun, Burgard &
@@ -613,6 +630,12 @@ def ekf_slam_associate(mu_bar, Sigma_bar, z, n_seen, Q, alpha):
     -----
     Setting the distance of the hypothesised new landmark ``N+1`` to
     ``alpha`` and taking the arg-min, as Algorithm 2 does, is the same rule.
+
+    Raises
+    ------
+    ValueError
+        If ``Sigma_bar`` is not a symmetric positive semi-definite ``(3+2N, 3+2N)``
+        matrix (the message names it), or another argument is malformed.
 
     References
     ----------
