@@ -519,3 +519,14 @@ def test_gate_rescues_known_correspondences_on_robot_3():
     assert gated.n_gated == 4 and plain.n_gated == 0
     ate_g, ate_p = (sl.score_trajectory(r.x, run.x_true).ate for r in (gated, plain))
     assert ate_g < 0.3 < ate_p
+
+
+def test_gate_rescues_ekf_localization_on_robot_3():
+    run = load_mrclam(3, t_max=300.0)  # its four gross outliers come 255 s in
+    gated = sl.ekf_localization_run(run)  # known correspondences, the run's gate
+    plain = sl.ekf_localization_run(run, gate=np.inf)
+    assert gated.n_gated == 4 and plain.n_gated == 0
+    after = slice(2600, None)  # after the outliers
+    err_g = sl.ate_rmse(gated.mu[after], run.x_true[after])
+    err_p = sl.ate_rmse(plain.mu[after], run.x_true[after])
+    assert err_g < 0.25 and err_p > 2 * err_g
