@@ -211,7 +211,7 @@ def _jcbb(mu, sub_sigma, Z, d, Q, alpha):
     Mahalanobis distance of the pairs it makes.
     """
     K = Z.shape[0]
-    compat = d <= alpha  # individual compatibility  (Neira & Tardos 2001, Sec. III)
+    compat = d <= alpha  # individual compatibility  (Neira & Tardos 2001)
     pairing = np.where(compat.any(axis=1), JCBB_UNPAIRED, JCBB_NEW)
     pi, pj = np.nonzero(compat)  # candidate pairs (measurement, landmark)
     if pi.size == 0:
@@ -243,7 +243,7 @@ def _jcbb(mu, sub_sigma, Z, d, Q, alpha):
         for b in range(len(sel)):  # + blockdiag(Q, ..., Q)
             S[2 * b:2 * b + 2, 2 * b:2 * b + 2] += Q
         v = nu[rows]
-        # D^2 = nu_H^T S_H^-1 nu_H, the joint Mahalanobis distance  (Neira & Tardos 2001, Eq. 9)
+        # D^2 = nu_H^T S_H^-1 nu_H, the joint Mahalanobis distance  (Neira & Tardos 2001)
         return float(v @ np.linalg.solve(S, v))
 
     def search(i, sel, used, d2):
@@ -364,7 +364,7 @@ def joint_mahalanobis(mu_bar, Sigma_bar, z, j, Q):
 
     References
     ----------
-    Neira & Tardos (2001), Eq. 9 (joint compatibility); course text,
+    Neira & Tardos (2001) (joint compatibility); course text,
     Eqs. 17.2, 17.3.
     """
     mu_bar, Sigma_bar = _check_state(mu_bar, Sigma_bar, "mu_bar", "Sigma_bar")
@@ -1423,7 +1423,7 @@ def run_ekf_slam(run, *, known=True, fast=True, alpha=DEFAULT_ALPHA, confirm=1, 
     ----------
     Course text, Algorithms 1 and 2; Thrun, Burgard & Fox (2005), Tables 10.1,
     10.2 and Sec. 10.3.3 (provisional landmark list); Bar-Shalom, Li &
-    Kirubarajan (2001), Sec. 5.4 (validation gate); Neira & Tardos (2001)
+    Kirubarajan (2001) (validation gate); Neira & Tardos (2001)
     (JCBB).
     """
     for attr in ("x0", "u", "dt", "z", "ids", "M", "Q"):

@@ -677,7 +677,7 @@ def ekf_localization_run(run, *, known=True, mu0=None, Sigma0=None, M=None, Q=No
     References
     ----------
     Thrun, Burgard & Fox (2005), Tables 7.2 and 7.3; Bar-Shalom, Li &
-    Kirubarajan (2001), Sec. 5.4 (validation gate).
+    Kirubarajan (2001) (validation gate).
     """
     for attr in ("landmarks", "dt", "x0", "u", "z", "ids", "M", "Q"):
         if not hasattr(run, attr):

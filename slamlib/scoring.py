@@ -649,8 +649,8 @@ def sighting_correlation(residuals, ids, *, max_gap=10):
 
     References
     ----------
-    Bar-Shalom, Li & Kirubarajan (2001), Sec. 5.4 (whiteness of the
-    measurement noise); Thrun, Burgard & Fox (2005), Sec. 6.6 (the
+    Bar-Shalom, Li & Kirubarajan (2001) (whiteness of the measurement
+    noise); Thrun, Burgard & Fox (2005), Sec. 6.6 (the
     independence assumption of the measurement model).
     """
     residuals = as_array(residuals, "residuals", (None, 2))
@@ -747,8 +747,7 @@ def calibrate_noise(run, *, windows=(10, 50, 100, 300), max_gap=10, outlier=(1.5
     ----------
     Thrun, Burgard & Fox (2005), Sec. 6.3 and Table 6.2 (learning
     measurement-model parameters), Sec. 5.3.3; Bar-Shalom, Li &
-    Kirubarajan (2001), Sec. 5.4 (consistency) and Sec. 8.3 (coloured
-    noise).
+    Kirubarajan (2001) (filter consistency, coloured noise).
     """
     for attr in ("x_true", "u", "dt", "z", "ids", "landmarks"):
         if not hasattr(run, attr):
@@ -808,7 +807,7 @@ def association_errors(associations, landmark_ids, ids):
 
     References
     ----------
-    Neira & Tardos (2001), Sec. V (association errors against ground
+    Neira & Tardos (2001) (association errors counted against ground
     truth).
     """
     L = len(landmark_ids)
