@@ -788,13 +788,19 @@ def fastslam_update_unknown(state, z, Q, *, p0=None, weight_cov="S", max_range=N
     z = _z_matrix(z)
     Q = _check_Q(Q)
     _check_weight_cov(weight_cov)
+    log_p0, max_range, half_fov = _unknown_options(Q, p0, max_range, fov)
+    return _update_unknown_core(state, z, Q, log_p0, weight_cov, max_range, half_fov)
+
+
+def _unknown_options(Q, p0, max_range, fov):
+    """Checked ``log p0``, perceptual range and half field of view of the unknown-correspondence updates."""
     log_p0 = np.log(fastslam_default_p0(Q) if p0 is None else as_scalar(p0, "p0", positive=True))
     if max_range is not None:
         max_range = as_scalar(max_range, "max_range", positive=True)
     half_fov = np.pi if fov is None else 0.5 * as_scalar(fov, "fov", positive=True)
     if fov is not None and max_range is None:
         raise ValueError("fov needs max_range (the perceptual range) as well")
-    return _update_unknown_core(state, z, Q, log_p0, weight_cov, max_range, half_fov)
+    return log_p0, max_range, half_fov
 
 
 def _update_unknown_core(state, z, Q, log_p0, weight_cov, max_range, half_fov, copy=True):
@@ -878,7 +884,7 @@ def _prune(x, mu, seen, counts, matched, max_range, half_fov):
 # --------------------------------------------------------------------------- FastSLAM 2.0
 # The proposal of Table 13.3 linearises the measurement about the predicted pose x_hat = g(x_{t-1}, u_t).
 # The motion noise here lives in control space (u_t + N(0, M), as in FastSLAM 1.0 and the simulator), so its
-# pose-space covariance R_t = V M V^T (V = dg/du) has rank 2 and no inverse; Table 13.3 line 10 needs
+# pose-space covariance R_t = V M V^T (V = dg/du) has rank 2 and no inverse; Table 13.3eeds
 # R_t^-1. The same Gaussian is computed in the coordinates eta of the control noise, u_t + L eta with
 # L L^T = M and eta ~ N(0, I): the measurement's Jacobian with respect to eta is G = H_x V L, the
 # proposal over eta has information P = I + sum_i G_i^T Q_i^-1 G_i and mean P^-1 b with
@@ -908,12 +914,12 @@ def _gauss_terms(G, Qj, r0, r1):
 
 
 def _predict_terms(x_hat, B, mu, Sigma, Q):
-    """Table 13.3 lines 6-9 for every (particle, landmark): ``z_bar``, ``G = H_x V L`` and ``Q_j``.
+    """Table 13.3for every (particle, landmark): ``z_bar``, ``G = H_x V L`` and ``Q_j``.
 
     ``x_hat (M, 3)``, ``B = V L (M, 3, 2)``, ``mu (M, K, 2)``, ``Sigma (M, K, 2, 2)``.
     """
-    z_bar, Hx, Hm = landmark_measurement(x_hat[:, None, :], mu)  # z_bar = h(mu_j, x_hat), H_x, H_m  (lines 6-8)
-    _, Qj, _ = _innovation(Hm, Sigma, Q)  # Q_j = Q_t + H_m Sigma_j H_m^T  (line 9)
+    z_bar, Hx, Hm = landmark_measurement(x_hat[:, None, :], mu)  # z_bar = h(mu_j, x_hat), H_x, H_m
+    _, Qj, _ = _innovation(Hm, Sigma, Q)  # Q_j = Q_t + H_m Sigma_j H_m^T
     G = np.empty(Hm.shape)  # G = H_x V L: the measurement's Jacobian with respect to the control noise eta
     b = B[:, None]
     for i in range(2):
@@ -925,15 +931,15 @@ def _predict_terms(x_hat, B, mu, Sigma, Q):
 def _sample_eta(P, b, rng, n):
     """Draw ``eta ~ N(P^-1 b, P^-1)`` for 2x2 information blocks ``P = (P00, P01, P11)``; one
     ``rng.standard_normal((n, 2))``."""
-    _, (c00, c01, c11) = _inv_sym(*P)  # Sigma_eta = P^-1  (Table 13.3 line 10)
-    m0 = c00 * b[0] + c01 * b[1]  # mean = P^-1 b  (line 11)
+    _, (c00, c01, c11) = _inv_sym(*P)  # Sigma_eta = P^-1  (Table 13.3)
+    m0 = c00 * b[0] + c01 * b[1]  # mean = P^-1 b
     m1 = c01 * b[0] + c11 * b[1]
     l00 = np.sqrt(c00)  # Cholesky factor of P^-1
     l10 = c01 / l00
     l11 = np.sqrt(np.maximum(c11 - l10 * l10, 0.0))
     e = rng.standard_normal((n, 2))
     eta = np.empty((n, 2))
-    eta[:, 0] = m0 + l00 * e[:, 0]  # eta ~ N(mean, P^-1)  (line 12)
+    eta[:, 0] = m0 + l00 * e[:, 0]  # eta ~ N(mean, P^-1)
     eta[:, 1] = m1 + l10 * e[:, 0] + l11 * e[:, 1]
     return eta
 
@@ -946,7 +952,7 @@ def _posterior_log_factor(P, b):
 
 
 def _motion_terms(x_prev, u, dt, L):
-    """``x_hat = g(x_{t-1}, u_t)`` and ``B = V L`` (Table 13.3 line 5; ``V = dg/du``)."""
+    """``x_hat = g(x_{t-1}, u_t)`` and ``B = V L`` (Table 13.3; ``V = dg/du``)."""
     x_hat, _, V = _arc(x_prev, u, dt)
     B = np.einsum("...ij,jk->...ik", V, L)
     return x_hat, B
@@ -967,12 +973,12 @@ class FastSLAM2Proposal(NamedTuple):
     u_cov : ndarray, shape (M, 2, 2)
         Its covariance ``L P^-1 L^T``.
     x_mean : ndarray, shape (M, 3)
-        First-order pose-space mean ``x_hat + V (u_mean - u_t)`` (Table 13.3 line 11).
+        First-order pose-space mean ``x_hat + V (u_mean - u_t)`` (Table 13.3).
     x_cov : ndarray, shape (M, 3, 3)
-        First-order pose-space covariance ``V u_cov V^T`` (Table 13.3 line 10 with ``R_t = V M V^T``).
+        First-order pose-space covariance ``V u_cov V^T`` (Table 13.3, with ``R_t = V M V^T``).
     log_w : ndarray, shape (M,)
         Log importance weight ``log N(z - z_bar; 0, L)``,
-        ``L = H_x R_t H_x^T + H_m Sigma H_m^T + Q`` (Table 13.3 lines 33-34).
+        ``L = H_x R_t H_x^T + H_m Sigma H_m^T + Q`` (Table 13.3).
     """
 
     u_mean: np.ndarray
@@ -1017,12 +1023,12 @@ def fastslam2_proposal(x, u, dt, M, mu, Sigma, z, Q):
     its Jacobians, ``V = dg/du`` and ``R_t = V M V^T``: the proposal is
     ``N(x_hat + Sigma_x H_x^T Q_j^-1 (z - z_bar), Sigma_x)`` with
     ``Sigma_x = (H_x^T Q_j^-1 H_x + R_t^-1)^-1`` and
-    ``Q_j = Q + H_m Sigma H_m^T`` (Table 13.3 lines 5-11), computed in the
+    ``Q_j = Q + H_m Sigma H_m^T`` (Table 13.3), computed in the
     coordinates of the control noise because ``R_t`` is singular here.
 
     References
     ----------
-    Thrun, Burgard & Fox (2005), Table 13.3 lines 5-12 and 33-34,
+    Thrun, Burgard & Fox (2005), Table 13.3
     Eqs. 13.45-13.53. Montemerlo et al. (2003), FastSLAM 2.0.
     """
     x = _poses_arg(x)
@@ -1085,7 +1091,7 @@ def fastslam2_update_known(state, u, dt, z, ids, Q, *, M, rng, gate=None, return
         Draws one ``standard_normal((n_particles, 2))``.
     gate : float, optional, keyword-only
         Per-particle chi-square gate on ``nu^T L^-1 nu`` (``L`` the
-        innovation covariance with the pose uncertainty, Table 13.3 line 33):
+        innovation covariance with the pose uncertainty, Table 13.3):
         a measurement beyond it is an outlier for that particle: left out of
         its proposal, no landmark update, weight the density at the gate.
     return_outliers : bool, keyword-only
@@ -1101,13 +1107,12 @@ def fastslam2_update_known(state, u, dt, z, ids, Q, *, M, rng, gate=None, return
     The proposal of every particle uses all measurements of landmarks the
     particle has seen (first occurrence of each landmark in the step): its
     information adds up over them (the several-measurement form of
-    Table 13.3 lines 10-11), and the weight is their joint marginal
+    Table 13.3), and the weight is their joint marginal
     likelihood given ``x_{t-1}``, ``N(r; 0, G G^T + Q_stack)``, which for one
-    measurement is Table 13.3 line 34 with ``L`` evaluated at the predicted
+    measurement is Table 13.3with ``L`` evaluated at the predicted
     pose. The landmarks are then updated by FastSLAM 1.0's EKF at the
     sampled pose (the map given the path). A landmark new to a particle does
-    not inform its proposal and is initialised at the sampled pose
-    (lines 21-26; its ``p0`` cancels). A second measurement of the same
+    not inform its proposal and is initialised at the sampled pose. A second measurement of the same
     landmark in one step is applied afterwards as a FastSLAM 1.0 update at
     the sampled pose, weighted by ``N(nu; 0, S)``; that keeps the weight
     exact (proposal and target share the first measurement).
@@ -1157,12 +1162,12 @@ def _update2_known_core(state, u, dt, L, z, ids, Q, rng, gate=None, copy=True):
     mu_j = np.where(known[..., None], mu[:, j], x_hat[:, None, :2] + 1.0)  # keep h defined on empty slots
     Sigma_j = np.where(known[..., None, None], Sigma[:, j], np.eye(2))
     z_bar, G, Qj = _predict_terms(x_hat, B, mu_j, Sigma_j, Q)
-    r0 = zk[:, 0] - z_bar[..., 0]  # z_t - z_bar_j  (Table 13.3 line 11)
+    r0 = zk[:, 0] - z_bar[..., 0]  # z_t - z_bar_j  (Table 13.3)
     r1 = wrap_angle(zk[:, 1] - z_bar[..., 1])
     A, b, log_n = _gauss_terms(G, Qj, r0, r1)
     use = known
     if gate is not None:
-        # d = nu^T L^-1 nu with L = G G^T + Q_j, each measurement alone  (Table 13.3 line 33)
+        # d = nu^T L^-1 nu with L = G G^T + Q_j, each measurement alone  (Table 13.3)
         L00 = G[..., 0, 0] ** 2 + G[..., 0, 1] ** 2 + Qj[0]
         L01 = G[..., 0, 0] * G[..., 1, 0] + G[..., 0, 1] * G[..., 1, 1] + Qj[1]
         L11 = G[..., 1, 0] ** 2 + G[..., 1, 1] ** 2 + Qj[2]
@@ -1177,18 +1182,18 @@ def _update2_known_core(state, u, dt, L, z, ids, Q, rng, gate=None, copy=True):
     P = (1.0 + np.where(use, A[0], 0.0).sum(axis=1), np.where(use, A[1], 0.0).sum(axis=1),
          1.0 + np.where(use, A[2], 0.0).sum(axis=1))
     bs = (np.where(use, b[0], 0.0).sum(axis=1), np.where(use, b[1], 0.0).sum(axis=1))
-    # w = N(r; 0, G M G^T + Q_stack), the marginal likelihood given x_{t-1}  (Table 13.3 lines 33-34)
+    # w = N(r; 0, G M G^T + Q_stack), the marginal likelihood given x_{t-1}  (Table 13.3)
     log_w = log_w + np.where(use, log_n, 0.0).sum(axis=1) + _posterior_log_factor(P, bs)
-    x = _move(x_prev, u, dt, L, _sample_eta(P, bs, rng, n))  # x_t ~ N(mu_x, Sigma_x)  (line 12)
+    x = _move(x_prev, u, dt, L, _sample_eta(P, bs, rng, n))  # x_t ~ N(mu_x, Sigma_x)
     xs = x[:, None, :]
-    # landmark EKF at the sampled pose (lines 29-31; the map given the path, as in FastSLAM 1.0)
+    # landmark EKF at the sampled pose
     mu_u, Sigma_u, _, _ = _update_core(xs, mu_j, Sigma_j, zk, Q)
-    mu_i, Sigma_i = _init_core(xs, zk, Q)  # new landmark at the sampled pose  (lines 22-24)
+    mu_i, Sigma_i = _init_core(xs, zk, Q)  # new landmark at the sampled pose
     new = ~known
     mu[:, j] = np.where(use[..., None], mu_u, np.where(new[..., None], mu_i, mu[:, j]))
     Sigma[:, j] = np.where(use[..., None, None], Sigma_u, np.where(new[..., None, None], Sigma_i, Sigma[:, j]))
     seen[:, j] = True
-    counts[:, j] += use | new  # i_j = i_j + 1, or 1 for a new landmark  (lines 25, 32)
+    counts[:, j] += use | new  # i_j = i_j + 1, or 1 for a new landmark
     mid = FastSLAMState(x, mu, Sigma, seen, counts, _normalized(log_w))
     if len(rounds) > 1:  # repeated landmarks: FastSLAM 1.0 updates at the sampled pose
         rest = np.concatenate(rounds[1:])
@@ -1233,15 +1238,14 @@ def fastslam2_update_unknown(state, u, dt, z, Q, *, M, rng, p0=None, max_range=N
     particle holds is scored by ``pi_j = N(z - z_bar_j - G_j m; 0, L_j)``,
     ``L_j = G_j C G_j^T + Q_j``, where ``N(m, C)`` is the particle's
     proposal over the control noise given the measurements associated so far
-    (the sequential form of Table 13.3 lines 5-14, with the pose uncertainty
+    (the sequential form of Table 13.3with the pose uncertainty
     in the score); the correspondence is ``argmax`` over the landmarks and
-    ``p0`` (lines 16-17), the weight is multiplied by the winner, and a
+    ``p0``, the weight is multiplied by the winner, and a
     matched measurement adds its information to the proposal. A landmark
     takes at most one measurement per step and particle, and a landmark
     started in this step is not a candidate until the next one (it is placed
     after the pose is drawn). The pose is then drawn once, matched landmarks
-    get the EKF update at the sampled pose and new ones are initialised there
-    (lines 20-32); the counters follow Table 13.2.
+    get the EKF update at the sampled pose and new ones are initialised there; the counters follow Table 13.2.
 
     References
     ----------
@@ -1254,12 +1258,7 @@ def fastslam2_update_unknown(state, u, dt, z, Q, *, M, rng, p0=None, max_range=N
     Q = _check_Q(Q)
     L = _check_M(M)
     check_rng(rng)
-    log_p0 = np.log(fastslam_default_p0(Q) if p0 is None else as_scalar(p0, "p0", positive=True))
-    if max_range is not None:
-        max_range = as_scalar(max_range, "max_range", positive=True)
-    half_fov = np.pi if fov is None else 0.5 * as_scalar(fov, "fov", positive=True)
-    if fov is not None and max_range is None:
-        raise ValueError("fov needs max_range (the perceptual range) as well")
+    log_p0, max_range, half_fov = _unknown_options(Q, p0, max_range, fov)
     return _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rng)
 
 
@@ -1295,7 +1294,7 @@ def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rn
     if cols.size and K:
         sn = seen[:, cols]
         mu_s = np.where(sn[..., None], mu[:, cols], x_hat[:, None, :2] + 1.0)  # keep h defined on empty slots
-        z_bar, G, Qj = _predict_terms(x_hat, B, mu_s, Sigma[:, cols], Q)  # Table 13.3 lines 5-9, every candidate
+        z_bar, G, Qj = _predict_terms(x_hat, B, mu_s, Sigma[:, cols], Q)  # Table 13.3every candidate
         g00, g01, g10, g11 = G[..., 0, 0], G[..., 0, 1], G[..., 1, 0], G[..., 1, 1]
         avail = sn.copy()
     for i in range(K if cols.size else 0):
@@ -1307,7 +1306,7 @@ def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rn
         y1 = wrap_angle(zi[1] - z_bar[..., 1])
         r0 = y0 - (g00 * m0[:, None] + g01 * m1[:, None])  # innovation against the proposal mean
         r1 = wrap_angle(y1 - (g10 * m0[:, None] + g11 * m1[:, None]))
-        # L_j = G_j C G_j^T + Q_j  (Table 13.3 line 33, with the proposal's covariance C so far)
+        # L_j = G_j C G_j^T + Q_j  (Table 13.3with the proposal's covariance C so far)
         a00 = g00 * c00[:, None] + g01 * c01[:, None]
         a01 = g00 * c01[:, None] + g01 * c11[:, None]
         a10 = g10 * c00[:, None] + g11 * c01[:, None]
@@ -1315,12 +1314,12 @@ def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rn
         L00 = a00 * g00 + a01 * g01 + Qj[0]
         L01 = a00 * g10 + a01 * g11 + Qj[1]
         L11 = a10 * g10 + a11 * g11 + Qj[2]
-        # pi_j = N(r_j; 0, L_j)  (line 14); pi_new = p0  (line 16)
+        # pi_j = N(r_j; 0, L_j); pi_new = p0
         ll = np.where(avail, _log_gauss_2(r0, r1, L00, L01, L11), -np.inf)
-        j = np.argmax(ll, axis=1)  # c_hat = argmax_j pi_j  (line 17); ties: smallest index
+        j = np.argmax(ll, axis=1)  # c_hat = argmax_j pi_j; ties: smallest index
         best = ll[rows, j]
         old = best >= log_p0
-        log_w += np.where(old, best, log_p0)  # w = pi_c_hat, or p0 for a new landmark  (lines 26, 34)
+        log_w += np.where(old, best, log_p0)  # w = pi_c_hat, or p0 for a new landmark
         if old.any():
             k, jk = rows[old], j[old]
             A_, b_, _ = _gauss_terms(G[k, jk], (Qj[0][k, jk], Qj[1][k, jk], Qj[2][k, jk]), y0[k, jk], y1[k, jk])
@@ -1331,12 +1330,12 @@ def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rn
             b[1][k] += b_[1]
             avail[k, jk] = False
             match[k, i] = cols[jk]
-    x = _move(x_prev, u, dt, L, _sample_eta(tuple(P), tuple(b), rng, n))  # x_t ~ proposal  (line 12)
+    x = _move(x_prev, u, dt, L, _sample_eta(tuple(P), tuple(b), rng, n))  # x_t ~ proposal
     matched = np.zeros_like(seen)
     kk, ii = np.nonzero(match >= 0)
     if kk.size:
         jj = match[kk, ii]
-        # EKF update of the matched landmarks at the sampled pose  (lines 28-32)
+        # EKF update of the matched landmarks at the sampled pose
         mu[kk, jj], Sigma[kk, jj], _, _ = _update_core(x[kk], mu[kk, jj], Sigma[kk, jj], z[ii], Q)
         counts[kk, jj] += 1
         matched[kk, jj] = True
@@ -1344,9 +1343,9 @@ def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rn
         k = np.flatnonzero(match[:, i] < 0)
         if k.size:
             slot = np.argmin(seen[k], axis=1)  # first free slot
-            mu[k, slot], Sigma[k, slot] = _init_core(x[k], z[i], Q)  # new landmark at the sampled pose  (lines 21-24)
+            mu[k, slot], Sigma[k, slot] = _init_core(x[k], z[i], Q)  # new landmark at the sampled pose
             seen[k, slot] = True
-            counts[k, slot] = 1  # i_j = 1  (line 25)
+            counts[k, slot] = 1  # i_j = 1
             matched[k, slot] = True
     if max_range is not None:
         seen, counts = _prune(x, mu, seen, counts, matched, max_range, half_fov)

@@ -775,7 +775,8 @@ def _fs2_case(n, rng):
 
 
 def test_fs2_proposal_is_table_13_3_with_R_equal_V_M_Vt():
-    # Table 13.3 lines 5-11 and 33-34 by np.linalg, with R_t = V M V^T (rank 2: the Woodbury form of line 10)
+    # Table 13.3's proposal and weight by np.linalg, with R_t = V M V^T (rank 2: the Woodbury form of its
+    # Sigma_x = (H_x^T Q_j^-1 H_x + R_t^-1)^-1)
     rng = np.random.default_rng(40)
     x, u, dt, mu, Sigma, z = _fs2_case(6, rng)
     prop = sl.fastslam2_proposal(x, u, dt, M2, mu, Sigma, z, Q2)
@@ -792,7 +793,7 @@ def test_fs2_proposal_is_table_13_3_with_R_equal_V_M_Vt():
         np.testing.assert_allclose(sl.pose_error(prop.x_mean[k], mean), 0.0, atol=1e-12)
         np.testing.assert_allclose(prop.x_cov[k], cov, rtol=1e-9, atol=1e-15)
         np.testing.assert_allclose(prop.log_w[k], stats.multivariate_normal(np.zeros(2), Lk).logpdf(nu), rtol=1e-10)
-        # with a full-rank R the information form of line 10 gives the same covariance
+        # with a full-rank R the information form of Table 13.3 gives the same covariance
         R3 = R + 1e-4 * np.eye(3)
         info = np.linalg.inv(Hx.T @ np.linalg.inv(Qj) @ Hx + np.linalg.inv(R3))
         wood = R3 - R3 @ Hx.T @ np.linalg.inv(Hx @ R3 @ Hx.T + Qj) @ Hx @ R3
@@ -982,3 +983,80 @@ def test_fs2_keeps_more_diversity_than_fs1_with_a_precise_sensor(world):
         res = [sl.run_fastslam(run, n_particles=100, version=v, rng=np.random.default_rng(s)) for s in range(2)]
         ess[v] = np.mean([np.median(r.ess) for r in res])
     assert ess[2] > 3 * ess[1]
+
+
+# --------------------------------------------------------------------------- FastSLAM 2.0: bad input
+_st2 = sl.fastslam_initial_state(np.zeros(3), 2, 2)
+
+
+@pytest.mark.parametrize("call, match", [
+    (lambda: sl.fastslam2_proposal(np.zeros((2, 3)), [1.0, 0.0], 0.1, M2, mu2, S2, z2, Q * 1e300),
+     "Q is out of the representable range"),
+    (lambda: sl.fastslam2_proposal(np.zeros(3), [1.0, 0.0], 0.1, M2, mu2, S2, z2, Q), r"x must have shape \(P, 3\)"),
+    (lambda: sl.fastslam2_proposal(np.zeros((2, 3)), [1.0, 0.0], 0.1, -M2, mu2, S2, z2, Q), "M must be positive"),
+    (lambda: sl.fastslam2_proposal(np.zeros((2, 3)), [1.0, 0.0], 0.1, M2, mu2[:1], S2, z2, Q), "mu must have shape"),
+    (lambda: sl.fastslam2_update_known(_st2, [1.0, 0.0], 0.1, np.ones((1, 2)), np.array([0]), Q, M=M2, rng=0),
+     "rng must be"),
+    (lambda: sl.fastslam2_update_known(_st2, [1.0, 0.0], 0.1, np.ones((1, 2)), np.array([0]), Q, M=M2,
+                                       rng=np.random.default_rng(), gate=-1.0), "gate must be positive"),
+    (lambda: sl.fastslam2_update_known(_st2, [1.0, 0.0], 0.1, np.ones((1, 2)), np.array([0.5]), Q, M=M2,
+                                       rng=np.random.default_rng()), "ids must be integers"),
+    (lambda: sl.fastslam2_update_unknown(_st2, [1.0, 0.0], -0.1, np.ones((1, 2)), Q, M=M2,
+                                         rng=np.random.default_rng()), "dt must be non-negative"),
+    (lambda: sl.fastslam2_update_unknown(_st2, [1.0, 0.0], 0.1, np.ones((1, 2)), Q, M=M2,
+                                         rng=np.random.default_rng(), fov=1.0), "fov needs max_range"),
+    (lambda: sl.fastslam_update_landmark(x3, mu2, S2, z2, Q, gate=0.0), "gate must be positive"),
+])
+def test_fs2_bad_input_raises_naming_the_argument(call, match):
+    with pytest.raises((ValueError, TypeError), match=match):
+        call()
+
+
+def test_run_rejects_bad_versions(world):
+    with pytest.raises(ValueError, match="version must be 1"):
+        sl.run_fastslam(world, n_particles=3, version=3, rng=np.random.default_rng())
+    with pytest.raises(ValueError, match="version=2 needs the control-noise covariance"):
+        sl.run_fastslam(world, n_particles=3, version=2, alpha=np.full(6, 0.01), rng=np.random.default_rng())
+    with pytest.raises(ValueError, match="version=2 has its own weight"):
+        sl.run_fastslam(world, n_particles=3, version=2, weight_cov="text", rng=np.random.default_rng())
+    with pytest.raises(ValueError, match="run.ids"):
+        bad = __import__("dataclasses").replace(world, ids=(np.array([10**7]),) + world.ids[1:],
+                                                z=(np.array([[3.0, 0.1]]),) + world.z[1:])
+        sl.run_fastslam(bad, n_particles=3, rng=np.random.default_rng())
+
+
+def test_fs2_without_measurements_is_fastslam_1_draw_for_draw(world):
+    # no measurement in a step: FastSLAM 2.0's proposal is the motion model with the same single draw
+    st = sl.fastslam_initial_state(world.x0, 40, 3)
+    a = sl.fastslam2_update_known(st, world.u[0], world.dt, np.zeros((0, 2)), np.zeros(0, dtype=int), world.Q,
+                                  M=world.M, rng=np.random.default_rng(3))
+    b = sl.fastslam_predict(st, world.u[0], world.dt, M=world.M, rng=np.random.default_rng(3))
+    np.testing.assert_allclose(a.poses, b.poses, atol=1e-12)
+    c = sl.fastslam2_update_unknown(st, world.u[0], world.dt, np.zeros((0, 2)), world.Q, M=world.M,
+                                    rng=np.random.default_rng(3))
+    np.testing.assert_allclose(c.poses, b.poses, atol=1e-12)
+
+
+def test_fs2_fuzz_gives_finite_results_or_a_clear_error():
+    # property: for arbitrary scales of the noises and of the landmark covariance, the proposal and its
+    # weight are finite, or the call refuses the input with a message naming the argument
+    hyp = pytest.importorskip("hypothesis")
+    st_ = hyp.strategies
+
+    @hyp.settings(max_examples=60, deadline=None, derandomize=True)
+    @hyp.given(st_.floats(-320, 320), st_.floats(-30, 30), st_.floats(-30, 30), st_.floats(-5, 5))
+    def check(q_exp, m_exp, s_exp, bearing):
+        x = np.array([[0.0, 0.0, 0.0], [0.5, -0.3, 1.0]])
+        mu = np.array([[4.0, 1.0], [3.0, -2.0]])
+        Sigma = np.tile(10.0**s_exp * np.eye(2), (2, 1, 1))
+        z = np.array([4.0, bearing])
+        try:
+            prop = sl.fastslam2_proposal(x, [1.0, 0.1], 0.2, 10.0**m_exp * np.eye(2), mu, Sigma, z,
+                                         10.0**q_exp * np.eye(2))
+        except ValueError as exc:
+            assert any(name in str(exc) for name in ("Q", "M", "Sigma", "mu"))
+            return
+        for a in prop:
+            assert np.all(np.isfinite(a))
+
+    check()

@@ -265,9 +265,9 @@ def plot_fastslam_diagnostics(results, labels, *, n_particles, dt=1.0, panels=("
     return axes
 
 
-def plot_weight_comparison(pose, mu, w_S, w_Q, *, landmark=None, lam=None, ess_S=None, ess_Q=None, theory=None,
+def plot_weight_comparison(pose, mu, w_S, w_text, *, landmark=None, lam=None, ess_S=None, ess_text=None, theory=None,
                            axes=None):
-    """The importance weights with ``S`` and with the erratum's ``Q``, and what they do to the ESS.
+    """The importance weight with ``S`` and the course text's printed weight, and what they do to the ESS.
 
     Parameters
     ----------
@@ -275,16 +275,17 @@ def plot_weight_comparison(pose, mu, w_S, w_Q, *, landmark=None, lam=None, ess_S
         The robot pose shared by the particles of the experiment.
     mu : ndarray, shape (M, 2)
         Each particle's landmark mean.
-    w_S, w_Q : ndarray, shape (M,)
-        Their weights ``N(nu; 0, S)`` and ``N(nu; 0, Q)`` (any scale).
+    w_S, w_text : ndarray, shape (M,)
+        Their weights ``N(nu; 0, S)`` and the course text's
+        ``|2 pi S|^-1/2 exp(-1/2 nu^T Q^-1 nu)`` (any scale).
     landmark : ndarray, shape (2,), optional
         True landmark position.
     lam : ndarray, shape (L,), optional
         Ratios ``lambda`` of landmark to sensor uncertainty for the right panel.
-    ess_S, ess_Q : ndarray, shape (L,), optional
+    ess_S, ess_text : ndarray, shape (L,), optional
         Measured ESS / M for each ``lambda``.
     theory : tuple of 3 ndarrays, optional
-        ``(lam_grid, ess_S_theory, ess_Q_theory)`` curves for the right panel.
+        ``(lam_grid, ess_S_theory, ess_text_theory)`` curves for the right panel.
     axes : array of 3 matplotlib.axes.Axes, optional
         Axes to draw on; a new figure if omitted.
 
@@ -292,7 +293,7 @@ def plot_weight_comparison(pose, mu, w_S, w_Q, *, landmark=None, lam=None, ess_S
     -------
     ndarray of matplotlib.axes.Axes
         Landmark hypotheses shaded by their normalised weight (with ``S``,
-        with ``Q``), and ESS / M against ``lambda``.
+        with the text's formula), and ESS / M against ``lambda``.
 
     References
     ----------
@@ -300,11 +301,11 @@ def plot_weight_comparison(pose, mu, w_S, w_Q, *, landmark=None, lam=None, ess_S
     """
     mu = as_array(mu, "mu", (None, 2))
     w_S = as_array(w_S, "w_S", (mu.shape[0],))
-    w_Q = as_array(w_Q, "w_Q", (mu.shape[0],))
+    w_text = as_array(w_text, "w_text", (mu.shape[0],))
     pose = as_array(pose, "pose", (3,))
     axes = _panels(axes, 3, (12.0, 3.9))
-    names = (r"$N(\nu; 0, S)$, $S = H\Sigma H^T + Q$", r"$N(\nu; 0, Q)$ (erratum)")
-    for ax, w, name in zip(axes[:2], (w_S, w_Q), names):
+    names = (r"$N(\nu; 0, S)$, $S = H\Sigma H^T + Q$", r"$|2\pi S|^{-1/2} e^{-\nu^T Q^{-1} \nu / 2}$ (course text)")
+    for ax, w, name in zip(axes[:2], (w_S, w_text), names):
         wn = w / w.max()
         order = np.argsort(wn)
         sc = ax.scatter(mu[order, 0], mu[order, 1], c=wn[order], s=5, cmap="viridis", vmin=0, vmax=1, lw=0)
@@ -322,15 +323,15 @@ def plot_weight_comparison(pose, mu, w_S, w_Q, *, landmark=None, lam=None, ess_S
     plt.colorbar(sc, ax=axes[1], label="weight / max weight", shrink=0.85)
     ax = axes[2]
     if theory is not None:
-        grid, tS, tQ = (as_array(a, "theory", ndim=1) for a in theory)
+        grid, tS, tT = (as_array(a, "theory", ndim=1) for a in theory)
         ax.plot(grid, tS, color="C0", lw=1.2, label="theory, S")
-        ax.plot(grid, tQ, color="C1", lw=1.2, label="theory, Q (erratum)")
+        ax.plot(grid, tT, color="C1", lw=1.2, label="theory, course text")
     if lam is not None:
         lam = as_array(lam, "lam", ndim=1)
         if ess_S is not None:
             ax.plot(lam, as_array(ess_S, "ess_S", lam.shape), "o", color="C0", ms=5, label="measured, S")
-        if ess_Q is not None:
-            ax.plot(lam, as_array(ess_Q, "ess_Q", lam.shape), "s", color="C1", ms=5, label="measured, Q")
+        if ess_text is not None:
+            ax.plot(lam, as_array(ess_text, "ess_text", lam.shape), "s", color="C1", ms=5, label="measured, text")
     ax.set_xscale("log")
     ax.set_ylim(0, 1.02)
     ax.set_xlabel(r"$\lambda$: landmark variance / sensor variance, along the line of sight")
