@@ -802,3 +802,16 @@ def test_association_noise_only_changes_the_association(run):
     assert len(wide.landmarks) < len(default.landmarks)
     # with known correspondences it is not used at all
     np.testing.assert_array_equal(sl.run_ekf_slam(run, Q_association=400 * Q).x, sl.run_ekf_slam(run).x)
+
+
+def test_gate_with_unknown_correspondences_rejects_the_band_between_gate_and_alpha(run):
+    alpha = es.DEFAULT_ALPHA
+    plain = sl.run_ekf_slam(run, known=False)
+    wide = sl.run_ekf_slam(run, known=False, gate=alpha)  # a gate at alpha never fires: every match has d <= alpha
+    assert wide.n_gated == 0
+    np.testing.assert_array_equal(wide.x, plain.x)
+    tight = sl.run_ekf_slam(run, known=False, gate=1.0)  # matches with 1 < d <= alpha are rejected, not new landmarks
+    assert tight.n_gated > 0
+    assert len(tight.landmarks) == len(plain.landmarks)
+    used = sum(int(np.sum(s >= 0)) for s in tight.associations)
+    assert used + tight.n_gated + tight.n_rejected == sum(len(z) for z in run.z)
