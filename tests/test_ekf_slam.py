@@ -777,7 +777,7 @@ def test_jcbb_run_beats_nn_on_close_landmark_pairs():
             res = sl.run_ekf_slam(r, known=False, association=assoc)
             n_bad = sum(int(np.sum(res.landmark_ids[s[s >= 0]] != i[s >= 0])) for s, i in zip(res.associations, r.ids))
             wrong[assoc].append(n_bad)
-    assert sum(wrong["jcbb"]) < sum(wrong["nn"])
+    assert sum(wrong["jcbb"]) < 0.75 * sum(wrong["nn"])  # 200 against 359 wrong associations
 
 
 def test_run_rejects_an_unknown_association_and_a_bad_gate(run):
