@@ -15,7 +15,7 @@ Order of events in the child:
    namespace, carries on. That process builds a minimal root (a tmpfs with
    read-only binds of the system libraries, the Python standard library and the
    NumPy and SciPy packages only, a private size-capped ``/tmp`` and ``/dev/shm``, a
-   fresh ``/proc``, ``/dev/null``, ``zero``, ``urandom``), ``pivot_root``\ s into it and
+   fresh ``/proc``, ``/dev/null``, ``zero``, ``urandom``), moves into it with ``pivot_root`` and
    detaches the old root: ``slamlib``, the tests, the bundle, the batch folder and
    other submissions do not exist there. Then an unprivileged uid/gid (root) or no
    capabilities (user namespace), ``no_new_privs``, a parent-death signal,
@@ -969,7 +969,7 @@ def _zygote(job, ctl, mod, attempts, npx, hook_busy):
     import signal
     import socket
 
-    workers = {}  # id -> (pid, pidfd)
+    workers = {}  # id -> (pid, pidfd, the result pipe's write end: the exit status goes there)
     unique_uid = job.get("uid") is not None and os.getuid() == int(job["uid"])
 
     def reap():
@@ -985,7 +985,7 @@ def _zygote(job, ctl, mod, attempts, npx, hook_busy):
         entry = workers.pop(wid, None)
         if entry is None:
             return
-        pid, pidfd = entry
+        pid, pidfd, res_w = entry
         try:
             signal.pidfd_send_signal(pidfd, signal.SIGKILL)
         except OSError:
@@ -995,21 +995,43 @@ def _zygote(job, ctl, mod, attempts, npx, hook_busy):
         except ChildProcessError:
             pass
         os.close(pidfd)
+        os.close(res_w)
+
+    def ended(wid):
+        """A worker ended by itself: tell the grader how, on the worker's own result pipe."""
+        pid, pidfd, res_w = workers.pop(wid)
+        code = None
+        try:
+            _, status = os.waitpid(pid, 0)
+            code = os.waitstatus_to_exitcode(status)
+        except (ChildProcessError, ValueError):
+            pass
+        if code is None:
+            text = "the process ended"
+        elif code < 0:
+            try:
+                text = f"killed by signal {signal.Signals(-code).name}"
+            except ValueError:
+                text = f"killed by signal {-code}"
+        else:
+            text = f"exit status {code}"
+        try:
+            os.set_blocking(res_w, False)
+            _write(res_w, pack_frame({"status": "exited", "exit": text}))
+        except OSError:
+            pass
+        os.close(pidfd)
+        os.close(res_w)
 
     while True:
-        watch = [ctl.fileno()] + [pfd for _, pfd in workers.values()]
+        watch = [ctl.fileno()] + [pfd for _, pfd, _ in workers.values()]
         try:
             ready, _, _ = select.select(watch, [], [], 5.0)
         except InterruptedError:
             continue
-        for wid, (pid, pidfd) in list(workers.items()):
+        for wid, (pid, pidfd, _) in list(workers.items()):
             if pidfd in ready:
-                workers.pop(wid)
-                try:
-                    os.waitpid(pid, 0)
-                except ChildProcessError:
-                    pass
-                os.close(pidfd)
+                ended(wid)
         reap()
         if ctl.fileno() not in ready:
             continue
@@ -1052,19 +1074,23 @@ def _zygote(job, ctl, mod, attempts, npx, hook_busy):
                 pid = -1
             if pid == 0:
                 hook_busy[0] = False
-                for _, pfd in workers.values():
-                    try:
-                        os.close(pfd)
-                    except OSError:
-                        pass
+                for _, pfd, rfd in workers.values():
+                    for f in (pfd, rfd):
+                        try:
+                            os.close(f)
+                        except OSError:
+                            pass
                 _worker(job, ctl, fds, mod, attempts, npx, hook_busy)
-            for fd in fds:
-                os.close(fd)
+            keep = None
             if pid > 0:
                 try:
-                    workers[wid] = (pid, os.pidfd_open(pid))
+                    workers[wid] = (pid, os.pidfd_open(pid), fds[1])
+                    keep = fds[1]
                 except OSError:
                     pass
+            for fd in fds:
+                if fd != keep:
+                    os.close(fd)
         elif op == "kill":
             kill(msg.get("id"))
         elif op == "exit":

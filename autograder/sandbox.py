@@ -654,10 +654,13 @@ class Worker:
                 if got is not None:
                     header, payload, used = got
                     del self._res[:used]
+                    if header.get("status") == "exited":  # written by the zygote when the worker ended
+                        self._drain_output()
+                        return None, None, "eof", str(header.get("exit"))[:100]
                     return header, payload, "ok", None
                 if not res_open:
                     self._drain_output()
-                    return None, None, "eof", self._death_text()
+                    return None, None, "eof", "the process ended"
                 left = deadline - time.monotonic()
                 if left <= 0:
                     return None, None, "timeout", None
@@ -687,7 +690,7 @@ class Worker:
                             if len(self._res) > _runner.MAX_PAYLOAD + _runner.MAX_HEADER + 64:
                                 return None, None, "protocol", "result too large"
                     else:
-                        if not self._read_output():
+                        if self._read_output() is False:
                             sel.unregister(self._out_r)
                         if self._out_total > self.limits.output:
                             return None, None, "output", None
@@ -695,10 +698,11 @@ class Worker:
             sel.close()
 
     def _read_output(self):
+        """Read what the worker printed; False at end of file, None when nothing is waiting."""
         try:
             chunk = os.read(self._out_r, 1 << 16)
         except BlockingIOError:
-            return True
+            return None
         except OSError:
             return False
         if not chunk:
@@ -710,19 +714,10 @@ class Worker:
         return True
 
     def _drain_output(self):
-        end = time.monotonic() + 0.2
-        while time.monotonic() < end and self._read_output():
-            if not self._out:
-                time.sleep(0.01)
-
-    def _death_text(self):
-        """Why a worker ended: its last words on stderr, else how (signals show in the text)."""
-        tail = self._output_text()
-        for sig in ("SIGSEGV", "SIGBUS", "SIGABRT", "SIGFPE", "SIGILL"):
-            if sig in tail:
-                return f"killed by signal {sig}"
-        code = getattr(self, "_exit_code", None)
-        return _exit_text(code) if code is not None else "the process ended"
+        """What a dead worker printed last (its stderr names a fatal signal, for instance)."""
+        for _ in range(64):
+            if not self._read_output():
+                return
 
 
 # --------------------------------------------------------------------------- isolation report
