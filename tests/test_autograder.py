@@ -259,7 +259,11 @@ def test_gradescope_bundle_runs(tmp_path):
     assert p.returncode == 0, p.stderr
     with zipfile.ZipFile(zpath) as zf:
         names = zf.namelist()
-        assert {"setup.sh", "run_autograder", "requirements.txt"} <= set(names)
+        assert {"setup.sh", "run_autograder", "requirements.txt", "grading_secret"} <= set(names)
+        reqs = zf.read("requirements.txt").decode().split()
+        assert all("==" in r for r in reqs) and not any(r.startswith(("matplotlib", "ipywidgets")) for r in reqs)
+        assert "--only-binary=:all:" in zf.read("setup.sh").decode()
+        assert len(zf.read("grading_secret").strip()) == 64
         wheel = [n for n in names if n.startswith("wheels/") and n.endswith(".whl")]
         assert len(wheel) == 1
         assert (zf.getinfo("run_autograder").external_attr >> 16) & 0o111

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import json
+import os
 import struct
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -268,3 +270,17 @@ def test_protection_level_says_which_line_held():
     iso = {"fs": False, "root": False, "uid": 1000, "reference_readable": ["/x/slamlib"], "rlimits": {}}
     assert protection_level(iso) == "audit-hook-only"
     assert "audit hook ONLY" in describe_isolation(iso)[0] and "/x/slamlib" in describe_isolation(iso)[0]
+
+
+def test_without_a_mount_namespace_the_report_says_what_protects_the_reference():
+    from autograder.sandbox import BLOCKED_PATHS, protection_level
+
+    iso = isolation_report(Limits(filesystem=False))
+    assert iso.get("fs") is False
+    level = protection_level(iso)
+    text = "\n".join(describe_isolation(iso))
+    readable = [p for p in BLOCKED_PATHS if all(os.stat(q).st_mode & 0o005 for q in [p, *map(str, Path(p).parents)])]
+    if iso.get("root") and "uid_error" not in iso and not readable:
+        assert level == "separate-user" and "separate unprivileged user" in text
+    elif iso.get("reference_readable"):
+        assert level == "audit-hook-only" and "audit hook ONLY" in text
