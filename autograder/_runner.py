@@ -943,8 +943,13 @@ def _worker(job, ctl, fds, mod, attempts, npx, hook_busy):
         resource.setrlimit(resource.RLIMIT_NPROC, (nproc, nproc))
     except (ValueError, OSError):
         pass
+    _run_then_exit(_serve, job, req_fd, res_fd, mod, attempts, npx)
+
+
+def _run_then_exit(fn, *args):
+    """Run ``fn(*args)``, flush stdout whatever happened, and end the process without cleanup."""
     try:
-        _serve(job, req_fd, res_fd, mod, attempts, npx)
+        fn(*args)
     finally:
         try:
             sys.stdout.flush()
@@ -1168,11 +1173,4 @@ def main(argv):
 
 
 if __name__ == "__main__":
-    try:
-        main(sys.argv)
-    finally:
-        try:
-            sys.stdout.flush()
-        except BaseException:  # noqa: BLE001
-            pass
-    os._exit(0)
+    _run_then_exit(main, sys.argv)

@@ -24,12 +24,11 @@ import multiprocessing
 import os
 import signal
 import sys
-import tempfile
 import traceback
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
 
-from .results import fallback_results, read_results, write_json_atomic
+from .results import fallback_results, read_results, write_json_atomic, write_text_atomic
 from .spec import VISIBILITY
 
 __all__ = ["find_submissions", "run_batch", "pick_submission_file"]
@@ -144,20 +143,7 @@ def _write_csv(out_csv, rows, ex):
     for r in rows:
         r["percent"] = round(100.0 * float(r["score"]) / float(r["max_score"]), 2) if float(r["max_score"]) else 0.0
         writer.writerow(r)
-    fd, tmp = tempfile.mkstemp(prefix=f".{out_csv.name}.", suffix=".tmp", dir=str(out_csv.parent))
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
-            fh.write(buf.getvalue())
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, out_csv)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
+    write_text_atomic(out_csv, buf.getvalue())
     return rows
 
 

@@ -15,7 +15,7 @@ import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
-__all__ = ["TestResult", "GradeResult", "write_json_atomic", "fallback_results", "read_results"]
+__all__ = ["TestResult", "GradeResult", "write_json_atomic", "write_text_atomic", "fallback_results", "read_results"]
 
 
 @dataclass
@@ -157,14 +157,17 @@ def write_json_atomic(path, data):
 
     A reader never sees a partial file: either the old content or the new one.
     """
+    write_text_atomic(path, json.dumps(data, indent=2, allow_nan=False, ensure_ascii=False) + "\n")
+
+
+def write_text_atomic(path, text):
+    """Write ``text`` (UTF-8) to ``path`` through a temporary ``.NAME.*.tmp`` beside it and ``os.replace``."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    text = json.dumps(data, indent=2, allow_nan=False, ensure_ascii=False)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=str(path.parent))
     try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
             fh.write(text)
-            fh.write("\n")
             fh.flush()
             os.fsync(fh.fileno())
         os.chmod(tmp, 0o644)
