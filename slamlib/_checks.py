@@ -252,27 +252,35 @@ def as_covariance(value, name, n=None, *, definite=False, batched=False, psd=Tru
 
 
 def _small_pd(a, k):
-    """True if the nested list `a` (k = 2 or 3) is symmetric and clearly positive definite.
+    """True if the nested list `a` (k = 2 or 3) is finite, symmetric and clearly positive definite.
 
-    False for anything else, including NaN or inf entries (every comparison
-    with them fails), so the caller falls back to the full check.
+    False for anything else (the caller then runs the full check). The scale of
+    the tolerances is the largest diagonal entry: for a positive definite matrix
+    every ``|a_ij| <= max a_ii``, and a matrix with a larger entry is not
+    accepted here, so this test is never looser than the full one.
     """
     if k == 2:
         (a00, a01), (a10, a11) = a
-        scale = max(1.0, abs(a00), abs(a01), abs(a10), abs(a11))
+        if not math.isfinite(a00 + a01 + a10 + a11):
+            return False
+        scale = max(1.0, a00, a11)
         if abs(a01 - a10) > SYM_RTOL * scale:
             return False
         # Sylvester: a00 > 0 and det > 0, with a margin far above rounding
-        return a00 > 1e-12 * scale and a00 * a11 - a01 * a10 > 1e-12 * scale * scale
+        eps = 1e-12 * scale
+        return a00 > eps and a00 * a11 - a01 * a10 > eps * scale
     (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = a
-    scale = max(1.0, abs(a00), abs(a01), abs(a02), abs(a10), abs(a11), abs(a12), abs(a20), abs(a21), abs(a22))
+    if not math.isfinite(a00 + a01 + a02 + a10 + a11 + a12 + a20 + a21 + a22):
+        return False
+    scale = max(1.0, a00, a11, a22)
     tol = SYM_RTOL * scale
     if abs(a01 - a10) > tol or abs(a02 - a20) > tol or abs(a12 - a21) > tol:
         return False
-    m2 = a00 * a11 - a01 * a10
-    det = a00 * (a11 * a22 - a12 * a21) - a01 * (a10 * a22 - a12 * a20) + a02 * (a10 * a21 - a11 * a20)
     eps = 1e-12 * scale
-    return a00 > eps and m2 > eps * scale and det > eps * scale * scale
+    if not (a00 > eps and a00 * a11 - a01 * a10 > eps * scale):
+        return False
+    det = a00 * (a11 * a22 - a12 * a21) - a01 * (a10 * a22 - a12 * a20) + a02 * (a10 * a21 - a11 * a20)
+    return det > eps * scale * scale
 
 
 def check_rows(*named):

@@ -52,7 +52,7 @@ import numpy as np
 
 from ._checks import as_array, as_covariance, as_indices, as_rows, as_matrix, as_scalar, as_vector, check_batch
 from .angles import _wrap1, wrap_angle
-from .motion import _arc, _arc1
+from .motion import _arc, _arc1_floats
 from .sensors import _landmark_measurement, _rb1
 
 __all__ = [
@@ -257,13 +257,41 @@ def _kf_update(x, P, z, H, R):
 
 # --------------------------------------------------------------------------- EKF localization
 def _ekf_predict(mu, Sigma, u, dt, M):
-    if mu.ndim == 1 and u.ndim == 1:  # one pose: the scalar path of the motion model
-        mu_bar, G, V = _arc1(mu, u, dt)  # g(u, mu), G, V  (Table 7.2 lines 2-4, 6)
-    else:
-        mu_bar, G, V = _arc(mu, u, dt)
+    if mu.ndim == 1 and u.ndim == 1 and Sigma.ndim == 2 and M.ndim == 2:  # one pose: the scalar path
+        return _ekf_predict1(mu, Sigma, u, dt, M)
+    mu_bar, G, V = _arc(mu, u, dt)  # g(u, mu), G, V  (Table 7.2 lines 2-4, 6)
     # Sigma_bar = G Sigma G^T + V M V^T  (Table 7.2 line 7)
     Sigma_bar = G @ Sigma @ _T(G) + V @ M @ _T(V)
     return _gaussian(mu_bar, _sym(Sigma_bar))
+
+
+def _ekf_predict1(mu, Sigma, u, dt, M):
+    """:func:`_ekf_predict` of one pose in Python floats (the tests check it equals the array path).
+
+    ``G = I + [a, b, 0]^T e_3^T`` has two non-trivial entries, so ``G Sigma G^T``
+    and ``V M V^T`` take a few dozen multiplications, fewer than the matrix
+    products cost to set up.
+    """
+    # g(u, mu), G[0, 2] = a, G[1, 2] = b, V = [[p, q], [r, s], [0, dt]]  (Table 7.2 lines 2-4, 6)
+    xn, yn, thn, a, b, p, q, r, s = _arc1_floats(mu, u, dt)
+    (s00, s01, s02), (s10, s11, s12), (s20, s21, s22) = Sigma.tolist()
+    (m00, m01), (m10, m11) = M.tolist()
+    # G Sigma: rows 0 and 1 gain a (resp. b) times row 2
+    t00, t01, t02 = s00 + a * s20, s01 + a * s21, s02 + a * s22
+    t10, t11, t12 = s10 + b * s20, s11 + b * s21, s12 + b * s22
+    # V M
+    w00, w01 = p * m00 + q * m10, p * m01 + q * m11
+    w10, w11 = r * m00 + s * m10, r * m01 + s * m11
+    w20, w21 = dt * m10, dt * m11
+    # Sigma_bar = G Sigma G^T + V M V^T  (Table 7.2 line 7), symmetrised as (A + A^T) / 2
+    c00 = (t00 + a * t02) + (w00 * p + w01 * q)
+    c11 = (t11 + b * t12) + (w10 * r + w11 * s)
+    c22 = s22 + w21 * dt
+    c01 = 0.5 * (((t01 + b * t02) + (w00 * r + w01 * s)) + ((t10 + a * t12) + (w10 * p + w11 * q)))
+    c02 = 0.5 * ((t02 + w01 * dt) + ((s20 + a * s22) + (w20 * p + w21 * q)))
+    c12 = 0.5 * ((t12 + w11 * dt) + ((s21 + b * s22) + (w20 * r + w21 * s)))
+    cov = np.array([[c00, c01, c02], [c01, c11, c12], [c02, c12, c22]])
+    return _gaussian(np.array([xn, yn, thn]), cov)
 
 
 def ekf_predict(mu, Sigma, u, dt, M):
