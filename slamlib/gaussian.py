@@ -50,7 +50,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._checks import as_array, as_covariance, as_indices, as_rows, as_matrix, as_scalar, as_vector, check_batch
+from ._checks import as_array, as_covariance, as_indices, as_matrix, as_rows, as_scalar, as_vector, check_batch
 from .angles import _wrap1, wrap_angle
 from .motion import _arc, _arc1_floats
 from .sensors import _landmark_measurement, _rb1
@@ -87,7 +87,7 @@ class Gaussian(_GaussianFields):
     ``Gaussian(mean, cov)`` checks its fields cheaply (finite float arrays,
     ``mean (..., n)``, ``cov (..., n, n)``; a string or ``None`` is refused)
     and stores them as float64 arrays; the library's cores bundle their
-    already-checked results with ``Gaussian._make((mean, cov))``.
+    already-checked results without the check.
 
     Attributes
     ----------
@@ -112,7 +112,8 @@ def _gaussian(mean, cov):
 
 # --------------------------------------------------------------------------- validation helpers
 def _as_cov(value, name, n=None, *, definite=False):
-    """A (batch of) symmetric PSD (or PD) ``(n, n)`` matrices (``_checks.as_covariance``)."""
+    """A (batch of) symmetric PSD (or PD) ``(n, n)`` matrices: ``_checks.as_covariance`` as the
+    drivers below call it."""
     return as_covariance(value, name, n, definite=definite, batched=True, copy=False)
 
 
@@ -140,7 +141,8 @@ def _gain(PHt, S):
             return PHt / S[0, 0]
         (a, b), (_, d) = S.tolist()
         det = a * d - b * b
-        return PHt @ np.array([[d / det, -b / det], [-b / det, a / det]])  # S^-1 of a symmetric 2x2
+        # S^-1 = [[d, -b], [-b, a]] / (a d - b^2) for the symmetric S = [[a, b], [b, d]]
+        return PHt @ np.array([[d / det, -b / det], [-b / det, a / det]])
     return _T(np.linalg.solve(S, _T(PHt)))
 
 
