@@ -251,6 +251,36 @@ def as_covariance(value, name, n=None, *, definite=False, batched=False, psd=Tru
     return arr
 
 
+def small_ok(vectors=(), matrices=(), covariances=()):
+    """True when a call's small arguments pass every check at once (the fast path of one filter step).
+
+    Every argument must be a float64 ndarray: `vectors` 1-D with at most 16
+    finite entries, `matrices` 2-D with at most 16 finite entries, and
+    `covariances` 2x2 or 3x3, symmetric and clearly positive definite (see
+    :func:`as_covariance`). The caller still compares the shapes. ``False``
+    decides nothing: the caller then runs the full checks, which name what is
+    wrong.
+    """
+    values = []
+    for v in vectors:
+        if type(v) is not np.ndarray or v.dtype is not _F64 or v.ndim != 1 or v.size > 16:
+            return False
+        values += v.tolist()
+    for m in matrices:
+        if type(m) is not np.ndarray or m.dtype is not _F64 or m.ndim != 2 or m.size > 16:
+            return False
+        values += m.ravel().tolist()
+    if not math.isfinite(sum(values)) and not all(map(math.isfinite, values)):
+        return False
+    for c in covariances:
+        if type(c) is not np.ndarray or c.dtype is not _F64 or c.ndim != 2:
+            return False
+        k = c.shape[0]
+        if not (2 <= k <= 3 and c.shape[1] == k and _small_pd(c.tolist(), k)):
+            return False
+    return True
+
+
 def _small_pd(a, k):
     """True if the nested list `a` (k = 2 or 3) is finite, symmetric and clearly positive definite.
 
