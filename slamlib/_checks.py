@@ -3,6 +3,24 @@
 Each helper raises ``ValueError`` (or ``TypeError``) whose message names the
 argument and says what was expected, so that a wrong call fails loudly instead
 of being coerced into a wrong answer.
+
+* arrays: :func:`as_array`, :func:`as_vector` (``(..., n)``), :func:`as_matrix`
+  (``(..., r, c)``), :func:`as_rows` (``(K, c)``, empty allowed), :func:`as_mask`;
+* covariances: :func:`as_covariance` (symmetric, PSD or PD, batched or not);
+* poses: :func:`as_pose`, :func:`as_poses`;
+* weights and probabilities: :func:`as_weights`, :func:`as_log_weights`
+  (:func:`check_log_weights`), :func:`as_probability`, :func:`as_probabilities`;
+* numbers: :func:`as_scalar`, :func:`as_count`, :func:`as_index`, :func:`as_indices`;
+* others: :func:`check_rng`, :func:`check_type`;
+* arguments whose shapes must agree: :func:`check_batch`, :func:`check_rows`,
+  :func:`check_broadcast` (the message names both sides); the ``ref`` keyword
+  of the array helpers names the argument a required size comes from;
+* :func:`small_ok`: every small argument of one filter step checked at once.
+
+Small float64 arrays take a fast path (no conversion, a Python pass over a few
+numbers, no eigendecomposition for a clearly positive definite 2x2 or 3x3), so
+checking one filter step costs microseconds; nothing is built for a message
+unless a check fails.
 """
 
 from __future__ import annotations
