@@ -3,6 +3,24 @@
 Each helper raises ``ValueError`` (or ``TypeError``) whose message names the
 argument and says what was expected, so that a wrong call fails loudly instead
 of being coerced into a wrong answer.
+
+* arrays: :func:`as_array`, :func:`as_vector` (``(..., n)``), :func:`as_matrix`
+  (``(..., r, c)``), :func:`as_rows` (``(K, c)``, empty allowed), :func:`as_mask`;
+* covariances: :func:`as_covariance` (symmetric, PSD or PD, batched or not);
+* poses: :func:`as_pose`, :func:`as_poses`;
+* weights and probabilities: :func:`as_weights`, :func:`as_log_weights`
+  (:func:`check_log_weights`), :func:`as_probability`, :func:`as_probabilities`;
+* numbers: :func:`as_scalar`, :func:`as_count`, :func:`as_index`, :func:`as_indices`;
+* others: :func:`check_rng`, :func:`check_type`;
+* arguments whose shapes must agree: :func:`check_batch`, :func:`check_rows`,
+  :func:`check_broadcast` (the message names both sides); the ``ref`` keyword
+  of the array helpers names the argument a required size comes from;
+* :func:`small_ok`: every small argument of one filter step checked at once.
+
+Small float64 arrays take a fast path (no conversion, a Python pass over a few
+numbers, no eigendecomposition for a clearly positive definite 2x2 or 3x3), so
+checking one filter step costs microseconds; nothing is built for a message
+unless a check fails.
 """
 
 from __future__ import annotations
@@ -251,28 +269,66 @@ def as_covariance(value, name, n=None, *, definite=False, batched=False, psd=Tru
     return arr
 
 
-def _small_pd(a, k):
-    """True if the nested list `a` (k = 2 or 3) is symmetric and clearly positive definite.
+def small_ok(vectors=(), matrices=(), covariances=()):
+    """True when a call's small arguments pass every check at once (the fast path of one filter step).
 
-    False for anything else, including NaN or inf entries (every comparison
-    with them fails), so the caller falls back to the full check.
+    Every argument must be a float64 ndarray: `vectors` 1-D with at most 16
+    finite entries, `matrices` 2-D with at most 16 finite entries, and
+    `covariances` 2x2 or 3x3, symmetric and clearly positive definite (see
+    :func:`as_covariance`). The caller still compares the shapes. ``False``
+    decides nothing: the caller then runs the full checks, which name what is
+    wrong.
+    """
+    values = []
+    for v in vectors:
+        if type(v) is not np.ndarray or v.dtype is not _F64 or v.ndim != 1 or v.size > 16:
+            return False
+        values += v.tolist()
+    for m in matrices:
+        if type(m) is not np.ndarray or m.dtype is not _F64 or m.ndim != 2 or m.size > 16:
+            return False
+        values += m.ravel().tolist()
+    if not math.isfinite(sum(values)) and not all(map(math.isfinite, values)):
+        return False
+    for c in covariances:
+        if type(c) is not np.ndarray or c.dtype is not _F64 or c.ndim != 2:
+            return False
+        k = c.shape[0]
+        if not (2 <= k <= 3 and c.shape[1] == k and _small_pd(c.tolist(), k)):
+            return False
+    return True
+
+
+def _small_pd(a, k):
+    """True if the nested list `a` (k = 2 or 3) is finite, symmetric and clearly positive definite.
+
+    False for anything else (the caller then runs the full check). The scale of
+    the tolerances is the largest diagonal entry: for a positive definite matrix
+    every ``|a_ij| <= max a_ii``, and a matrix with a larger entry is not
+    accepted here, so this test is never looser than the full one.
     """
     if k == 2:
         (a00, a01), (a10, a11) = a
-        scale = max(1.0, abs(a00), abs(a01), abs(a10), abs(a11))
+        if not math.isfinite(a00 + a01 + a10 + a11):
+            return False
+        scale = max(1.0, a00, a11)
         if abs(a01 - a10) > SYM_RTOL * scale:
             return False
         # Sylvester: a00 > 0 and det > 0, with a margin far above rounding
-        return a00 > 1e-12 * scale and a00 * a11 - a01 * a10 > 1e-12 * scale * scale
+        eps = 1e-12 * scale
+        return a00 > eps and a00 * a11 - a01 * a10 > eps * scale
     (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = a
-    scale = max(1.0, abs(a00), abs(a01), abs(a02), abs(a10), abs(a11), abs(a12), abs(a20), abs(a21), abs(a22))
+    if not math.isfinite(a00 + a01 + a02 + a10 + a11 + a12 + a20 + a21 + a22):
+        return False
+    scale = max(1.0, a00, a11, a22)
     tol = SYM_RTOL * scale
     if abs(a01 - a10) > tol or abs(a02 - a20) > tol or abs(a12 - a21) > tol:
         return False
-    m2 = a00 * a11 - a01 * a10
-    det = a00 * (a11 * a22 - a12 * a21) - a01 * (a10 * a22 - a12 * a20) + a02 * (a10 * a21 - a11 * a20)
     eps = 1e-12 * scale
-    return a00 > eps and m2 > eps * scale and det > eps * scale * scale
+    if not (a00 > eps and a00 * a11 - a01 * a10 > eps * scale):
+        return False
+    det = a00 * (a11 * a22 - a12 * a21) - a01 * (a10 * a22 - a12 * a20) + a02 * (a10 * a21 - a11 * a20)
+    return det > eps * scale * scale
 
 
 def check_rows(*named):

@@ -50,9 +50,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._checks import as_array, as_covariance, as_indices, as_rows, as_matrix, as_scalar, as_vector, check_batch
+from ._checks import as_array, as_covariance, as_indices, as_matrix, as_rows, as_scalar, as_vector, check_batch, small_ok
 from .angles import _wrap1, wrap_angle
-from .motion import _arc, _arc1
+from .motion import _arc, _arc1_floats
 from .sensors import _landmark_measurement, _rb1
 
 __all__ = [
@@ -87,7 +87,7 @@ class Gaussian(_GaussianFields):
     ``Gaussian(mean, cov)`` checks its fields cheaply (finite float arrays,
     ``mean (..., n)``, ``cov (..., n, n)``; a string or ``None`` is refused)
     and stores them as float64 arrays; the library's cores bundle their
-    already-checked results with ``Gaussian._make((mean, cov))``.
+    already-checked results without the check.
 
     Attributes
     ----------
@@ -112,7 +112,8 @@ def _gaussian(mean, cov):
 
 # --------------------------------------------------------------------------- validation helpers
 def _as_cov(value, name, n=None, *, definite=False):
-    """A (batch of) symmetric PSD (or PD) ``(n, n)`` matrices (``_checks.as_covariance``)."""
+    """A (batch of) symmetric PSD (or PD) ``(n, n)`` matrices: ``_checks.as_covariance`` as the
+    drivers below call it."""
     return as_covariance(value, name, n, definite=definite, batched=True, copy=False)
 
 
@@ -129,8 +130,15 @@ def _sym(S):
 def _mv(A, x):
     """Matrix-vector product over leading axes."""
     if A.ndim == 2 and x.ndim == 1:
-        return A @ x
+        return np.dot(A, x)
     return (A @ x[..., None])[..., 0]
+
+
+def _mm(A, B):
+    """Matrix product over leading axes (``numpy.dot`` for two plain matrices: less overhead than ``@``)."""
+    if A.ndim == 2 and B.ndim == 2:
+        return np.dot(A, B)
+    return A @ B
 
 
 def _gain(PHt, S):
@@ -140,7 +148,8 @@ def _gain(PHt, S):
             return PHt / S[0, 0]
         (a, b), (_, d) = S.tolist()
         det = a * d - b * b
-        return PHt @ np.array([[d / det, -b / det], [-b / det, a / det]])  # S^-1 of a symmetric 2x2
+        # S^-1 = [[d, -b], [-b, a]] / (a d - b^2) for the symmetric S = [[a, b], [b, d]]
+        return _mm(PHt, np.array([[d / det, -b / det], [-b / det, a / det]]))
     return _T(np.linalg.solve(S, _T(PHt)))
 
 
@@ -173,6 +182,8 @@ def kf_predict(x, P, F, Q, *, B=None, u=None):
     ----------
     Thrun, Burgard & Fox (2005), Table 3.1 lines 2-3.
     """
+    if B is None and u is None and small_ok((x,), (F,), (P, Q)) and P.shape == F.shape == Q.shape == (x.size,) * 2:
+        return _kf_predict(x, P, F, Q)  # one small filter, every check passed at once
     x = as_vector(x, "x", copy=False)
     n = x.shape[-1]
     P = as_covariance(P, "P", n, batched=True, copy=False, ref="x")
@@ -194,9 +205,9 @@ def kf_predict(x, P, F, Q, *, B=None, u=None):
 def _kf_predict(x, P, F, Q, B=None, u=None):
     if B is None and x.ndim == 1 and P.ndim == 2 and F.ndim == 2 and Q.ndim == 2:  # one filter
         # x_bar = F x, P_bar = F P F^T + Q  (Table 3.1 lines 2-3), symmetrised
-        P_bar = F @ P @ F.T
+        P_bar = np.dot(np.dot(F, P), F.T)
         P_bar += Q
-        return _gaussian(F @ x, _sym(P_bar))
+        return _gaussian(np.dot(F, x), _sym(P_bar))
     # x_bar = F x + B u  (Table 3.1 line 2, F = A_t)
     x_bar = _mv(F, x)
     if B is not None:
@@ -245,25 +256,53 @@ def kf_update(x, P, z, H, R):
 
 def _kf_update(x, P, z, H, R):
     # S = H P H^T + R, K = P H^T S^-1  (Table 3.1 line 4, H = C_t, R = Q_t)
-    PHt = P @ _T(H)
-    S = _sym(H @ PHt + R)
+    PHt = _mm(P, _T(H))
+    S = _sym(_mm(H, PHt) + R)
     K = _gain(PHt, S)
     # x = x_bar + K (z - H x_bar)  (Table 3.1 line 5)
     x_new = x + _mv(K, z - _mv(H, x))
     # P = (I - K H) P_bar  (Table 3.1 line 6)
-    P_new = P - K @ H @ P
+    P_new = P - _mm(_mm(K, H), P)
     return _gaussian(x_new, _sym(P_new))
 
 
 # --------------------------------------------------------------------------- EKF localization
 def _ekf_predict(mu, Sigma, u, dt, M):
-    if mu.ndim == 1 and u.ndim == 1:  # one pose: the scalar path of the motion model
-        mu_bar, G, V = _arc1(mu, u, dt)  # g(u, mu), G, V  (Table 7.2 lines 2-4, 6)
-    else:
-        mu_bar, G, V = _arc(mu, u, dt)
+    if mu.ndim == 1 and u.ndim == 1 and Sigma.ndim == 2 and M.ndim == 2:  # one pose: the scalar path
+        return _ekf_predict1(mu, Sigma, u, dt, M)
+    mu_bar, G, V = _arc(mu, u, dt)  # g(u, mu), G, V  (Table 7.2 lines 2-4, 6)
     # Sigma_bar = G Sigma G^T + V M V^T  (Table 7.2 line 7)
     Sigma_bar = G @ Sigma @ _T(G) + V @ M @ _T(V)
     return _gaussian(mu_bar, _sym(Sigma_bar))
+
+
+def _ekf_predict1(mu, Sigma, u, dt, M):
+    """:func:`_ekf_predict` of one pose in Python floats (the tests check it equals the array path).
+
+    ``G = I + [a, b, 0]^T e_3^T`` has two non-trivial entries, so ``G Sigma G^T``
+    and ``V M V^T`` take a few dozen multiplications, fewer than the matrix
+    products cost to set up.
+    """
+    # g(u, mu), G[0, 2] = a, G[1, 2] = b, V = [[p, q], [r, s], [0, dt]]  (Table 7.2 lines 2-4, 6)
+    xn, yn, thn, a, b, p, q, r, s = _arc1_floats(mu, u, dt)
+    (s00, s01, s02), (s10, s11, s12), (s20, s21, s22) = Sigma.tolist()
+    (m00, m01), (m10, m11) = M.tolist()
+    # G Sigma: rows 0 and 1 gain a (resp. b) times row 2
+    t00, t01, t02 = s00 + a * s20, s01 + a * s21, s02 + a * s22
+    t10, t11, t12 = s10 + b * s20, s11 + b * s21, s12 + b * s22
+    # V M
+    w00, w01 = p * m00 + q * m10, p * m01 + q * m11
+    w10, w11 = r * m00 + s * m10, r * m01 + s * m11
+    w20, w21 = dt * m10, dt * m11
+    # Sigma_bar = G Sigma G^T + V M V^T  (Table 7.2 line 7), symmetrised as (A + A^T) / 2
+    c00 = (t00 + a * t02) + (w00 * p + w01 * q)
+    c11 = (t11 + b * t12) + (w10 * r + w11 * s)
+    c22 = s22 + w21 * dt
+    c01 = 0.5 * (((t01 + b * t02) + (w00 * r + w01 * s)) + ((t10 + a * t12) + (w10 * p + w11 * q)))
+    c02 = 0.5 * ((t02 + w01 * dt) + ((s20 + a * s22) + (w20 * p + w21 * q)))
+    c12 = 0.5 * ((t12 + w11 * dt) + ((s21 + b * s22) + (w20 * r + w21 * s)))
+    cov = np.array([[c00, c01, c02], [c01, c11, c12], [c02, c12, c22]])
+    return _gaussian(np.array([xn, yn, thn]), cov)
 
 
 def ekf_predict(mu, Sigma, u, dt, M):
@@ -315,13 +354,13 @@ def _innovation(mu_bar, Sigma_bar, z, m, Q):
         nu = z - z_hat
         nu[..., 1] = wrap_angle(nu[..., 1])  # bearing innovation wrapped to [-pi, pi)
     # S = H Sigma_bar H^T + Q  (Table 7.2 line 14)
-    S = _sym(H @ Sigma_bar @ _T(H) + Q)
+    S = _sym(_mm(_mm(H, Sigma_bar), _T(H)) + Q)
     return nu, S, H
 
 
 def _ekf_update(mu_bar, Sigma_bar, z, m, Q):
     nu, S, H = _innovation(mu_bar, Sigma_bar, z, m, Q)
-    SigHt = Sigma_bar @ _T(H)
+    SigHt = _mm(Sigma_bar, _T(H))
     # K = Sigma_bar H^T S^-1  (Table 7.2 line 15)
     K = _gain(SigHt, S)
     # mu = mu_bar + K (z - z_hat)  (Table 7.2 line 16)
@@ -331,7 +370,7 @@ def _ekf_update(mu_bar, Sigma_bar, z, m, Q):
     else:
         mu[..., 2] = wrap_angle(mu[..., 2])
     # Sigma = (I - K H) Sigma_bar  (Table 7.2 line 17)
-    Sigma = Sigma_bar - K @ H @ Sigma_bar
+    Sigma = Sigma_bar - _mm(_mm(K, H), Sigma_bar)
     return _gaussian(mu, _sym(Sigma))
 
 

@@ -150,7 +150,18 @@ def _arc1(x, u, dt):
     Returns ``x_next (3,)``, ``G (3, 3)``, ``V (3, 2)``; the tests check it
     against :func:`_arc`.
     """
-    th, v, w = float(x[2]), float(u[0]), float(u[1])
+    xn, yn, thn, g02, g12, v00, v01, v10, v11 = _arc1_floats(x, u, dt)
+    # G = d x' / d x, V = d x' / d u  (Table 7.2 lines 3-4)
+    G = np.array([[1.0, 0.0, g02], [0.0, 1.0, g12], [0.0, 0.0, 1.0]])
+    V = np.array([[v00, v01], [v10, v11], [0.0, dt]])
+    return np.array([xn, yn, thn]), G, V
+
+
+def _arc1_floats(x, u, dt):
+    """:func:`_arc1` as floats: ``x', y', theta'``, the entries ``G[0, 2], G[1, 2]`` of ``G`` (the rest is
+    the identity) and ``V[0, 0], V[0, 1], V[1, 0], V[1, 1]`` of ``V`` (``V[2] = [0, dt]``)."""
+    px, py, th = x.tolist() if type(x) is np.ndarray else map(float, x)
+    v, w = u.tolist() if type(u) is np.ndarray else map(float, u)
     if abs(w) < STRAIGHT_LINE_OMEGA:  # straight-line limit of the contract
         cx, cy = math.cos(th), math.sin(th)
         v01, v11 = -0.5 * v * dt * dt * cy, 0.5 * v * dt * dt * cx
@@ -162,11 +173,8 @@ def _arc1(x, u, dt):
         cx, cy = cc * sa, sc * sa
         half = 0.5 * v * dt * dt
         v01, v11 = half * (-sc * sa + cc * dsa), half * (cc * sa + sc * dsa)
-    x_next = np.array([x[0] + v * dt * cx, x[1] + v * dt * cy, _wrap1(th + w * dt)])
-    # G = d x' / d x, V = d x' / d u  (Table 7.2 lines 3-4)
-    G = np.array([[1.0, 0.0, -v * dt * cy], [0.0, 1.0, v * dt * cx], [0.0, 0.0, 1.0]])
-    V = np.array([[dt * cx, v01], [dt * cy, v11], [0.0, dt]])
-    return x_next, G, V
+    vdt = v * dt
+    return px + vdt * cx, py + vdt * cy, _wrap1(th + w * dt), -vdt * cy, vdt * cx, dt * cx, v01, dt * cy, v11
 
 
 # --------------------------------------------------------------------------- velocity model

@@ -258,7 +258,7 @@ SPECS = {
     "ekf_localization_run": spec(sl.ekf_localization_run, {"run": RUN}, {"mu0": POSE, "Sigma0": P3},
                                  bad={"mu0": A("arr", none_ok=True), "Sigma0": A("cov", none_ok=True),
                                       "M": A("cov", none_ok=True), "Q": A("pd", none_ok=True),
-                                      "gate": A("scalar", neg=True)}),
+                                      "gate": A("scalar", neg=True, none_ok=True)}),
     "ekf_localization_batch": spec(sl.ekf_localization_batch, {"runs": [RUN, RUN]}, {"mu0": POSE, "Sigma0": P3},
                                    bad={"mu0": A("arr", none_ok=True), "Sigma0": A("cov", none_ok=True),
                                         "M": A("cov", none_ok=True), "Q": A("pd", none_ok=True)}),

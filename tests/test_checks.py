@@ -233,3 +233,33 @@ def test_rows_masks_types_and_bools():
         c.as_array(True, "s", bools=False)
     with pytest.raises(ValueError, match="s must be non-negative"):
         c.as_array([1.0, -2.0], "s", nonnegative=True)
+
+
+def test_small_ok_never_passes_what_the_full_checks_refuse():
+    rng = np.random.default_rng(5)
+    passed = 0
+    for k in range(2000):
+        n = 3
+        x = rng.normal(size=n)
+        F = rng.normal(size=(n, n))
+        B = rng.normal(size=(n, n))
+        P = B @ B.T if k % 3 else B + B.T
+        Q = np.diag(rng.uniform(-0.1, 1.0, n))
+        for arr in (x, F, P, Q):
+            if rng.random() < 0.1:
+                arr.flat[rng.integers(arr.size)] = rng.choice([np.nan, np.inf, -np.inf, 1e308])
+        ok = c.small_ok((x,), (F,), (P, Q))
+        try:
+            c.as_vector(x, "x")
+            c.as_matrix(F, "F")
+            c.as_covariance(P, "P", 3, definite=True)
+            c.as_covariance(Q, "Q", 3, definite=True)
+            full = True
+        except ValueError:
+            full = False
+        assert not ok or full
+        passed += ok
+    assert passed > 300
+    assert not c.small_ok((np.zeros(3, dtype=np.float32),))  # anything unusual goes the long way
+    assert not c.small_ok((), (np.zeros(3),))
+    assert not c.small_ok((), (), (np.eye(4),))
