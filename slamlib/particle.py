@@ -29,7 +29,6 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from scipy.special import logsumexp
 
 from ._checks import (as_array, as_covariance, as_log_weights, as_poses, as_rows, as_scalar, as_weights,
                       check_log_weights, check_rng, check_rows)
@@ -144,8 +143,9 @@ def _normalized(lw):
     """``log_w - logsumexp(log_w)``, shifted by the maximum first so that large
     magnitudes (1e4) lose no more precision than the input holds."""
     shifted = lw - lw.max()
-    # log w = log_w - log sum exp(log_w)  (normalisation of Table 4.3's weights)
-    return shifted - logsumexp(shifted)
+    # log w = log_w - log sum exp(log_w)  (normalisation of Table 4.3's weights); after the shift the
+    # largest term is exp(0) = 1, so the sum lies in [1, M] and plain numpy cannot overflow
+    return shifted - np.log(np.exp(shifted).sum())
 
 
 def _weighted_pose_mean(poses, w):
@@ -650,11 +650,11 @@ def particle_gaussian(particles, log_weights=None, *, angles=()):
         if isinstance(a, bool) or not isinstance(a, (int, np.integer)) or not 0 <= a < d:
             raise ValueError(f"angles must hold column indices in [0, {d}), got {a!r}")
         cols.append(int(a))
-    mean = np.einsum("m,md->d", w, p)
+    mean = w @ p
     for a in cols:
         mean[a] = _circular_mean(p[:, a], w)  # atan2(sum w sin a, sum w cos a)
     e = p - mean
     for a in cols:
         e[:, a] = wrap_angle(e[:, a])
-    cov = np.einsum("m,mi,mj->ij", w, e, e)
+    cov = (e * w[:, None]).T @ e  # sum_m w_m e_m e_m^T
     return _gaussian(mean, 0.5 * (cov + cov.T))
