@@ -103,9 +103,11 @@ def _resample(ctx, w, seed, global_seed=None):
 
 
 def _check_lvr(ctx, w, seed):
+    """Call low_variance_resample with a generator seeded ``seed``; the indices must be slamlib's."""
     got = _resample(ctx, w, seed)
     ref = sl.low_variance_resample(w, rng=np.random.default_rng(seed))
     ctx.equal("indices", got, ref)
+    return got
 
 
 @EX.test("low_variance_resample", "indices of Table 4.4 with the single draw", weight=12,
@@ -138,7 +140,7 @@ def _(ctx):
     M = 40
     for k in range(12):
         w = ctx.rng.dirichlet(np.full(M, 0.8))
-        idx = _resample(ctx, w, 500 + k)
+        idx = _check_lvr(ctx, w, 500 + k)
         if idx.min() < 0 or idx.max() >= M:
             ctx.fail(f"indices must lie in [0, {M}), got range [{idx.min()}, {idx.max()}]")
         c = _counts(idx, M)
@@ -157,7 +159,7 @@ def _(ctx):
     w = ctx.rng.dirichlet(np.full(M, 1.0))
     total = np.zeros(M)
     for k in range(R):
-        idx = _resample(ctx, w, 600 + k)
+        idx = _check_lvr(ctx, w, 600 + k)
         if idx.min() < 0 or idx.max() >= M:
             ctx.fail(f"indices must lie in [0, {M}), got range [{idx.min()}, {idx.max()}]")
         total += _counts(idx, M)
@@ -176,7 +178,7 @@ def _(ctx):
     run = loops.scenario("localization")
 
     def resample(t, w, seed):
-        return _resample(ctx, w, seed)
+        return _check_lvr(ctx, w, seed)
 
     try:
         traj = loops.particle_filter_loop(run, likelihood=loops.ref_likelihood, normalize=loops.ref_normalize,
@@ -200,9 +202,11 @@ def _particles(rng, M, centre=None, spread=0.5):
 
 
 def _check_lik(ctx, particles, z, m, Q):
+    """Call landmark_likelihood and compare with slamlib's densities."""
     p = _lik(ctx, particles, z, m, Q)
     ref = sl.landmark_likelihood(particles, z, m, Q)
     ctx.close("p", p, ref, atol=1e-12 * max(float(ref.max()), 1e-300), rtol=1e-8)
+    return p
 
 
 @EX.test("landmark_likelihood", "densities for random particles", weight=10,
@@ -244,7 +248,7 @@ def _(ctx):
     run = loops.scenario("localization")
 
     def likelihood(t, particles, z, m, Q):
-        return _lik(ctx, particles, z, m, Q)
+        return _check_lik(ctx, particles, z, m, Q)
 
     try:
         traj = loops.particle_filter_loop(run, likelihood=likelihood, normalize=loops.ref_normalize,
