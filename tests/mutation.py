@@ -39,6 +39,7 @@ import argparse
 import ast
 import builtins
 import copy
+import functools
 import importlib
 import inspect
 import re
@@ -369,8 +370,9 @@ def _replace(parent, field, index, new):
         getattr(parent, field)[index] = new
 
 
+@functools.lru_cache(maxsize=None)
 def mutants(fn):
-    """Every mutant of contract function ``fn`` (a list of :class:`Mutant`), in a fixed order."""
+    """Every mutant of contract function ``fn`` (a tuple of :class:`Mutant`), in a fixed order."""
     units, imports = _collect(fn)
     out = []
     for name, unit in units.items():
@@ -407,7 +409,7 @@ def mutants(fn):
                 if counts[key] > 1:
                     key = f"{key} #{counts[key]}"
                 out.append(Mutant(fn, name, key, src))
-    return out
+    return tuple(out)
 
 
 # =========================================================================== grading
@@ -501,7 +503,7 @@ def run(functions=None, *, every=1, offset=0, progress=None):
 
 
 def reason(equivalent, m):
-    """Why mutant ``m`` is equivalent according to the table (exact label, else a pattern whose ``*`` matches anything), or None."""
+    """The table's reason for mutant ``m`` (exact label, else a pattern whose ``*`` matches anything), or None."""
     table = equivalent.get(m.function, {})
     if m.label in table:
         return table[m.label]
@@ -511,16 +513,18 @@ def reason(equivalent, m):
     return None
 
 
-def summarize(report, equivalent):
+def summarize(report, equivalent, not_killed=None):
     """Rows ``(function, total, equivalent, non-equivalent, killed, rate, unexplained survivors)``.
 
-    Only surviving mutants are looked up in the table: a listed mutant that a test
-    kills counts as killed.
+    Only surviving mutants are looked up in the tables: a listed mutant that a test
+    kills counts as killed. Survivors listed in ``not_killed`` count against the rate;
+    survivors in neither table are "unexplained".
     """
     rows = []
+    not_killed = not_killed or {}
     for fn, r in report.items():
         eq = [m for m in r["survivors"] if reason(equivalent, m)]
-        unexplained = [m for m in r["survivors"] if not reason(equivalent, m)]
+        unexplained = [m for m in r["survivors"] if not reason(equivalent, m) and not reason(not_killed, m)]
         non_eq = r["total"] - len(eq)
         rate = r["killed"] / non_eq if non_eq else 1.0
         rows.append((fn, r["total"], len(eq), non_eq, r["killed"], rate, unexplained))
@@ -529,7 +533,7 @@ def summarize(report, equivalent):
 
 def main(argv=None):
     sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from mutation_table import EQUIVALENT
+    from mutation_table import EQUIVALENT, NOT_KILLED
 
     p = argparse.ArgumentParser(prog="python -m tests.mutation", description=__doc__.splitlines()[0])
     p.add_argument("--function", action="append", help="only this contract function (repeatable)")
@@ -553,7 +557,7 @@ def main(argv=None):
             print(f"  ... {progress.n} mutants graded ({fn})", file=sys.stderr, flush=True)
 
     report = run(functions, every=args.every, progress=progress)
-    rows = summarize(report, EQUIVALENT)
+    rows = summarize(report, EQUIVALENT, NOT_KILLED)
     print(f"{'function':32s} {'mutants':>7s} {'equiv.':>6s} {'killed':>6s} {'kill rate':>9s} {'seconds':>7s}")
     for fn, total, eq, non_eq, killed, rate, _ in rows:
         print(f"{fn:32s} {total:7d} {eq:6d} {killed:6d} {100 * rate:8.1f}% {report[fn]['seconds']:7.1f}")
@@ -564,7 +568,9 @@ def main(argv=None):
     for fn, r in report.items():
         for m in r["survivors"]:
             why = reason(EQUIVALENT, m)
-            print(f"survivor {fn} | {m.label} | {why or 'UNEXPLAINED'}")
+            why = f"equivalent: {why}" if why else (f"NOT KILLED: {reason(NOT_KILLED, m)}" if reason(NOT_KILLED, m)
+                                                    else "UNEXPLAINED")
+            print(f"survivor {fn} | {m.label} | {why}")
     return 0
 
 

@@ -68,6 +68,10 @@ def _(ctx):
         mu, Sigma = _state(ctx.rng)
         u, dt = _control(ctx.rng)
         _check_predict(ctx, mu, Sigma, u, dt, spd(ctx.rng, 2, scale=0.05))
+    # a sharp turn (|omega dt| about 2): V far from its straight-line limit
+    mu, Sigma = _state(ctx.rng)
+    u = np.array([ctx.rng.uniform(0.5, 2.0), ctx.rng.choice([-1, 1]) * ctx.rng.uniform(2.0, 3.0)])
+    _check_predict(ctx, mu, Sigma, u, 0.8, spd(ctx.rng, 2, scale=0.5))
 
 
 @EX.test("ekf_slam_predict", "any number of landmarks (N = 0, 1, 7)", weight=4,

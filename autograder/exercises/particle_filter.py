@@ -112,7 +112,8 @@ def _check_lvr(ctx, w, seed):
 
 @EX.test("low_variance_resample", "indices of Table 4.4 with the single draw", weight=12,
          hint="Normalise w, draw exactly one r = rng.uniform(0.0, 1.0 / M), then index m is the first i with "
-              "cumsum(w)[i] >= r + m / M (clipped to M - 1); return an integer array.")
+              "cumsum(w)[i] >= r + m / M (clipped to M - 1), compared as computed (a pointer equal to a cumulative "
+              "weight goes to that particle); return an integer array.")
 def _(ctx):
     for k, M in enumerate((10, 50, 200, 7)):
         w = ctx.rng.dirichlet(np.full(M, 0.7))
@@ -120,6 +121,27 @@ def _(ctx):
     w = np.zeros(12)
     w[[2, 9]] = [0.25, 0.75]
     _check_lvr(ctx, w, 310)
+    w, seed = _tie_case(ctx.rng)
+    _check_lvr(ctx, w, seed)
+
+
+def _tie_case(rng, M=8):
+    """Weights whose cumulative sum equals the pointer ``r + 4 / M`` exactly (the seed fixes ``r``).
+
+    ``w[1] = r + 1/2`` and ``w[-1] = 1 - w[1]`` sum to exactly 1 in any order, so
+    normalising changes nothing, and ``cumsum(w)[1] >= r + 4 / M`` holds with
+    equality: pointers 0-4 go to particle 1, pointers 5-7 to particle ``M - 1``. The
+    seed is chosen so that ``(cumsum(w)[1] - r) M`` rounds below 4, where counting
+    pointers by a formula instead of comparing them goes wrong.
+    """
+    while True:
+        seed = int(rng.integers(2**31))
+        r = np.random.default_rng(seed).uniform(0.0, 1.0 / M)
+        c = r + 4 / M
+        if (c - r) * M < 4:
+            w = np.zeros(M)
+            w[1], w[-1] = c, 1.0 - c
+            return w, seed
 
 
 @EX.test("low_variance_resample", "unnormalised weights", weight=6,
