@@ -33,7 +33,7 @@ from autograder.selfcheck import InProcessCaller  # noqa: E402
 FUNCTIONS = [fn for fns in mutation.CONTRACT.values() for fn in fns]
 GARBAGE = ("zeros", "random", "inputs")
 #: Every K-th mutant of each function in the default suite (the slow test grades them all).
-FAST_EVERY = 9
+FAST_EVERY = 12
 KILL_RATE = 0.95
 
 
@@ -92,7 +92,7 @@ def test_garbage_scores_zero_for_other_grading_seeds(seed):
             assert all(score == 0 for _, score, _, _ in rows), (fn, kind, seed, rows)
 
 
-@pytest.mark.parametrize("seed", [mutation.SEED, 1, 2, 3])
+@pytest.mark.parametrize("seed", [mutation.SEED, 1])
 def test_reference_scores_full_marks_for_any_seed(seed):
     for fn in FUNCTIONS:
         ns = mutation.load(mutation.submission_source(fn))
@@ -148,7 +148,9 @@ def test_mutants_cover_every_contract_function_and_operator():
 
 def test_reference_submission_is_slamlib_and_scores_full_marks():
     ns = mutation.load(mutation.submission_source("ekf_slam_update"))
-    assert "slamlib" not in "".join(mutation.submission_source(fn) for fn in FUNCTIONS)
+    for fn in FUNCTIONS:
+        src = mutation.submission_source(fn)
+        assert "import slamlib" not in src and "from slamlib" not in src and "from ." not in src, fn
     rows = mutation.grade_namespace("ekf_slam_update", ns, stop_at_first=False)
     assert all(score == top for _, score, top, _ in rows)
 

@@ -395,16 +395,16 @@ def _(ctx):
 @EX.test("ekf_slam_associate", "ties go to the smallest index", weight=3, visibility="hidden",
          hint="When two landmarks are equally close, return the smaller index.")
 def _(ctx):
-    while True:  # the nearest landmark with Sigma_bar = 0 must be 1 or 2 (so that a constant answer fails)
-        mu, Sigma, z, Q = _clear_assoc(ctx.rng, N=4, k=int(ctx.rng.integers(1, 3)))
-        Sigma = np.zeros_like(Sigma)
-        best = sl.ekf_slam_associate(mu, Sigma, z, 4, Q, 1e6)
-        if best in (1, 2):
-            break
-    mu = mu.copy()
-    other = 3
-    lo, hi = best, other
-    mu[3 + 2 * other:5 + 2 * other] = mu[3 + 2 * best:5 + 2 * best]
-    got = _assoc(ctx, mu, Sigma, z, 4, Q, 1e6)
-    if got != lo:
-        ctx.fail(f"landmarks {lo} and {hi} are identical and nearest; returned {got}, expected {lo}")
+    for _ in range(4):
+        while True:  # the nearest landmark with Sigma_bar = 0 must be 1 or 2 (so that a constant answer fails)
+            mu, Sigma, z, Q = _clear_assoc(ctx.rng, N=4, k=int(ctx.rng.integers(1, 3)))
+            Sigma = np.zeros_like(Sigma)
+            best = sl.ekf_slam_associate(mu, Sigma, z, 4, Q, 1e6)
+            if best in (1, 2):
+                break
+        mu = mu.copy()
+        lo, hi = best, 3
+        mu[3 + 2 * hi:5 + 2 * hi] = mu[3 + 2 * lo:5 + 2 * lo]
+        got = _assoc(ctx, mu, Sigma, z, 4, Q, 1e6)
+        if got != lo:
+            ctx.fail(f"landmarks {lo} and {hi} are identical and nearest; returned {got}, expected {lo}")
