@@ -46,6 +46,8 @@ import re
 import signal
 import sys
 import textwrap
+
+import numpy
 import time
 import types
 import warnings
@@ -171,8 +173,12 @@ def _collect(fn):
                     raise RuntimeError(f"cannot tell where {module.__name__}.{ref} comes from")
                 if stmt not in imports:
                     imports.append(stmt)
-            elif isinstance(val, (int, float, str, tuple, bool)) or val is None:
+            elif isinstance(val, (int, float, str, tuple, bool, frozenset)) or val is None:
                 units[ref] = _Unit(ref, f"{ref} = {val!r}", "const")
+            elif isinstance(val, numpy.dtype):
+                units[ref] = _Unit(ref, f"{ref} = numpy.dtype({str(val)!r})", "const")
+                if "import numpy" not in imports:
+                    imports.append("import numpy")
             else:
                 raise RuntimeError(f"cannot copy {module.__name__}.{ref} ({type(val).__name__})")
     return units, imports
