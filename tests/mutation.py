@@ -190,9 +190,11 @@ def _assemble(units, imports, replaced=None):
     parts = ["from __future__ import annotations", "from typing import NamedTuple", *sorted(imports), ""]
     parts += [u.source for u in units.values() if u.kind == "const"]
     parts.append("")
-    for u in units.values():
-        if u.kind == "const":
-            continue
+    # a class must follow the classes it derives from (functions bind late: any order will do)
+    defs = [u for u in units.values() if u.kind != "const"]
+    defs.sort(key=lambda u: len(u.obj.__mro__) if u.kind == "class" else 0)
+    defs.sort(key=lambda u: u.kind != "class")
+    for u in defs:
         parts.append(replaced.get(u.name, u.source))
         parts.append("")
     return "\n".join(parts)
