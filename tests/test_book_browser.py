@@ -242,3 +242,30 @@ def test_search_finds_particle(server, driver):
     assert n > 0, "the search page returned no results for 'particle'"
     SHOTS.mkdir(parents=True, exist_ok=True)
     driver.save_screenshot(str(SHOTS / "search_particle.png"))
+
+
+def test_overflow_check_catches_overflow(server, driver):
+    """The overflow check sees a code line hidden behind a scrollbar, a box wider than the column
+    and a clipped equation, once they are injected into a page that passes it."""
+    page = "chapters/01_bayes_filters"
+    driver.get(f"{server}/{page}.html")
+    assert driver.execute_async_script(_WAIT_MATHJAX) in ("ok", "no-mathjax")
+    clean = overflow_facts(driver)
+    assert not clean["codeHidden"] and not clean["outside"] and not clean["clipped"], clean
+    driver.execute_script("""
+      const art = document.querySelector('article.bd-article');
+      const pre = document.createElement('pre');
+      pre.style.whiteSpace = 'pre'; pre.style.overflowX = 'auto';
+      pre.textContent = 'x = 1  # ' + 'a very long comment '.repeat(40);
+      art.appendChild(pre);
+      const wide = document.createElement('div');
+      wide.style.width = '3000px'; wide.textContent = 'wide';
+      art.appendChild(wide);
+      const holder = document.querySelector('mjx-container[display="true"]').parentElement;
+      holder.style.overflowX = 'hidden'; holder.style.width = '40px';
+      holder.querySelector('mjx-container').style.overflowX = 'hidden';
+    """)
+    dirty = overflow_facts(driver)
+    assert len(dirty["codeHidden"]) == 1, dirty["codeHidden"]
+    assert any(o.startswith("div: wide") for o in dirty["outside"]), dirty["outside"]
+    assert dirty["clipped"], "a clipped equation was not reported"
