@@ -8,8 +8,17 @@ It serves ``_build/html`` on localhost and checks, page by page: HTTP 200, no
 JavaScript errors in the console, nothing fetched from outside localhost (the
 book must read offline), MathJax finished with no unrendered TeX and no TeX
 errors, every ``<img>`` loaded, every animation's controls present with its
-first frame drawn; and the search page finds "particle". Screenshots of a few
-pages go to ``artifacts/screenshots``.
+first frame drawn, no favicon request failing, a logo and exactly one search box;
+nothing wider than the text column (see below); and the search page finds
+"particle". Screenshots of a few pages go to ``artifacts/screenshots``.
+
+Horizontal overflow, in a 1280 px wide window: the page itself never scrolls
+sideways; no element reaches outside the article's text column unless it sits in
+a box that scrolls horizontally (wide tables); a code cell or output never hides
+text behind a scrollbar (long lines wrap, see ``_static/custom.css``); and a
+displayed equation is never clipped. Equations must fit the column, except on
+the pages of ``EQUATIONS_MAY_SCROLL``, where an equation wider than the column
+may scroll inside its own box with a visible scrollbar.
 
 Without a built book or Chromium the tests are skipped, unless
 ``SLAM_BOOK_BROWSER=1`` (set by ``.ci/browser``), which turns a missing
@@ -36,6 +45,10 @@ SHOTS = ROOT / "artifacts" / "screenshots"
 REQUIRED = os.environ.get("SLAM_BOOK_BROWSER") == "1"
 SCREENSHOT_PAGES = {"chapters/00_intro", "chapters/02_motion_sensor_models", "chapters/05_mcl",
                     "chapters/07_ekf_slam", "chapters/09_real_data_mrclam", "chapters/algorithm_index"}
+
+# pages whose long displayed equations are not yet broken over lines: there they scroll in their
+# own box with a visible scrollbar (never clipped); everywhere else every equation must fit
+EQUATIONS_MAY_SCROLL = {"chapters/05_mcl", "chapters/08_fastslam", "chapters/10_graph_slam"}
 
 pytestmark = pytest.mark.browser
 
@@ -124,12 +137,45 @@ return {text: clone.innerText, imgs: imgs, anims: anims, resources: resources,
 """
 
 
+_OVERFLOW = """
+const art = document.querySelector('article.bd-article') || document.querySelector('main');
+const box = art.getBoundingClientRect(), cs = getComputedStyle(art);
+const left = box.left + parseFloat(cs.paddingLeft) - 1, right = box.right - parseFloat(cs.paddingRight) + 1;
+const scrolls = el => ['auto', 'scroll'].includes(getComputedStyle(el).overflowX);
+const inScroller = el => { for (let p = el.parentElement; p && p !== art; p = p.parentElement) { if (scrolls(p)) return true; } return false; };
+const name = el => el.tagName.toLowerCase() + (el.className && typeof el.className === 'string' ? '.' + el.className.trim().split(/\\s+/).join('.') : '')
+  + ': ' + (el.textContent || '').trim().replace(/\\s+/g, ' ').slice(0, 60);
+const outside = [];
+for (const el of art.querySelectorAll('*')) {
+  const b = el.getBoundingClientRect();
+  if (b.width === 0 || b.height === 0 || getComputedStyle(el).visibility === 'hidden') continue;
+  if (el.closest('mjx-assistive-mml')) continue;  // MathJax's invisible copy for screen readers
+  if ((b.right > right || b.left < left) && !inScroller(el)) outside.push(name(el) + ` (${Math.round(b.left)}-${Math.round(b.right)} px, column ${Math.round(left)}-${Math.round(right)})`);
+}
+const code = Array.from(art.querySelectorAll('pre'));
+const codeHidden = code.filter(p => p.scrollWidth > p.clientWidth + 1).map(name);
+const eqs = Array.from(art.querySelectorAll('mjx-container[display="true"]'));
+const wide = [], clipped = [];
+for (const e of eqs) {
+  const holder = e.parentElement;
+  if (Math.max(e.scrollWidth, holder.scrollWidth) <= holder.clientWidth + 1 && e.scrollWidth <= e.clientWidth + 1) continue;
+  let tex = '';
+  try { tex = MathJax.startup.document.getMathItemsWithin(e)[0].math.trim().replace(/\\s+/g, ' ').slice(0, 70); } catch (err) { tex = name(e); }
+  wide.push(tex);
+  if (!scrolls(holder) && !scrolls(e)) clipped.push(tex);
+}
+return {pageScroll: document.documentElement.scrollWidth - document.documentElement.clientWidth,
+        outside: outside, code: code.length, codeHidden: codeHidden, equations: eqs.length, wide: wide, clipped: clipped};
+"""
+
+
 def _severe_console_errors(drv):
-    out = []
-    for entry in drv.get_log("browser"):
-        if entry.get("level") == "SEVERE" and "favicon.ico" not in entry.get("message", ""):
-            out.append(entry["message"])
-    return out
+    return [entry["message"] for entry in drv.get_log("browser") if entry.get("level") == "SEVERE"]
+
+
+def overflow_facts(drv):
+    """Horizontal overflow of the loaded page (see the module docstring)."""
+    return drv.execute_script(_OVERFLOW)
 
 
 @pytest.mark.parametrize("page", toc_pages())
@@ -160,6 +206,23 @@ def test_page_renders(page, server, driver):
         assert anim["controls"] >= 3 and anim["slider"], f"{page}: animation {k} has no controls"
         assert anim["frame"], f"{page}: animation {k} did not draw its first frame"
 
+    chrome = driver.execute_script("""
+      const visible = el => el.offsetParent !== null && el.getBoundingClientRect().width > 0;
+      return {search: Array.from(document.querySelectorAll('.search-button-field, input[type=search]')).filter(visible).length,
+              logo: Array.from(document.querySelectorAll('img.logo__image')).filter(i => visible(i) && i.naturalWidth > 0).length};""")
+    assert chrome["search"] == 1, f"{page}: {chrome['search']} search boxes visible (expected one)"
+    assert chrome["logo"] >= 1, f"{page}: no logo shown"
+
+    over = overflow_facts(driver)
+    assert over["pageScroll"] <= 0, f"{page}: the page scrolls sideways by {over['pageScroll']} px"
+    assert not over["outside"], f"{page}: elements outside the text column: {over['outside'][:5]}"
+    assert not over["codeHidden"], (f"{page}: {len(over['codeHidden'])} of {over['code']} code blocks hide text "
+                                    f"behind a scrollbar: {over['codeHidden'][:3]}")
+    assert not over["clipped"], f"{page}: equations clipped: {over['clipped'][:3]}"
+    if page not in EQUATIONS_MAY_SCROLL:
+        assert not over["wide"], (f"{page}: {len(over['wide'])} of {over['equations']} equations wider than "
+                                  f"the text column (break them over lines): {over['wide'][:3]}")
+
     if page in SCREENSHOT_PAGES:
         SHOTS.mkdir(parents=True, exist_ok=True)
         driver.save_screenshot(str(SHOTS / (page.replace("/", "__") + ".png")))
@@ -179,3 +242,30 @@ def test_search_finds_particle(server, driver):
     assert n > 0, "the search page returned no results for 'particle'"
     SHOTS.mkdir(parents=True, exist_ok=True)
     driver.save_screenshot(str(SHOTS / "search_particle.png"))
+
+
+def test_overflow_check_catches_overflow(server, driver):
+    """The overflow check sees a code line hidden behind a scrollbar, a box wider than the column
+    and a clipped equation, once they are injected into a page that passes it."""
+    page = "chapters/01_bayes_filters"
+    driver.get(f"{server}/{page}.html")
+    assert driver.execute_async_script(_WAIT_MATHJAX) in ("ok", "no-mathjax")
+    clean = overflow_facts(driver)
+    assert not clean["codeHidden"] and not clean["outside"] and not clean["clipped"], clean
+    driver.execute_script("""
+      const art = document.querySelector('article.bd-article');
+      const pre = document.createElement('pre');
+      pre.style.whiteSpace = 'pre'; pre.style.overflowX = 'auto';
+      pre.textContent = 'x = 1  # ' + 'a very long comment '.repeat(40);
+      art.appendChild(pre);
+      const wide = document.createElement('div');
+      wide.style.width = '3000px'; wide.textContent = 'wide';
+      art.appendChild(wide);
+      const holder = document.querySelector('mjx-container[display="true"]').parentElement;
+      holder.style.overflowX = 'hidden'; holder.style.width = '40px';
+      holder.querySelector('mjx-container').style.overflowX = 'hidden';
+    """)
+    dirty = overflow_facts(driver)
+    assert len(dirty["codeHidden"]) == 1, dirty["codeHidden"]
+    assert any(o.startswith("div: wide") for o in dirty["outside"]), dirty["outside"]
+    assert dirty["clipped"], "a clipped equation was not reported"
