@@ -206,7 +206,7 @@ def plot_augmented_averages(result, ax=None):
 
     References
     ----------
-    Thrun, Burgard & Fox (2005), Table 8.3 lines 8-13.
+    Thrun, Burgard & Fox (2005), Table 8.3.
     """
     ax = _ax(ax)
     t = result.t - result.t[0]
