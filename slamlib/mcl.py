@@ -10,10 +10,25 @@ A particle is a pose hypothesis ``[x, y, theta]``; a set of ``M`` particles is a
 3. resamples (low-variance resampling, Table 4.4) when the effective sample
    size drops below ``resample_threshold * M``.
 
-:func:`augmented_mcl_step` adds random particles when the short-term average
-likelihood falls below the long-term one (Table 8.3), which lets the filter
-recover from a kidnapping; :func:`kld_mcl_step` chooses the number of particles
-at every step from the number of histogram bins they occupy (Table 8.4).
+:func:`augmented_mcl_step` (the default of :func:`run_mcl`) also lets the robot
+be somewhere else than the belief says. Its prior is the mixture
+``(1 - p) bel + p U`` of the belief and a uniform pose over the free space, with
+``p = max(p_min, 1 - w_fast / w_slow)`` (Table 8.3's rule, with a floor); new
+poses of the uniform component are drawn from the scan's likelihood (sensor
+resetting, Lenser and Veloso 2000; the dual proposal of Mixture-MCL, Thrun et
+al. 2001) and the component's share of the posterior is computed by Bayes'
+rule, ``p Z_U / (p Z_U + (1 - p) w_avg)``, where ``w_avg`` is how well the
+belief explains the scan and ``Z_U`` how well a uniform pose does. A filter in
+the right place explains the scan far better than a random pose, so almost
+nothing is injected; a filter in the wrong place explains it worse, and the new
+poses, which lie where the scan fits the map, take over. This recovers from a
+kidnapping and from a global localization that settled on a look-alike place.
+:func:`kld_mcl_step` chooses the number of particles at every step from the
+number of histogram bins they occupy (Table 8.4).
+
+The step's estimate is the weighted mean of the heaviest cluster of particles
+(as ROS ``amcl`` reports), not the mean of all particles, which lies between the
+clusters while the belief is multi-modal.
 
 Scans of a log are turned into filter steps by :func:`odometry_steps`: the
 control of a step is the odometry increment since the last *used* scan, and a
@@ -80,13 +95,31 @@ _PROPOSALS = ("sensor", "uniform")
 class AugmentedParams:
     """Parameters of Augmented MCL (Table 8.3) with sensor resetting.
 
+    The prior probability that the robot is somewhere else than the belief says
+    is ``p = max(p_min, 1 - w_fast / w_slow)``; the share of new poses in the
+    posterior is then ``p Z_U / (p Z_U + (1 - p) w_avg)`` (see
+    :func:`augmented_mcl_step`).
+
+    Defaults. ``p_min = 0.01``: one update in a hundred (one per 20 m of travel
+    at 0.2 m per update) the filter allows that it is wrong; its posterior weight
+    is tiny while the belief explains the scans far better than a random pose
+    does. Table 8.3's adaptive term is off (``alpha_slow = alpha_fast = 0``):
+    on the Wean Hall logs the average likelihood of a filter in the right
+    place varies from scan to scan by a factor of about 1.7 (standard deviation
+    0.55 of its log), so ``1 - w_fast / w_slow`` averages 0.11 during normal
+    tracking for any of the usual decay rates, which keeps look-alike places
+    populated and made the estimate hop between them. Choose
+    ``alpha_slow < alpha_fast`` to switch it on (the Wean Hall chapter does so
+    for a kidnapping).
+
     Attributes
     ----------
     alpha_slow, alpha_fast : float
         Decay rates of the long- and short-term averages of the measurement
-        likelihood, ``0 <= alpha_slow < alpha_fast <= 1``: ``w_fast`` follows
+        likelihood, ``0 <= alpha_slow <= alpha_fast <= 1``: ``w_fast`` follows
         the last ``~1/alpha_fast`` updates, ``w_slow`` the last
-        ``~1/alpha_slow``. Particles are injected while ``w_fast < w_slow``.
+        ``~1/alpha_slow``. Equal rates keep ``w_fast = w_slow`` (no adaptive
+        injection).
     proposal : {"sensor", "uniform"}
         Where injected particles come from. ``"uniform"`` draws them uniformly
         over the free space (Table 8.3). ``"sensor"`` draws them from
@@ -171,10 +204,12 @@ class MCLParams:
     ----------
     n_particles : int
         Number of particles ``M`` (the initial number for KLD-sampling). The
-        default suits global localization on a floor of a building: on the
-        CMU Wean Hall log (437 m^2 of free space) a uniform start settled on
-        the right track in 14 of 20 seeds with 20 000 particles and in 7 of
-        20 with 10 000; position tracking needs far fewer.
+        default suits global localization on a floor of a building (the CMU
+        Wean Hall map has 437 m^2 of free space) with :func:`augmented_mcl_step`,
+        whose sensor-based new particles find the robot again if the start
+        missed it; plain MCL from a uniform start found the robot in 7 of 20
+        seeds with 10 000 particles and 14 of 20 with 20 000 on Wean Hall log 1
+        (``benchmarks/mcl_success.py``). Position tracking needs far fewer.
     alpha : tuple of 4 float
         Odometry motion noise ``[a1, a2, a3, a4]`` in the variance form of
         Table 5.6 (``rot1`` noise variance ``a1 rot1^2 + a2 trans^2``, ...).
@@ -218,7 +253,8 @@ class MCLParams:
         Particles outside free space (in walls, unknown cells or cells whose
         occupancy exceeds `free_threshold`) get zero weight.
     augmented : AugmentedParams
-        Used by :func:`augmented_mcl_step`.
+        Used by :func:`augmented_mcl_step` (the default variant of
+        :func:`run_mcl`).
     kld : KLDParams
         Used by :func:`kld_mcl_step`.
     """
@@ -839,18 +875,34 @@ def augmented_mcl_step(state, u, ranges, angles, model, *, rng):
     model : MCLModel
         Map, likelihood field and parameters (``params.augmented``).
     rng : numpy.random.Generator
-        Source of randomness: motion samples; then, if the step resamples or
-        injects, the number of new particles (``binomial(M, p_inject)``), the
-        low-variance draw, which of the resampled particles are replaced
-        (``permutation``), and the new poses (:func:`~slamlib.maps.sample_free_poses`,
-        followed for the sensor proposal by ``choice`` among the candidates).
+        Source of randomness, in order: the motion samples; if ``p > 0``, the
+        candidate poses (:func:`~slamlib.maps.sample_free_poses`, sensor
+        proposal only) and the number of new particles (``binomial``); the
+        low-variance draw if the ESS calls for resampling; if there are new
+        particles, the places they take (``permutation``) and the new poses
+        (``choice`` among the candidates, or ``sample_free_poses``).
 
     Returns
     -------
     state : MCLState
-        Particles at ``t`` with updated ``log_w_slow``, ``log_w_fast``.
+        Particles at ``t`` with updated ``log_w_slow``, ``log_w_fast``. New
+        particles take the places of randomly chosen ones and share the weight
+        ``frac = p Z_U / (p Z_U + (1 - p) w_avg)`` (``p`` for the uniform
+        proposal); the others keep their relative weights, scaled to
+        ``1 - frac``, so a step that injects does not resample unless the ESS
+        falls below ``resample_threshold * M``.
     info : MCLStepInfo
         ESS, count, whether it resampled, number of new particles, ``log_w_avg``.
+
+    Notes
+    -----
+    Earlier versions averaged the per-beam geometric mean ``p(z | x)^(1/K)``
+    instead of the likelihood. That is not a change of scale: the ratio
+    ``w_fast / w_slow`` of per-beam averages is roughly the ``K``-th root of
+    Table 8.3's ratio of scan likelihoods, so a drop of the fit that Table 8.3
+    would answer with ``p_inject = 0.9`` gave ``1 - 0.1^(1/18) = 0.12`` with 18
+    beams. Here ``w_avg`` is the average of the tempered likelihood
+    ``p(z | x)^tau`` the filter weights with, kept in log space.
 
     References
     ----------
@@ -1203,9 +1255,10 @@ def run_mcl(model, odom_poses, ranges, angles, *, rng, variant="augmented", init
         Beam angles in the laser frame [rad].
     rng : numpy.random.Generator
         Source of randomness.
-    variant : {"mcl", "augmented", "kld"}
-        :func:`mcl_step` (Table 8.2), :func:`augmented_mcl_step` (Table 8.3) or
-        :func:`kld_mcl_step` (Table 8.4).
+    variant : {"augmented", "mcl", "kld"}
+        :func:`augmented_mcl_step` (Table 8.3 with sensor resetting, the
+        default), :func:`mcl_step` (Table 8.2) or :func:`kld_mcl_step`
+        (Table 8.4).
     init : MCLState or ndarray, shape (M, 3), optional
         Initial particles; uniform over free space (global localization) if
         omitted.

@@ -9,11 +9,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.special import logsumexp
 from scipy.stats import chi2
 
 import slamlib as sl
 from slamlib import mcl
 
+CMU_START = (40.0, 41.5, -1.6755)  # slamlib.datasets.cmu.CMU_LOG_START
 ANGLES = np.linspace(-np.pi / 2, np.pi / 2, 180, endpoint=False)
 Z_MAX = 8.0
 
@@ -87,7 +89,7 @@ def test_simulated_route_is_in_free_space(sim):
 def test_mcl_converges_from_a_uniform_cloud(sim):
     grid, truth, odom, z = sim
     model = mcl.prepare_mcl(grid, mcl.MCLParams(**SIM_PARAMS))
-    res = mcl.run_mcl(model, odom, z, ANGLES, rng=np.random.default_rng(0), snapshots=2)
+    res = mcl.run_mcl(model, odom, z, ANGLES, rng=np.random.default_rng(0), snapshots=2, variant="mcl")
     err = _error(res, truth)
     assert res.spread[0] > 2.0  # starts spread over the whole map
     assert err[-1] < 0.3, err
@@ -333,6 +335,19 @@ def test_bad_inputs_raise(sim):
         mcl.kld_sample_size(-1, 0.05, 0.01)
     with pytest.raises(ValueError, match="epsilon"):
         mcl.kld_sample_size(5, 0.0, 0.01)
+    with pytest.raises(TypeError, match="bool"):
+        mcl.kld_sample_size(True, 0.05, 0.01)
+    with pytest.raises(TypeError, match="bool"):
+        mcl.kld_sample_size(np.array([True, False]), 0.05, 0.01)
+    with pytest.raises(ValueError, match="integers"):
+        mcl.kld_sample_size(2.5, 0.05, 0.01)
+    with pytest.raises(ValueError, match="integers"):
+        mcl.kld_sample_size([2, 3.5], 0.05, 0.01)
+    assert mcl.kld_sample_size(np.float64(10.0), 0.05, 0.01) == mcl.kld_sample_size(10, 0.05, 0.01)
+    with pytest.raises(ValueError, match="proposal"):
+        mcl.AugmentedParams(proposal="gaussian")
+    with pytest.raises(ValueError, match="p_min"):
+        mcl.AugmentedParams(p_min=1.0)
     with pytest.raises(ValueError, match="log_weights"):
         mcl.particle_summary(np.zeros((2, 3)), [np.nan, 0.0])
 
@@ -353,7 +368,8 @@ def wean():
     model = mcl.prepare_mcl(grid, params)
     rng = np.random.default_rng(99)
     init = np.asarray(cmu.CMU_LOG_START) + rng.normal(size=(2000, 3)) * [0.1, 0.1, np.deg2rad(2.0)]
-    ref = mcl.run_mcl(model, log.laser_pose, log.ranges, log.angles, rng=rng, init=init, times=log.laser_t)
+    ref = mcl.run_mcl(model, log.laser_pose, log.ranges, log.angles, rng=rng, init=init, times=log.laser_t,
+                      variant="mcl")
     return grid, log, params, model, ref
 
 
@@ -376,12 +392,12 @@ def test_cmu_reference_track_matches_the_map(wean):
 
 @pytest.mark.slow
 def test_cmu_log_global_localization_converges_in_most_runs(wean):
-    """From a uniform cloud, with the default parameters, at least half of the runs find the robot.
+    """From a uniform cloud, with the library defaults, the runs find the robot.
 
     A run that converges on a look-alike corridor also fits the map, so runs are judged by the
-    reference track: right when the mean stays within 0.5 m of it over the second half of the
-    log. (Here 4 of the 6 seeds do; with 10 000 particles 2 of them, and about a third of the
-    seeds in general.)
+    reference track: right when the estimate's median distance from it over the second half of the
+    log is under 0.5 m (the criterion of ``benchmarks/mcl_success.py``, which runs 20 seeds per log).
+    Plain MCL with 10 000 particles finds the robot in about a third of the seeds.
     """
     grid, log, params, model, ref = wean
     right = []
@@ -390,17 +406,34 @@ def test_cmu_log_global_localization_converges_in_most_runs(wean):
                           times=log.laser_t)
         np.testing.assert_array_equal(res.scan_index, ref.scan_index)
         assert res.spread[0] > 5.0  # global: the cloud starts over the whole building
-        err = np.hypot(*(res.mean[:, :2] - ref.mean[:, :2]).T)
+        err = np.hypot(*(res.estimate[:, :2] - ref.mean[:, :2]).T)
         half = np.arange(len(res) // 2, len(res))
-        if not np.all(err[half] < 0.5):
+        if not np.median(err[half]) < 0.5:
             continue
         right.append(seed)
-        # a run in the right place has converged early, sits in free space and fits the map
-        spread_high = np.flatnonzero(res.spread >= 0.5)
-        conv = spread_high.max() + 1 if spread_high.size else 0
-        assert res.t[conv] - res.t[0] < 60.0, (seed, res.t[conv] - res.t[0])
-        after = np.arange(conv, len(res))
-        assert grid.is_free(res.mean[after, :2], params.free_threshold).all()
-        median, near = _fit_to_map(model, log, res, half)
-        assert median.max() <= 0.15 and near.mean() > 0.75, (seed, median.max(), near.mean())
-    assert len(right) >= 3, f"only seeds {right} of 0-5 localized the robot"
+        # a run in the right place sits in free space and fits the map at the end of the log
+        assert grid.is_free(res.estimate[half, :2], params.free_threshold).mean() > 0.95
+        median, near = _fit_to_map(model, log, res, half[-20:])
+        assert np.median(median) <= 0.15 and near.mean() > 0.75, (seed, np.median(median), near.mean())
+    assert len(right) >= 5, f"only seeds {right} of 0-5 localized the robot"
+
+
+@pytest.mark.slow
+def test_cmu_run_settled_in_the_wrong_corridor_recovers(wean):
+    """A belief settled 5 m west along the corridor (where failed plain-MCL runs end up) is abandoned.
+
+    Plain MCL keeps it to the end of the log; the default (sensor-resetting) filter moves to the
+    reference track within the first half of the log and stays there.
+    """
+    grid, log, params, model, ref = wean
+    rng = np.random.default_rng(7)
+    wrong = np.asarray(CMU_START) + [-5.2, 0.0, 0.0]
+    init = wrong + rng.normal(size=(params.n_particles, 3)) * [0.1, 0.1, np.deg2rad(2.0)]
+    err = {}
+    for variant in ("mcl", "augmented"):
+        res = mcl.run_mcl(model, log.laser_pose, log.ranges, log.angles, rng=np.random.default_rng(8), init=init,
+                          times=log.laser_t, variant=variant)
+        err[variant] = np.hypot(*(res.estimate[:, :2] - ref.mean[:, :2]).T)
+    half = np.arange(len(ref) // 2, len(ref))
+    assert err["mcl"][0] > 4.0 and np.median(err["mcl"][half]) > 2.0
+    assert np.median(err["augmented"][half]) < 0.5 and np.mean(err["augmented"][half] < 0.5) > 0.9
