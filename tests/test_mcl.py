@@ -437,3 +437,85 @@ def test_cmu_run_settled_in_the_wrong_corridor_recovers(wean):
     half = np.arange(len(ref) // 2, len(ref))
     assert err["mcl"][0] > 4.0 and np.median(err["mcl"][half]) > 2.0
     assert np.median(err["augmented"][half]) < 0.5 and np.mean(err["augmented"][half] < 0.5) > 0.9
+
+
+# --------------------------------------------------------------------------- recovery: the injected component
+def test_log_space_averages_follow_table_8_3():
+    """w_slow, w_fast kept in log space equal Table 8.3's recursion on the plain numbers."""
+    aug = mcl.AugmentedParams(alpha_slow=0.05, alpha_fast=0.5)
+    w_avg = np.exp(np.random.default_rng(0).normal(-3.0, 1.0, 30))
+    state = mcl.MCLState(np.zeros((1, 3)), np.zeros(1))
+    slow = fast = None
+    for w in w_avg:
+        ls, lf = mcl._averages(state, np.log(w), aug)
+        slow = w if slow is None else slow + 0.05 * (w - slow)
+        fast = w if fast is None else fast + 0.5 * (w - fast)
+        np.testing.assert_allclose([np.exp(ls), np.exp(lf)], [slow, fast], rtol=1e-12)
+        state = mcl.MCLState(np.zeros((1, 3)), np.zeros(1), log_w_slow=ls, log_w_fast=lf)
+    # no underflow where the plain numbers would be exp(-800) = 0
+    ls, lf = mcl._averages(mcl.MCLState(np.zeros((1, 3)), np.zeros(1), -800.0, -800.0), -810.0, aug)
+    assert np.isfinite(ls) and lf < ls < -800.0
+    assert mcl._injection_probability(ls, lf) == pytest.approx(1 - np.exp(lf - ls))
+
+
+def test_injected_fraction_is_bayes_rule_for_the_mixture_prior():
+    # p Z_U / (p Z_U + (1 - p) w_avg)
+    for p, w_avg, z_u in ((0.01, 1e-2, 1e-3), (0.3, 1e-5, 1e-3), (0.5, 1.0, 1.0)):
+        expected = p * z_u / (p * z_u + (1 - p) * w_avg)
+        assert mcl._injected_fraction(p, np.log(w_avg), np.log(z_u)) == pytest.approx(expected, rel=1e-12)
+    assert mcl._injected_fraction(0.0, 0.0, 0.0) == 0.0
+    assert mcl._injected_fraction(0.1, -np.inf, 0.0) == 1.0  # no particle explains the scan
+
+
+def test_sensor_proposal_puts_new_particles_where_the_scan_fits(sim):
+    """Z_U is the mean tempered likelihood over the free space, and the draws favour the true pose."""
+    grid, truth, _, z = sim
+    model = mcl.prepare_mcl(grid, mcl.MCLParams(**{**SIM_PARAMS, "augmented": mcl.AugmentedParams(candidates=20_000)}))
+    zz, aa = mcl._subsample(z[20], ANGLES, model.params)
+    cand, log_q, log_z = mcl._sensor_component(model, zz, aa, np.random.default_rng(3))
+    tll = model.params.likelihood_exponent * mcl.scan_log_likelihood(model, cand, z[20], ANGLES)
+    assert log_z == pytest.approx(np.log(np.mean(np.exp(tll))), rel=1e-12)
+    np.testing.assert_allclose(np.exp(log_q).sum(), 1.0)
+    near = np.hypot(*(cand[:, :2] - truth[20, :2]).T) < 0.5
+    near &= np.abs(sl.angle_diff(cand[:, 2], truth[20, 2])) < 0.3
+    share_uniform = near.mean()
+    share_drawn = np.exp(log_q)[near].sum()
+    assert share_drawn > 20 * share_uniform, (share_drawn, share_uniform)
+    # the true pose explains the scan far better than a random pose: Z_U << p(z | x_true)^tau
+    at_truth = model.params.likelihood_exponent * mcl.scan_log_likelihood(model, truth[20][None], z[20], ANGLES)[0]
+    assert at_truth > log_z + 3.0
+
+
+def test_augmented_step_keeps_weights_when_it_injects_without_resampling(sim):
+    grid, truth, _, z = sim
+    aug = mcl.AugmentedParams(p_min=0.5, candidates=2000)
+    model = mcl.prepare_mcl(grid, mcl.MCLParams(**{**SIM_PARAMS, "resample_threshold": 0.0, "augmented": aug}))
+    rng = np.random.default_rng(4)
+    wrong = mcl.mcl_initialize(model, rng=rng, poses=np.tile([10.5, 6.5, 0.0], (500, 1)) + rng.normal(0, 0.05, (500, 3)))
+    new, info = mcl.augmented_mcl_step(wrong, np.zeros(3), z[20], ANGLES, model, rng=rng)
+    assert not info.resampled and info.n_injected > 0
+    np.testing.assert_allclose(np.exp(logsumexp(new.log_weights)), 1.0)
+    moved = np.any(new.poses != wrong.poses, axis=1)
+    assert np.count_nonzero(moved) == info.n_injected
+    # the belief is wrong: the new particles, near where the scan fits, take most of the weight
+    assert new.weights[moved].sum() > 0.5
+    # a belief at the true pose keeps nearly all of it
+    right = mcl.mcl_initialize(model, rng=rng, poses=truth[20] + rng.normal(0, 0.05, (500, 3)))
+    new, info = mcl.augmented_mcl_step(right, np.zeros(3), z[20], ANGLES, model, rng=rng)
+    assert info.n_injected < 0.05 * 500
+
+
+def test_estimate_is_the_heaviest_cluster():
+    rng = np.random.default_rng(5)
+    a = np.array([2.0, 3.0, 0.5]) + rng.normal(0, 0.1, (600, 3))
+    b = np.array([14.0, 3.0, -2.0]) + rng.normal(0, 0.1, (400, 3))
+    poses = np.vstack([a, b])
+    lw = np.full(1000, -np.log(1000))
+    mean, _, _, est = mcl._summary(poses, lw)
+    assert abs(mean[0] - 6.8) < 0.2  # the mean lies between the clusters
+    np.testing.assert_allclose(est[:2], a[:, :2].mean(axis=0), atol=1e-9)
+    assert abs(sl.angle_diff(est[2], 0.5)) < 0.05
+    # weight, not the number of particles, decides
+    lw2 = np.log(np.r_[np.full(600, 0.2 / 600), np.full(400, 0.8 / 400)])
+    est2 = mcl._summary(poses, lw2)[3]
+    np.testing.assert_allclose(est2[:2], b[:, :2].mean(axis=0), atol=1e-9)
