@@ -420,23 +420,31 @@ def test_cmu_log_global_localization_converges_in_most_runs(wean):
 
 @pytest.mark.slow
 def test_cmu_run_settled_in_the_wrong_corridor_recovers(wean):
-    """A belief settled 5 m west along the corridor (where failed plain-MCL runs end up) is abandoned.
+    """A global run of plain MCL that has settled far from the robot is abandoned by the default filter.
 
-    Plain MCL keeps it to the end of the log; the default (sensor-resetting) filter moves to the
-    reference track within the first half of the log and stays there.
+    Seed 1 of plain MCL (Table 8.2) from a uniform cloud sits 18.8 m from the reference after 40
+    updates with a spread of 0.24 m: sure and wrong. Continued from that particle set, plain MCL stays
+    wrong; the default filter (sensor resetting) leaves the wrong place and ends near the reference.
     """
     grid, log, params, model, ref = wean
-    rng = np.random.default_rng(7)
-    wrong = np.asarray(CMU_START) + [-5.2, 0.0, 0.0]
-    init = wrong + rng.normal(size=(params.n_particles, 3)) * [0.1, 0.1, np.deg2rad(2.0)]
+    s0 = 39
+    lost = mcl.run_mcl(model, log.laser_pose, log.ranges, log.angles, rng=np.random.default_rng(1), times=log.laser_t,
+                       variant="mcl", max_steps=s0 + 1, snapshots=[s0])
+    err0 = np.hypot(*(lost.estimate[s0, :2] - ref.mean[s0, :2]))
+    assert err0 > 10.0 and lost.spread[s0] < 0.5, (err0, lost.spread[s0])
+    start = ref.scan_index[s0]
     err = {}
     for variant in ("mcl", "augmented"):
-        res = mcl.run_mcl(model, log.laser_pose, log.ranges, log.angles, rng=np.random.default_rng(8), init=init,
-                          times=log.laser_t, variant=variant)
-        err[variant] = np.hypot(*(res.estimate[:, :2] - ref.mean[:, :2]).T)
-    half = np.arange(len(ref) // 2, len(ref))
-    assert err["mcl"][0] > 4.0 and np.median(err["mcl"][half]) > 2.0
-    assert np.median(err["augmented"][half]) < 0.5 and np.mean(err["augmented"][half] < 0.5) > 0.9
+        res = mcl.run_mcl(model, log.laser_pose[start:], log.ranges[start:], log.angles, rng=np.random.default_rng(2),
+                          init=lost.snapshots[0], times=log.laser_t[start:], variant=variant)
+        j = np.searchsorted(ref.scan_index, res.scan_index + start)
+        np.testing.assert_array_equal(ref.scan_index[j], res.scan_index + start)
+        err[variant] = np.hypot(*(res.estimate[:, :2] - ref.mean[j, :2]).T)
+    last = slice(-30, None)  # the last 30 updates (about 20 s)
+    assert np.median(err["mcl"][last]) > 2.0 and err["mcl"][-1] > 2.0, err["mcl"][last]
+    # the default leaves the wrong place; on this short log it is back near the track at the end
+    # (1.0 m here, not yet within 0.5 m: on the 240 s log 2 every one of 20 global runs ends within 0.5 m)
+    assert err["augmented"][-1] < 1.5 and err["augmented"][-1] < 0.1 * err0, err["augmented"][last]
 
 
 # --------------------------------------------------------------------------- recovery: the injected component
