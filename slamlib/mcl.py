@@ -10,10 +10,25 @@ A particle is a pose hypothesis ``[x, y, theta]``; a set of ``M`` particles is a
 3. resamples (low-variance resampling, Table 4.4) when the effective sample
    size drops below ``resample_threshold * M``.
 
-:func:`augmented_mcl_step` adds random particles when the short-term average
-likelihood falls below the long-term one (Table 8.3), which lets the filter
-recover from a kidnapping; :func:`kld_mcl_step` chooses the number of particles
-at every step from the number of histogram bins they occupy (Table 8.4).
+:func:`augmented_mcl_step` (the default of :func:`run_mcl`) also lets the robot
+be somewhere else than the belief says. Its prior is the mixture
+``(1 - p) bel + p U`` of the belief and a uniform pose over the free space, with
+``p = max(p_min, 1 - w_fast / w_slow)`` (Table 8.3's rule, with a floor); new
+poses of the uniform component are drawn from the scan's likelihood (sensor
+resetting, Lenser and Veloso 2000; the dual proposal of Mixture-MCL, Thrun et
+al. 2001) and the component's share of the posterior is computed by Bayes'
+rule, ``p Z_U / (p Z_U + (1 - p) w_avg)``, where ``w_avg`` is how well the
+belief explains the scan and ``Z_U`` how well a uniform pose does. A filter in
+the right place explains the scan far better than a random pose, so almost
+nothing is injected; a filter in the wrong place explains it worse, and the new
+poses, which lie where the scan fits the map, take over. This recovers from a
+kidnapping and from a global localization that settled on a look-alike place.
+:func:`kld_mcl_step` chooses the number of particles at every step from the
+number of histogram bins they occupy (Table 8.4).
+
+The step's estimate is the weighted mean of the heaviest cluster of particles
+(as ROS ``amcl`` reports), not the mean of all particles, which lies between the
+clusters while the belief is multi-modal.
 
 Scans of a log are turned into filter steps by :func:`odometry_steps`: the
 control of a step is the odometry increment since the last *used* scan, and a
@@ -72,33 +87,72 @@ __all__ = [
 
 _MODELS = ("likelihood_field", "beam")
 _VARIANTS = ("mcl", "augmented", "kld")
+_PROPOSALS = ("sensor", "uniform")
 
 
 # --------------------------------------------------------------------------- parameters
 @dataclass(frozen=True)
 class AugmentedParams:
-    """Parameters of Augmented MCL (Table 8.3).
+    """Parameters of Augmented MCL (Table 8.3) with sensor resetting.
+
+    The prior probability that the robot is somewhere else than the belief says
+    is ``p = max(p_min, 1 - w_fast / w_slow)``; the share of new poses in the
+    posterior is then ``p Z_U / (p Z_U + (1 - p) w_avg)`` (see
+    :func:`augmented_mcl_step`).
+
+    Defaults. ``p_min = 0.01``: one update in a hundred (one per 20 m of travel
+    at 0.2 m per update) the filter allows that it is wrong; its posterior weight
+    is tiny while the belief explains the scans far better than a random pose
+    does. Table 8.3's adaptive term is off (``alpha_slow = alpha_fast = 0``):
+    on the Wean Hall logs the average likelihood of a filter in the right
+    place varies from scan to scan by a factor of about 1.7 (standard deviation
+    0.55 of its log), so ``1 - w_fast / w_slow`` averages 0.11 during normal
+    tracking for any of the usual decay rates, which keeps look-alike places
+    populated and made the estimate hop between them. Choose
+    ``alpha_slow < alpha_fast`` to switch it on (the Wean Hall chapter does so
+    for a kidnapping).
 
     Attributes
     ----------
     alpha_slow, alpha_fast : float
         Decay rates of the long- and short-term averages of the measurement
-        likelihood, ``0 <= alpha_slow << alpha_fast <= 1``. The defaults
-        react to a kidnapping within a few updates. On a real log they also
-        inject particles whenever a few scans in a row fit the map less well
-        (clutter, people), which can cost a correct track; slower averages
-        such as 0.01 and 0.2 (used in the book's Wean Hall chapter) recover
-        more slowly but inject less during normal tracking.
+        likelihood, ``0 <= alpha_slow <= alpha_fast <= 1``: ``w_fast`` follows
+        the last ``~1/alpha_fast`` updates, ``w_slow`` the last
+        ``~1/alpha_slow``. Equal rates keep ``w_fast = w_slow`` (no adaptive
+        injection).
+    proposal : {"sensor", "uniform"}
+        Where injected particles come from. ``"uniform"`` draws them uniformly
+        over the free space (Table 8.3). ``"sensor"`` draws them from
+        the current scan's likelihood: ``candidates`` uniform poses are weighted
+        by the (tempered) scan likelihood and the injected particles are drawn
+        from them in proportion to the weights, so they land where the scan
+        fits the map (sensor resetting, Lenser and Veloso 2000; the sensor-based
+        proposal of Mixture-MCL, Thrun et al. 2001).
+    candidates : int
+        Number of uniform poses weighted by the scan for the ``"sensor"``
+        proposal (ignored for ``"uniform"``).
+    p_min : float
+        Smallest prior probability, per update, that the robot is somewhere
+        else than the belief says: ``p = max(p_min, 1 - w_fast / w_slow)``.
     """
 
-    alpha_slow: float = 0.05
-    alpha_fast: float = 0.5
+    alpha_slow: float = 0.0
+    alpha_fast: float = 0.0
+    proposal: str = "sensor"
+    candidates: int = 10_000
+    p_min: float = 0.01
 
     def __post_init__(self):
         a_s = as_scalar(self.alpha_slow, "alpha_slow", nonnegative=True)
         a_f = as_scalar(self.alpha_fast, "alpha_fast", nonnegative=True)
-        if not (a_s < a_f <= 1.0):
-            raise ValueError(f"alpha_slow and alpha_fast must satisfy 0 <= alpha_slow < alpha_fast <= 1, got {a_s}, {a_f}")
+        if not (a_s <= a_f <= 1.0):
+            raise ValueError(f"alpha_slow and alpha_fast must satisfy 0 <= alpha_slow <= alpha_fast <= 1, got {a_s}, {a_f}")
+        pm = as_scalar(self.p_min, "p_min", nonnegative=True)
+        if pm >= 1.0:
+            raise ValueError(f"p_min must be in [0, 1), got {pm}")
+        if self.proposal not in _PROPOSALS:
+            raise ValueError(f"proposal must be one of {_PROPOSALS}, got {self.proposal!r}")
+        as_index(self.candidates, "candidates", lower=1)
 
 
 @dataclass(frozen=True)
@@ -150,10 +204,12 @@ class MCLParams:
     ----------
     n_particles : int
         Number of particles ``M`` (the initial number for KLD-sampling). The
-        default suits global localization on a floor of a building: on the
-        CMU Wean Hall log (437 m^2 of free space) a uniform start settled on
-        the right track in 14 of 20 seeds with 20 000 particles and in 7 of
-        20 with 10 000; position tracking needs far fewer.
+        default suits global localization on a floor of a building (the CMU
+        Wean Hall map has 437 m^2 of free space) with :func:`augmented_mcl_step`,
+        whose sensor-based new particles find the robot again if the start
+        missed it; plain MCL from a uniform start found the robot in 7 of 20
+        seeds with 10 000 particles and 14 of 20 with 20 000 on Wean Hall log 1
+        (``benchmarks/mcl_success.py``). Position tracking needs far fewer.
     alpha : tuple of 4 float
         Odometry motion noise ``[a1, a2, a3, a4]`` in the variance form of
         Table 5.6 (``rot1`` noise variance ``a1 rot1^2 + a2 trans^2``, ...).
@@ -197,12 +253,13 @@ class MCLParams:
         Particles outside free space (in walls, unknown cells or cells whose
         occupancy exceeds `free_threshold`) get zero weight.
     augmented : AugmentedParams
-        Used by :func:`augmented_mcl_step`.
+        Used by :func:`augmented_mcl_step` (the default variant of
+        :func:`run_mcl`).
     kld : KLDParams
         Used by :func:`kld_mcl_step`.
     """
 
-    n_particles: int = 20_000
+    n_particles: int = 10_000
     alpha: tuple[float, float, float, float] = (0.05, 0.005, 0.05, 0.005)
     model: str = "likelihood_field"
     beam_step: int = 10
@@ -282,21 +339,31 @@ class MCLState:
         Particles ``[x, y, theta]``.
     log_weights : ndarray, shape (M,)
         Normalised log-weights (``logsumexp(log_weights) == 0``).
-    w_slow, w_fast : float
-        Long- and short-term averages of the per-beam measurement likelihood
-        (Augmented MCL, Table 8.3); 0 until the first update, which sets both
-        to its average likelihood.
+    log_w_slow, log_w_fast : float
+        Logarithms of the long- and short-term averages of the measurement
+        likelihood (Augmented MCL, Table 8.3); ``-inf`` until the first update,
+        which sets both to its average likelihood.
     """
 
     poses: np.ndarray
     log_weights: np.ndarray
-    w_slow: float = 0.0
-    w_fast: float = 0.0
+    log_w_slow: float = -np.inf
+    log_w_fast: float = -np.inf
 
     @property
     def weights(self):
         """Normalised weights, shape (M,)."""
         return np.exp(self.log_weights)
+
+    @property
+    def w_slow(self):
+        """Long-term average likelihood ``exp(log_w_slow)``."""
+        return float(np.exp(self.log_w_slow))
+
+    @property
+    def w_fast(self):
+        """Short-term average likelihood ``exp(log_w_fast)``."""
+        return float(np.exp(self.log_w_fast))
 
     def __len__(self):
         return self.poses.shape[0]
@@ -315,8 +382,11 @@ class MCLStepInfo(NamedTuple):
         Whether the step resampled.
     n_injected : int
         Random particles added (Augmented MCL).
-    w_avg : float
-        Weighted average of the per-beam (geometric-mean) likelihood.
+    log_w_avg : float
+        Log of the average measurement likelihood under the predicted belief,
+        ``log sum_m w_{t-1}^[m] p(z_t | x_t^[m], m)^tau`` (Table 8.3 with
+        the filter's tempered likelihood); ``-inf`` if no particle is in free
+        space.
     mean : ndarray, shape (3,)
         Weighted mean pose of the particles after the measurement update,
         before resampling and injection (the step's estimate).
@@ -324,16 +394,21 @@ class MCLStepInfo(NamedTuple):
         Weighted RMS distance of those particles from `mean` [m].
     heading_spread : float
         Circular standard deviation of their headings [rad].
+    estimate : ndarray, shape (3,)
+        Weighted mean of the heaviest cluster of those particles (see
+        :func:`particle_estimate`): the pose estimate, which stays in one place
+        when the particles form several clusters.
     """
 
     ess: float
     n_particles: int
     resampled: bool
     n_injected: int
-    w_avg: float
+    log_w_avg: float
     mean: np.ndarray
     spread: float
     heading_spread: float
+    estimate: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -348,6 +423,9 @@ class MCLResult:
         Time stamp of every step [s] (scan index if no times were given).
     mean : ndarray, shape (S, 3)
         Weighted mean pose (circular mean heading) after the update.
+    estimate : ndarray, shape (S, 3)
+        Weighted mean of the heaviest cluster after the update (the pose
+        estimate, :func:`particle_estimate`).
     spread : ndarray, shape (S,)
         Weighted RMS distance of the particles from the mean position [m].
     heading_spread : ndarray, shape (S,)
@@ -358,10 +436,10 @@ class MCLResult:
         Number of particles.
     n_injected : ndarray of int, shape (S,)
         Random particles injected (Augmented MCL).
-    w_avg : ndarray, shape (S,)
-        Average per-beam measurement likelihood of every step.
-    w_slow, w_fast : ndarray, shape (S,)
-        The Augmented MCL averages after every step.
+    log_w_avg : ndarray, shape (S,)
+        Log of the average (tempered) measurement likelihood of every step.
+    log_w_slow, log_w_fast : ndarray, shape (S,)
+        Logs of the Augmented MCL averages after every step.
     snapshot_steps : ndarray of int, shape (N,)
         Steps at which particles were stored.
     snapshots : list of MCLState
@@ -375,14 +453,15 @@ class MCLResult:
     scan_index: np.ndarray
     t: np.ndarray
     mean: np.ndarray
+    estimate: np.ndarray
     spread: np.ndarray
     heading_spread: np.ndarray
     ess: np.ndarray
     n_particles: np.ndarray
     n_injected: np.ndarray
-    w_avg: np.ndarray
-    w_slow: np.ndarray
-    w_fast: np.ndarray
+    log_w_avg: np.ndarray
+    log_w_slow: np.ndarray
+    log_w_fast: np.ndarray
     snapshot_steps: np.ndarray
     snapshots: list
     final: MCLState
@@ -556,12 +635,11 @@ def _subsample(ranges, angles, params):
 
 
 def _scan_loglik(model, poses, z, a):
-    """Summed log-likelihood over beams (M,) and the number of beams it sums."""
+    """Summed log-likelihood over the used beams, shape (M,)."""
     p = model.params
     if p.model == "likelihood_field":
         ll = sensors.likelihood_field_log_likelihood(model.field, poses, z, a, z_max=p.z_max, sigma_hit=p.sigma_hit,
                                              w_hit=p.w_hit, w_rand=p.w_rand, sensor_offset=p.sensor_offset)
-        n_used = int(np.count_nonzero(z < p.z_max))  # Table 6.3 skips max-range readings
     else:
         z_star = sensors.ray_cast(model.grid, poses, a, p.z_max, sensor_offset=p.sensor_offset,
                                 threshold=p.occupied_threshold)
@@ -569,10 +647,9 @@ def _scan_loglik(model, poses, z, a):
                                               lambda_short=p.lambda_short, w_hit=p.w_hit, w_short=p.w_short,
                                               w_max=p.w_max, w_rand=p.w_rand)
         ll = np.sum(ll, axis=-1) if np.ndim(ll) == 2 else ll
-        n_used = z.size
     if p.reject_unknown:
         ll = np.where(model.grid.is_free(poses[:, :2], p.free_threshold), ll, -np.inf)
-    return ll, max(n_used, 1)
+    return ll
 
 
 def scan_log_likelihood(model, poses, ranges, angles):
@@ -607,7 +684,7 @@ def scan_log_likelihood(model, poses, ranges, angles):
     poses = as_array(poses, "poses", (None, 3))
     ranges, angles = _check_scan(ranges, angles)
     z, a = _subsample(ranges, angles, model.params)
-    return _scan_loglik(model, poses, z, a)[0]
+    return _scan_loglik(model, poses, z, a)
 
 
 # --------------------------------------------------------------------------- filter steps
@@ -623,39 +700,83 @@ def _predict_and_weight(state, u, ranges, angles, model, rng):
     # x_t^[m] ~ p(x_t | u_t, x_{t-1}^[m])  (Table 8.2 line 4)
     poses = sample_motion_model_odometry(state.poses, u, p.alpha, rng=rng)
     z, a = _subsample(ranges, angles, p)
-    ll, n_used = _scan_loglik(model, poses, z, a)
-    return poses, ll, n_used
+    return poses, _scan_loglik(model, poses, z, a)
 
 
-def _update(state, poses, ll, n_used, model):
-    """Weights after the measurement, and log of the weighted per-beam average likelihood."""
-    p = model.params
+def _update(state, poses, ll, model):
+    """Weights after the measurement, and log of the average likelihood under the predicted belief."""
+    tll = model.params.likelihood_exponent * ll
     # w_t^[m] = p(z_t | x_t^[m], m)^tau  (Table 8.2 line 5, tempered)
-    log_w = _safe_normalize(state.log_weights + p.likelihood_exponent * ll)
-    # average likelihood, per beam: sum_m w_{t-1}^[m] exp(ll^[m] / K)  (Table 8.3 line 8)
-    finite = np.isfinite(ll)
-    if np.any(finite):
-        log_w_avg = float(logsumexp(state.log_weights[finite] + ll[finite] / n_used))
-    else:
-        log_w_avg = -np.inf
+    log_w = _safe_normalize(state.log_weights + tll)
+    # w_avg = sum_m w_{t-1}^[m] p(z_t | x_t^[m], m)^tau  (Table 8.3, in log space)
+    finite = np.isfinite(tll)
+    log_w_avg = float(logsumexp(state.log_weights[finite] + tll[finite])) if np.any(finite) else -np.inf
     return log_w, log_w_avg
 
 
-def _averages(state, w_avg, aug):
-    if state.w_slow == 0.0 and state.w_fast == 0.0:
+def _averages(state, log_w_avg, aug):
+    """Log of w_slow and w_fast after this update (exponential averages kept in log space)."""
+    if not np.isfinite(log_w_avg):
+        return state.log_w_slow, state.log_w_fast  # nothing measured: keep the averages
+    if not (np.isfinite(state.log_w_slow) and np.isfinite(state.log_w_fast)):
         # first update: start both averages at w_avg (Table 8.3 starts them at 0,
         # which leaves w_slow lagging w_fast, and injection off, for ~1/alpha_slow steps)
-        return w_avg, w_avg
-    # w_slow += alpha_slow (w_avg - w_slow); w_fast += alpha_fast (w_avg - w_fast)  (Table 8.3 lines 10-11)
-    w_slow = state.w_slow + aug.alpha_slow * (w_avg - state.w_slow)
-    w_fast = state.w_fast + aug.alpha_fast * (w_avg - state.w_fast)
-    return w_slow, w_fast
+        return log_w_avg, log_w_avg
+    # w_slow += alpha_slow (w_avg - w_slow); w_fast += alpha_fast (w_avg - w_fast)  (Table 8.3)
+    return _log_mix(state.log_w_slow, log_w_avg, aug.alpha_slow), _log_mix(state.log_w_fast, log_w_avg, aug.alpha_fast)
+
+
+def _log_mix(log_a, log_b, alpha):
+    """log((1 - alpha) a + alpha b) from log a and log b, without underflow."""
+    if alpha <= 0.0:
+        return log_a
+    if alpha >= 1.0:
+        return log_b
+    return float(np.logaddexp(np.log1p(-alpha) + log_a, np.log(alpha) + log_b))
+
+
+def _injection_probability(log_w_slow, log_w_fast):
+    """max(0, 1 - w_fast / w_slow)  (Table 8.3)."""
+    if not (np.isfinite(log_w_slow) and np.isfinite(log_w_fast)):
+        return 0.0
+    return float(max(0.0, -np.expm1(min(log_w_fast - log_w_slow, 0.0))))
 
 
 def _resample_mask(log_w, threshold):
     w = np.exp(log_w)
     ess = float(particle.effective_sample_size(w))
     return w, ess, ess < threshold * w.size
+
+
+def _sensor_component(model, z, a, rng):
+    """Uniform poses over the free space weighted by the scan: the candidates and their log-weights.
+
+    Returns the candidates, their normalised log-weights ``tau log p(z | x, m)`` and
+    ``log Z_U``, the log of the average tempered likelihood over the free space (a
+    Monte Carlo estimate of ``integral p(z | x, m)^tau U(x) dx``).
+    """
+    p = model.params
+    cand = maps.sample_free_poses(model.grid, p.augmented.candidates, rng=rng, threshold=p.free_threshold)
+    tll = p.likelihood_exponent * _scan_loglik(model, cand, z, a)
+    if not np.any(np.isfinite(tll)):
+        return cand, np.full(cand.shape[0], -np.log(cand.shape[0])), -np.inf
+    log_z = float(logsumexp(tll) - np.log(tll.size))
+    return cand, tll - logsumexp(tll), log_z
+
+
+def _injected_fraction(p_inject, log_w_avg, log_z_u):
+    """Posterior mass of the uniform component of the prior (1 - p) bel + p U after weighting by the scan.
+
+    ``p Z_U / (p Z_U + (1 - p) w_avg)``: the belief's particles carry ``(1 - p) w_avg``
+    (``w_avg`` is their weighted average likelihood), the uniform component ``p Z_U``.
+    """
+    if p_inject <= 0.0 or not np.isfinite(log_z_u):
+        return 0.0
+    if not np.isfinite(log_w_avg):
+        return 1.0  # no particle of the belief explains the scan at all
+    log_u = np.log(p_inject) + log_z_u
+    log_b = np.log1p(-p_inject) + log_w_avg if p_inject < 1.0 else -np.inf
+    return float(np.exp(log_u - np.logaddexp(log_u, log_b)))
 
 
 def _check_step_args(state, u, ranges, angles, model, rng):
@@ -706,42 +827,45 @@ def mcl_step(state, u, ranges, angles, model, *, rng):
     Thrun, Burgard & Fox (2005), Table 8.2; low-variance resampling Table 4.4.
     """
     state, u, ranges, angles, model = _check_step_args(state, u, ranges, angles, model, rng)
-    poses, ll, n_used = _predict_and_weight(state, u, ranges, angles, model, rng)
-    log_w, log_w_avg = _update(state, poses, ll, n_used, model)
+    poses, ll = _predict_and_weight(state, u, ranges, angles, model, rng)
+    log_w, log_w_avg = _update(state, poses, ll, model)
     summary = _summary(poses, log_w)
     w, ess, do = _resample_mask(log_w, model.params.resample_threshold)
     if do:
         # draw i with probability proportional to w_t^[i]  (Table 8.2 lines 8-11)
         idx = particle.low_variance_resample(w, rng=rng)
         poses, log_w = poses[idx], np.full(idx.size, -np.log(idx.size))
-    w_avg = float(np.exp(log_w_avg))
-    w_slow, w_fast = _averages(state, w_avg, model.params.augmented)  # tracked, not used
-    new = MCLState(poses=poses, log_weights=log_w, w_slow=w_slow, w_fast=w_fast)
-    return new, MCLStepInfo(ess, poses.shape[0], bool(do), 0, w_avg, *summary)
+    log_slow, log_fast = _averages(state, log_w_avg, model.params.augmented)  # tracked, not used
+    new = MCLState(poses=poses, log_weights=log_w, log_w_slow=log_slow, log_w_fast=log_fast)
+    return new, MCLStepInfo(ess, poses.shape[0], bool(do), 0, log_w_avg, *summary)
 
 
 def augmented_mcl_step(state, u, ranges, angles, model, *, rng):
-    """One step of Augmented MCL: MCL plus random particles after failures (Table 8.3).
+    """One step of Augmented MCL: MCL plus new particles when the scans stop fitting (Table 8.3).
 
     The short- and long-term averages ``w_fast`` and ``w_slow`` follow the
     average measurement likelihood ``w_avg``; when the short-term average falls
-    below the long-term one, each new particle is, with probability
-    ``max(0, 1 - w_fast / w_slow)``, drawn uniformly over free space instead of
-    being resampled.
+    below the long-term one, each particle of the new set is, with probability
+    ``max(0, 1 - w_fast / w_slow)``, a new pose instead of a resampled one.
 
-    The likelihood of a whole scan is a product of ``K`` per-beam densities and
-    underflows (18 beams give ``exp(-100)`` and smaller); its average over
-    particles would be dominated by round-off. ``w_avg`` is therefore the
-    weighted average of the per-beam *geometric-mean* likelihood
-    ``exp(log p(z | x) / K)``, a number of order one whose ratio between
-    two moments still drops when the scans stop matching the map. Only the
-    ratio ``w_fast / w_slow`` matters, so this changes the scale of the test,
-    not its logic.
+    ``w_avg`` is Table 8.3's average of the weights, with the filter's own
+    weights: ``sum_m w_{t-1}^[m] p(z_t | x_t^[m], m)^tau``, the tempered
+    likelihood (``tau = likelihood_exponent``) averaged over the predicted
+    belief (the previous weights enter because the filter does not resample at
+    every step). It is computed, and ``w_slow``, ``w_fast`` are kept, in log
+    space, so a scan likelihood of ``exp(-500)`` neither underflows nor
+    dominates by round-off.
+
+    New poses come from ``params.augmented.proposal``: uniform over the free
+    space (Table 8.3) or, by default, from the current scan's likelihood
+    (sensor resetting, :class:`AugmentedParams`). A uniform pose rarely lands
+    near the true pose of a large map; a pose drawn from the scan lands where
+    the scan fits the map, which includes the true pose.
 
     Parameters
     ----------
     state : MCLState
-        Particles, log-weights and ``w_slow``, ``w_fast`` at ``t - 1``.
+        Particles, log-weights and ``log_w_slow``, ``log_w_fast`` at ``t - 1``.
     u : ndarray, shape (3,)
         Odometry control since the previous step.
     ranges : ndarray, shape (K,)
@@ -749,46 +873,84 @@ def augmented_mcl_step(state, u, ranges, angles, model, *, rng):
     angles : ndarray, shape (K,)
         Beam angles [rad].
     model : MCLModel
-        Map, likelihood field and parameters (``params.augmented`` holds
-        ``alpha_slow``, ``alpha_fast``).
+        Map, likelihood field and parameters (``params.augmented``).
     rng : numpy.random.Generator
-        Source of randomness: motion samples, then (when resampling) one
-        uniform per particle for the injection test, the low-variance draw and
-        the random poses.
+        Source of randomness, in order: the motion samples; if ``p > 0``, the
+        candidate poses (:func:`~slamlib.maps.sample_free_poses`, sensor
+        proposal only) and the number of new particles (``binomial``); the
+        low-variance draw if the ESS calls for resampling; if there are new
+        particles, the places they take (``permutation``) and the new poses
+        (``choice`` among the candidates, or ``sample_free_poses``).
 
     Returns
     -------
     state : MCLState
-        Particles at ``t`` with updated ``w_slow``, ``w_fast``.
+        Particles at ``t`` with updated ``log_w_slow``, ``log_w_fast``. New
+        particles take the places of randomly chosen ones and share the weight
+        ``frac = p Z_U / (p Z_U + (1 - p) w_avg)`` (``p`` for the uniform
+        proposal); the others keep their relative weights, scaled to
+        ``1 - frac``, so a step that injects does not resample unless the ESS
+        falls below ``resample_threshold * M``.
     info : MCLStepInfo
-        ESS, count, whether it resampled, number of random particles, ``w_avg``.
+        ESS, count, whether it resampled, number of new particles, ``log_w_avg``.
+
+    Notes
+    -----
+    Earlier versions averaged the per-beam geometric mean ``p(z | x)^(1/K)``
+    instead of the likelihood. That is not a change of scale: the ratio
+    ``w_fast / w_slow`` of per-beam averages is roughly the ``K``-th root of
+    Table 8.3's ratio of scan likelihoods, so a drop of the fit that Table 8.3
+    would answer with ``p_inject = 0.9`` gave ``1 - 0.1^(1/18) = 0.12`` with 18
+    beams. Here ``w_avg`` is the average of the tempered likelihood
+    ``p(z | x)^tau`` the filter weights with, kept in log space.
 
     References
     ----------
-    Thrun, Burgard & Fox (2005), Table 8.3.
+    Thrun, Burgard & Fox (2005), Table 8.3 (Augmented MCL); Gutmann and Fox
+    (2002) (the two averages); Lenser and Veloso (2000) (sensor resetting).
     """
     state, u, ranges, angles, model = _check_step_args(state, u, ranges, angles, model, rng)
-    aug = model.params.augmented
-    poses, ll, n_used = _predict_and_weight(state, u, ranges, angles, model, rng)
-    log_w, log_w_avg = _update(state, poses, ll, n_used, model)
+    p = model.params
+    aug = p.augmented
+    poses, ll = _predict_and_weight(state, u, ranges, angles, model, rng)
+    log_w, log_w_avg = _update(state, poses, ll, model)
     summary = _summary(poses, log_w)
-    w_avg = float(np.exp(log_w_avg))
-    w_slow, w_fast = _averages(state, w_avg, aug)
-    p_inject = max(0.0, 1.0 - w_fast / w_slow) if w_slow > 0 else 0.0  # (Table 8.3 line 13)
-    w, ess, do = _resample_mask(log_w, model.params.resample_threshold)
-    n_inj = 0
-    if do or p_inject > 0:
-        m = poses.shape[0]
-        inject = rng.uniform(size=m) < p_inject
-        idx = particle.low_variance_resample(w, rng=rng)
-        poses = poses[idx]
-        n_inj = int(np.count_nonzero(inject))
-        if n_inj:
-            poses[inject] = maps.sample_free_poses(model.grid, n_inj, rng=rng, threshold=model.params.free_threshold)  # (Table 8.3 line 14)
+    log_slow, log_fast = _averages(state, log_w_avg, aug)
+    # prior probability of a new pose: max(0, 1 - w_fast / w_slow)  (Table 8.3); 1 if no particle fits at all
+    p_inject = 1.0 if not np.isfinite(log_w_avg) else max(aug.p_min, _injection_probability(log_slow, log_fast))
+    w, ess, do = _resample_mask(log_w, p.resample_threshold)
+    m = poses.shape[0]
+    n_inj, frac = 0, 0.0
+    if p_inject > 0 and aug.proposal == "uniform":
+        n_inj, frac = int(rng.binomial(m, p_inject)), p_inject  # each particle a random pose with probability p_inject
+    elif p_inject > 0:
+        z, a = _subsample(ranges, angles, p)
+        cand, log_q, log_z_u = _sensor_component(model, z, a, rng)
+        frac = _injected_fraction(p_inject, log_w_avg, log_z_u)
+        n_inj = int(rng.binomial(m, frac))
+    if do:
+        # draw i with probability proportional to w_t^[i]  (Table 8.3)
+        poses = poses[particle.low_variance_resample(w, rng=rng)]
         log_w = np.full(m, -np.log(m))
-        do = True
-    new = MCLState(poses=poses, log_weights=log_w, w_slow=w_slow, w_fast=w_fast)
-    return new, MCLStepInfo(ess, poses.shape[0], bool(do), n_inj, w_avg, *summary)
+    if n_inj:
+        # the new poses take the places of n_inj particles chosen at random; the others keep their
+        # relative weights, scaled to the belief's share 1 - frac (no resampling forced while ESS is high)
+        slots = rng.permutation(m)[:n_inj]
+        keep = np.ones(m, dtype=bool)
+        keep[slots] = False
+        poses = poses.copy()
+        if aug.proposal == "uniform":  # add a random pose  (Table 8.3)
+            poses[slots] = maps.sample_free_poses(model.grid, n_inj, rng=rng, threshold=p.free_threshold)
+        else:  # a candidate drawn in proportion to its scan likelihood (sensor resetting)
+            poses[slots] = cand[rng.choice(cand.shape[0], size=n_inj, p=np.exp(log_q))]
+        log_w = log_w.copy()
+        if n_inj < m and frac < 1.0:
+            log_w[keep] = np.log1p(-frac) + log_w[keep] - logsumexp(log_w[keep])
+            log_w[slots] = np.log(frac) - np.log(n_inj)
+        else:
+            log_w = np.full(m, -np.log(m))
+    new = MCLState(poses=poses, log_weights=log_w, log_w_slow=log_slow, log_w_fast=log_fast)
+    return new, MCLStepInfo(ess, m, bool(do), n_inj, log_w_avg, *summary)
 
 
 def kld_sample_size(k, epsilon, delta):
@@ -812,9 +974,13 @@ def kld_sample_size(k, epsilon, delta):
 
     References
     ----------
-    Thrun, Burgard & Fox (2005), Table 8.4 line 17; Fox (2001), Eq. 9.
+    Thrun, Burgard & Fox (2005), Table 8.4 line 16; Fox (2001), Eq. 9.
     """
+    if isinstance(k, (bool, np.bool_)) or np.asarray(k).dtype == bool:
+        raise TypeError("k must be an integer number of bins (or an array of them), got a bool")
     kk = as_array(k, "k", ndim=(0, 1))
+    if np.any(kk != np.floor(kk)):
+        raise ValueError(f"k must hold integers (numbers of occupied bins), got {kk[kk != np.floor(kk)].ravel()[0]}")
     if np.any(kk < 0):
         raise ValueError("k must be non-negative")
     eps = as_scalar(epsilon, "epsilon", positive=True)
@@ -828,7 +994,7 @@ def kld_sample_size(k, epsilon, delta):
 def _kld_bound(k, eps, z):
     km1 = np.maximum(np.asarray(k, dtype=np.float64) - 1.0, 1.0)
     a = 2.0 / (9.0 * km1)
-    # M_chi = (k-1)/(2 eps) (1 - 2/(9(k-1)) + sqrt(2/(9(k-1))) z_{1-delta})^3  (Table 8.4 line 17)
+    # M_chi = (k-1)/(2 eps) (1 - 2/(9(k-1)) + sqrt(2/(9(k-1))) z_{1-delta})^3  (Table 8.4 line 16)
     m = km1 / (2.0 * eps) * (1.0 - a + np.sqrt(a) * z) ** 3
     return np.where(np.asarray(k) > 1, m, 0.0)
 
@@ -892,17 +1058,17 @@ def kld_mcl_step(state, u, ranges, angles, model, *, rng):
     n = 0
     while True:
         c = min(kp.chunk, kp.n_max - n)
-        # draw i with probability w_{t-1}^[i]; x_t ~ p(x_t | u_t, x_{t-1}^[i])  (Table 8.4 lines 6-7)
+        # draw i with probability w_{t-1}^[i]; x_t ~ p(x_t | u_t, x_{t-1}^[i])  (Table 8.4 lines 8-9)
         idx = rng.choice(w_prev.size, size=c, p=w_prev)
         x = sample_motion_model_odometry(state.poses[idx], u, p.alpha, rng=rng)
         keys = _bin_keys(x, size)
-        # does x fall into an empty bin? (Table 8.4 line 14)
+        # does x fall into an empty bin? (Table 8.4 line 12)
         uniq, first = np.unique(keys, return_index=True)
         new_bin = np.zeros(c, dtype=bool)
         new_bin[first[~np.isin(uniq, seen)]] = True
-        k_after = k + np.cumsum(new_bin)  # k after each draw (line 15)
-        count = n + np.arange(1, c + 1)  # M after each draw (line 21)
-        # loop ends when M >= M_chi and M >= M_min  (line 22)
+        k_after = k + np.cumsum(new_bin)  # k = k + 1 for each new bin (line 13)
+        count = n + np.arange(1, c + 1)  # M = M + 1 after each draw (line 18)
+        # the loop runs while M < M_chi or M < M_chi_min  (line 19)
         done = (count >= _kld_bound(k_after, kp.epsilon, z_quant)) & (count >= kp.n_min)
         stop = int(np.argmax(done)) + 1 if np.any(done) else c
         chunks.append(x[:stop])
@@ -913,26 +1079,51 @@ def kld_mcl_step(state, u, ranges, angles, model, *, rng):
             break
     poses = np.concatenate(chunks)
     z, a = _subsample(ranges, angles, p)
-    ll, n_used = _scan_loglik(model, poses, z, a)
-    log_w = _safe_normalize(p.likelihood_exponent * ll)  # w = p(z_t | x_t)  (Table 8.4 line 8)
-    finite = np.isfinite(ll)
-    w_avg = float(np.exp(logsumexp(ll[finite] / n_used) - np.log(ll.size))) if np.any(finite) else 0.0
+    ll = _scan_loglik(model, poses, z, a)
+    tll = p.likelihood_exponent * ll
+    log_w = _safe_normalize(tll)  # w = p(z_t | x_t)^tau  (Table 8.4 line 10, tempered)
+    finite = np.isfinite(tll)
+    # the particles were drawn from the predicted belief: w_avg is their plain average
+    log_w_avg = float(logsumexp(tll[finite]) - np.log(tll.size)) if np.any(finite) else -np.inf
     ess = float(particle.effective_sample_size(np.exp(log_w)))
-    w_slow, w_fast = _averages(state, w_avg, p.augmented)  # tracked, not used
-    new = MCLState(poses=poses, log_weights=log_w, w_slow=w_slow, w_fast=w_fast)
-    return new, MCLStepInfo(ess, poses.shape[0], True, 0, w_avg, *_summary(poses, log_w))
+    log_slow, log_fast = _averages(state, log_w_avg, p.augmented)  # tracked, not used
+    new = MCLState(poses=poses, log_weights=log_w, log_w_slow=log_slow, log_w_fast=log_fast)
+    return new, MCLStepInfo(ess, poses.shape[0], True, 0, log_w_avg, *_summary(poses, log_w))
 
 
 # --------------------------------------------------------------------------- summaries
 def _summary(poses, log_w):
     w = np.exp(log_w)
     xy = w @ poses[:, :2]
-    c, s = w @ np.cos(poses[:, 2]), w @ np.sin(poses[:, 2])
-    spread = float(np.sqrt(max(w @ np.sum((poses[:, :2] - xy) ** 2, axis=1), 0.0)))
+    c, s = np.dot(w, np.cos(poses[:, 2])), np.dot(w, np.sin(poses[:, 2]))
+    spread = float(np.sqrt(max(np.dot(w, np.sum((poses[:, :2] - xy) ** 2, axis=1)), 0.0)))
     r = min(float(np.hypot(c, s)), 1.0)
     heading_spread = float(np.sqrt(-2.0 * np.log(r))) if r > 0 else np.inf
     # circular mean heading atan2(sum w sin, sum w cos); R = |sum w e^{i theta}|
-    return np.array([xy[0], xy[1], circular_mean(poses[:, 2], w)]), spread, heading_spread
+    return np.array([xy[0], xy[1], circular_mean(poses[:, 2], w)]), spread, heading_spread, _cluster_mean(poses, w)
+
+
+_CLUSTER_CELL = 1.0  # [m] cells of the position histogram that finds the heaviest cluster
+
+
+def _cluster_mean(poses, w, cell=_CLUSTER_CELL):
+    """Weighted mean of the heaviest cluster: the particles near the heaviest 3 x 3 block of a position histogram."""
+    ij = np.floor(poses[:, :2] / cell).astype(np.int64)
+    base = ij.min(axis=0) - 1  # one empty cell of margin on every side
+    ij -= base
+    nx, ny = ij.max(axis=0) + 2
+    hist = np.bincount(ij[:, 0] * ny + ij[:, 1], weights=w, minlength=nx * ny).reshape(nx, ny)
+    block = sum(hist[1 + di:nx - 1 + di, 1 + dj:ny - 1 + dj] for di in (-1, 0, 1) for dj in (-1, 0, 1))
+    bi, bj = np.unravel_index(np.argmax(block), block.shape)
+    centre = (base + [bi + 1, bj + 1] + 0.5) * cell
+    near, wn = np.ones(w.size, dtype=bool), w
+    for _ in range(2):  # two mean-shift steps from the block's centre, radius 1.5 cells
+        inside = np.sum((poses[:, :2] - centre) ** 2, axis=1) <= (1.5 * cell) ** 2
+        if not np.any(w[inside] > 0):
+            break
+        near, wn = inside, w[inside]
+        centre = (wn / wn.sum()) @ poses[near, :2]
+    return np.array([centre[0], centre[1], circular_mean(poses[near, 2], wn)])
 
 
 def particle_summary(poses, log_weights=None):
@@ -969,7 +1160,7 @@ def particle_summary(poses, log_weights=None):
         if np.any(np.isnan(lw)) or np.any(lw == np.inf):
             raise ValueError("log_weights must not hold NaN or +inf")
         lw = _safe_normalize(lw)
-    return _summary(poses, lw)
+    return _summary(poses, lw)[:3]
 
 
 def scan_endpoints(pose, ranges, angles, *, z_max=np.inf, sensor_offset=0.25):
@@ -1048,7 +1239,7 @@ def endpoint_distances(model, pose, ranges, angles):
 _STEP = {"mcl": mcl_step, "augmented": augmented_mcl_step, "kld": kld_mcl_step}
 
 
-def run_mcl(model, odom_poses, ranges, angles, *, rng, variant="mcl", init=None, times=None, snapshots=0,
+def run_mcl(model, odom_poses, ranges, angles, *, rng, variant="augmented", init=None, times=None, snapshots=0,
             max_steps=None):
     """Run a Monte Carlo localization filter over a log.
 
@@ -1064,9 +1255,10 @@ def run_mcl(model, odom_poses, ranges, angles, *, rng, variant="mcl", init=None,
         Beam angles in the laser frame [rad].
     rng : numpy.random.Generator
         Source of randomness.
-    variant : {"mcl", "augmented", "kld"}
-        :func:`mcl_step` (Table 8.2), :func:`augmented_mcl_step` (Table 8.3) or
-        :func:`kld_mcl_step` (Table 8.4).
+    variant : {"augmented", "mcl", "kld"}
+        :func:`augmented_mcl_step` (Table 8.3 with sensor resetting, the
+        default), :func:`mcl_step` (Table 8.2) or :func:`kld_mcl_step`
+        (Table 8.4).
     init : MCLState or ndarray, shape (M, 3), optional
         Initial particles; uniform over free space (global localization) if
         omitted.
@@ -1117,25 +1309,27 @@ def run_mcl(model, odom_poses, ranges, angles, *, rng, variant="mcl", init=None,
         state = mcl_initialize(model, rng=rng, poses=init)
 
     mean = np.empty((S, 3))
+    estimate = np.empty((S, 3))
     spread = np.empty(S)
     hspread = np.empty(S)
     ess = np.empty(S)
     count = np.empty(S, dtype=np.intp)
     injected = np.zeros(S, dtype=np.intp)
-    w_avg = np.empty(S)
-    w_slow = np.empty(S)
-    w_fast = np.empty(S)
+    log_w_avg = np.empty(S)
+    log_w_slow = np.empty(S)
+    log_w_fast = np.empty(S)
     shots = []
     snap_set = set(snap.tolist())
     t0 = time.perf_counter()
     for s in range(S):  # a loop over time steps; every step is vectorised over particles
         state, info = step(state, u[s], z_all[index[s]], ang, model, rng=rng)
-        mean[s], spread[s], hspread[s] = info.mean, info.spread, info.heading_spread
+        mean[s], estimate[s], spread[s], hspread[s] = info.mean, info.estimate, info.spread, info.heading_spread
         ess[s], count[s], injected[s] = info.ess, info.n_particles, info.n_injected
-        w_avg[s], w_slow[s], w_fast[s] = info.w_avg, state.w_slow, state.w_fast
+        log_w_avg[s], log_w_slow[s], log_w_fast[s] = info.log_w_avg, state.log_w_slow, state.log_w_fast
         if s in snap_set:
             shots.append(state)
     runtime = time.perf_counter() - t0
-    return MCLResult(scan_index=index, t=t_all[index], mean=mean, spread=spread, heading_spread=hspread, ess=ess,
-                     n_particles=count, n_injected=injected, w_avg=w_avg, w_slow=w_slow, w_fast=w_fast, snapshot_steps=snap,
+    return MCLResult(scan_index=index, t=t_all[index], mean=mean, estimate=estimate, spread=spread, heading_spread=hspread, ess=ess,
+                     n_particles=count, n_injected=injected, log_w_avg=log_w_avg, log_w_slow=log_w_slow,
+                     log_w_fast=log_w_fast, snapshot_steps=snap,
                      snapshots=shots, final=state, runtime=runtime)

@@ -112,16 +112,104 @@ def test_controls_and_steps(log):
         list(log.steps(800))
 
 
-def test_log_rejects_bad_file(tmp_path):
-    bad = tmp_path / "bad.log"
-    bad.write_text("O 1 2 3 4\nX 1 2\n")
-    with pytest.raises(ValueError, match="line 2"):
-        load_cmu_log(bad)
-    good = tmp_path / "good.log"
-    good.write_text("O 100 200 0.5 0.1\nL 0 0 0 25 0 0 " + " ".join(["100"] * 180) + " 0.2\n")
-    lg = load_cmu_log(good)
-    np.testing.assert_allclose(lg.odom, [[1.0, 2.0, 0.5]])
-    np.testing.assert_allclose(lg.ranges, np.ones((1, 180)))
+def _scan_line(t, ranges="100"):
+    return "L 0 0 0 25 0 0 " + " ".join([ranges] * 180) + f" {t}"
+
+
+GOOD = ["O 100 200 0.5 0.1", _scan_line(0.2), "O 110 200 0.5 0.3", _scan_line(0.4)]
+
+
+def _write(path, lines):
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_log_parses_a_small_file(tmp_path):
+    lg = load_cmu_log(_write(tmp_path / "good.log", GOOD))
+    np.testing.assert_allclose(lg.odom, [[1.0, 2.0, 0.5], [1.1, 2.0, 0.5]])
+    np.testing.assert_allclose(lg.ranges, np.ones((2, 180)))
+    np.testing.assert_allclose(lg.laser_t, [0.2, 0.4])
+    gz = tmp_path / "good.log.gz"
+    with gzip.open(gz, "wt") as f:
+        f.write("\n".join(GOOD) + "\n")
+    np.testing.assert_array_equal(load_cmu_log(gz).ranges, lg.ranges)
+
+
+@pytest.mark.parametrize("line, message", [
+    ("X 1 2", "line 3 is not an 'O'"),
+    ("O 1 2 3", "line 3 is not an 'O'"),
+    ("O 1 2 abc 0.25", "line 3: field 'abc' is not a number"),
+    ("O 1 nan 3 0.25", "line 3: NaN or infinite"),
+    ("O 1 2 inf 0.25", "line 3: NaN or infinite"),
+    (_scan_line(0.25, "-5"), "line 3: negative range"),
+    (_scan_line(0.25, "nan"), "line 3: NaN or infinite"),
+    ("O 1 2 3 0.1", "line 3: time runs backwards"),
+    (_scan_line(0.15), "line 3: time runs backwards"),
+])
+def test_log_bad_line_names_file_and_line(tmp_path, line, message):
+    path = _write(tmp_path / "bad.log", GOOD[:2] + [line] + GOOD[2:])
+    with pytest.raises(ValueError, match=message) as e:
+        load_cmu_log(path)
+    assert str(path) in str(e.value)
+
+
+def test_log_truncated_or_corrupt_gzip_names_the_file(tmp_path):
+    data = gzip.compress(("\n".join(GOOD * 50) + "\n").encode())
+    truncated = tmp_path / "truncated.log.gz"
+    truncated.write_bytes(data[: len(data) // 2])
+    corrupt = tmp_path / "corrupt.log.gz"
+    corrupt.write_bytes(data[:20] + bytes(b ^ 0xFF for b in data[20:60]) + data[60:])
+    not_gzip = tmp_path / "plain.log.gz"
+    not_gzip.write_text("\n".join(GOOD))
+    for path in (truncated, corrupt, not_gzip):
+        with pytest.raises(ValueError, match="cannot decompress") as e:
+            load_cmu_log(path)
+        assert str(path) in str(e.value)
+    binary = tmp_path / "binary.log"
+    binary.write_bytes(b"O 1 2 \xff\xfe 3\n")
+    with pytest.raises(ValueError, match="not a text log"):
+        load_cmu_log(binary)
+
+
+def test_log_without_scans_and_unknown_shipped_log(tmp_path):
+    with pytest.raises(ValueError, match="no 'L'"):
+        load_cmu_log(_write(tmp_path / "odo.log", ["O 1 2 3 0.1"]))
+    for bad in (3, True, "2"):
+        with pytest.raises(ValueError, match="log must be one of"):
+            load_cmu_log(log=bad)
+
+
+def test_second_log_parses_with_documented_sizes():
+    lg = load_cmu_log(log=2)
+    assert lg.ranges.shape == (2251, 180) and lg.odom.shape == (3126, 3)
+    assert 239 < lg.laser_t[-1] - lg.laser_t[0] < 241
+    assert np.all(np.diff(lg.laser_t) > 0) and lg.ranges.min() > 0
+
+
+def test_map_file_errors_name_the_file(tmp_path):
+    five = tmp_path / "five.npz"
+    five.write_bytes(b"12345")
+    with pytest.raises(ValueError, match="not an .npz map file") as e:
+        load_cmu_map(five)
+    assert str(five) in str(e.value)
+    with open(data_path("cmu_wean", "wean.npz"), "rb") as f:
+        whole = f.read()
+    cut = tmp_path / "cut.npz"
+    cut.write_bytes(whole[: len(whole) // 2])
+    with pytest.raises(ValueError, match="cut.npz"):
+        load_cmu_map(cut)
+    other = tmp_path / "other.npz"
+    np.savez(other, grid=np.zeros((4, 4)))
+    with pytest.raises(ValueError, match="free_permille"):
+        load_cmu_map(other)
+    wrong = tmp_path / "wrong.npz"
+    np.savez(wrong, free_permille=np.full((4, 4), 2000, dtype=np.uint16))
+    with pytest.raises(ValueError, match="values other than"):
+        load_cmu_map(wrong)
+    ok = tmp_path / "ok.npz"
+    np.savez(ok, free_permille=np.array([[1000, 65535], [0, 500]], dtype=np.uint16))
+    g = load_cmu_map(ok)
+    assert np.isnan(g.occupancy[1, 0]) and g.occupancy[0, 0] == 0.0 and g.occupancy[0, 1] == 1.0
 
 
 # Start of the log in the map frame: in the doorway of the room north of the long corridor, facing

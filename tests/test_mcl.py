@@ -9,11 +9,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.special import logsumexp
 from scipy.stats import chi2
 
 import slamlib as sl
 from slamlib import mcl
 
+CMU_START = (40.0, 41.5, -1.6755)  # slamlib.datasets.cmu.CMU_LOG_START
 ANGLES = np.linspace(-np.pi / 2, np.pi / 2, 180, endpoint=False)
 Z_MAX = 8.0
 
@@ -87,7 +89,7 @@ def test_simulated_route_is_in_free_space(sim):
 def test_mcl_converges_from_a_uniform_cloud(sim):
     grid, truth, odom, z = sim
     model = mcl.prepare_mcl(grid, mcl.MCLParams(**SIM_PARAMS))
-    res = mcl.run_mcl(model, odom, z, ANGLES, rng=np.random.default_rng(0), snapshots=2)
+    res = mcl.run_mcl(model, odom, z, ANGLES, rng=np.random.default_rng(0), snapshots=2, variant="mcl")
     err = _error(res, truth)
     assert res.spread[0] > 2.0  # starts spread over the whole map
     assert err[-1] < 0.3, err
@@ -255,7 +257,7 @@ def test_weights_stay_normalised_for_huge_log_likelihoods(sim):
     state = mcl.mcl_initialize(model, rng=np.random.default_rng(0), poses=walls)
     new, info = mcl.mcl_step(state, np.zeros(3), z[0], ANGLES, model, rng=np.random.default_rng(1))
     np.testing.assert_allclose(new.weights, 1.0 / 50)
-    assert info.w_avg == 0.0
+    assert info.log_w_avg == -np.inf
 
 
 def test_steps_do_not_modify_their_arguments(sim):
@@ -333,6 +335,19 @@ def test_bad_inputs_raise(sim):
         mcl.kld_sample_size(-1, 0.05, 0.01)
     with pytest.raises(ValueError, match="epsilon"):
         mcl.kld_sample_size(5, 0.0, 0.01)
+    with pytest.raises(TypeError, match="bool"):
+        mcl.kld_sample_size(True, 0.05, 0.01)
+    with pytest.raises(TypeError, match="bool"):
+        mcl.kld_sample_size(np.array([True, False]), 0.05, 0.01)
+    with pytest.raises(ValueError, match="integers"):
+        mcl.kld_sample_size(2.5, 0.05, 0.01)
+    with pytest.raises(ValueError, match="integers"):
+        mcl.kld_sample_size([2, 3.5], 0.05, 0.01)
+    assert mcl.kld_sample_size(np.float64(10.0), 0.05, 0.01) == mcl.kld_sample_size(10, 0.05, 0.01)
+    with pytest.raises(ValueError, match="proposal"):
+        mcl.AugmentedParams(proposal="gaussian")
+    with pytest.raises(ValueError, match="p_min"):
+        mcl.AugmentedParams(p_min=1.0)
     with pytest.raises(ValueError, match="log_weights"):
         mcl.particle_summary(np.zeros((2, 3)), [np.nan, 0.0])
 
@@ -353,7 +368,8 @@ def wean():
     model = mcl.prepare_mcl(grid, params)
     rng = np.random.default_rng(99)
     init = np.asarray(cmu.CMU_LOG_START) + rng.normal(size=(2000, 3)) * [0.1, 0.1, np.deg2rad(2.0)]
-    ref = mcl.run_mcl(model, log.laser_pose, log.ranges, log.angles, rng=rng, init=init, times=log.laser_t)
+    ref = mcl.run_mcl(model, log.laser_pose, log.ranges, log.angles, rng=rng, init=init, times=log.laser_t,
+                      variant="mcl")
     return grid, log, params, model, ref
 
 
@@ -376,12 +392,13 @@ def test_cmu_reference_track_matches_the_map(wean):
 
 @pytest.mark.slow
 def test_cmu_log_global_localization_converges_in_most_runs(wean):
-    """From a uniform cloud, with the default parameters, at least half of the runs find the robot.
+    """From a uniform cloud, with the library defaults, the runs find the robot.
 
     A run that converges on a look-alike corridor also fits the map, so runs are judged by the
-    reference track: right when the mean stays within 0.5 m of it over the second half of the
-    log. (Here 4 of the 6 seeds do; with 10 000 particles 2 of them, and about a third of the
-    seeds in general.)
+    reference track: right when the estimate's median distance from it over the second half of the
+    log is under 0.5 m (the criterion of ``benchmarks/mcl_success.py``, which runs 20 seeds per log:
+    17 of 20 with the defaults; seeds 0-3 of these 6 succeed). Plain MCL with 10 000 particles finds
+    the robot in about a third of the seeds.
     """
     grid, log, params, model, ref = wean
     right = []
@@ -390,17 +407,124 @@ def test_cmu_log_global_localization_converges_in_most_runs(wean):
                           times=log.laser_t)
         np.testing.assert_array_equal(res.scan_index, ref.scan_index)
         assert res.spread[0] > 5.0  # global: the cloud starts over the whole building
-        err = np.hypot(*(res.mean[:, :2] - ref.mean[:, :2]).T)
+        err = np.hypot(*(res.estimate[:, :2] - ref.mean[:, :2]).T)
         half = np.arange(len(res) // 2, len(res))
-        if not np.all(err[half] < 0.5):
+        if not np.median(err[half]) < 0.5:
             continue
         right.append(seed)
-        # a run in the right place has converged early, sits in free space and fits the map
-        spread_high = np.flatnonzero(res.spread >= 0.5)
-        conv = spread_high.max() + 1 if spread_high.size else 0
-        assert res.t[conv] - res.t[0] < 60.0, (seed, res.t[conv] - res.t[0])
-        after = np.arange(conv, len(res))
-        assert grid.is_free(res.mean[after, :2], params.free_threshold).all()
-        median, near = _fit_to_map(model, log, res, half)
-        assert median.max() <= 0.15 and near.mean() > 0.75, (seed, median.max(), near.mean())
-    assert len(right) >= 3, f"only seeds {right} of 0-5 localized the robot"
+        # a run in the right place sits in free space and fits the map at the end of the log
+        assert grid.is_free(res.estimate[half, :2], params.free_threshold).mean() > 0.95
+        median, near = _fit_to_map(model, log, res, half[-20:])
+        assert np.median(median) <= 0.15 and near.mean() > 0.7, (seed, np.median(median), near.mean())
+    assert len(right) >= 4, f"only seeds {right} of 0-5 localized the robot"
+
+
+@pytest.mark.slow
+def test_cmu_run_settled_in_the_wrong_corridor_recovers(wean):
+    """A global run of plain MCL that has settled far from the robot is abandoned by the default filter.
+
+    Seed 1 of plain MCL (Table 8.2) from a uniform cloud sits 18.8 m from the reference after 40
+    updates with a spread of 0.24 m: sure and wrong. Continued from that particle set, plain MCL stays
+    wrong; the default filter (sensor resetting) leaves the wrong place and ends near the reference.
+    """
+    grid, log, params, model, ref = wean
+    s0 = 39
+    lost = mcl.run_mcl(model, log.laser_pose, log.ranges, log.angles, rng=np.random.default_rng(1), times=log.laser_t,
+                       variant="mcl", max_steps=s0 + 1, snapshots=[s0])
+    err0 = np.hypot(*(lost.estimate[s0, :2] - ref.mean[s0, :2]))
+    assert err0 > 10.0 and lost.spread[s0] < 0.5, (err0, lost.spread[s0])
+    start = ref.scan_index[s0]
+    err = {}
+    for variant in ("mcl", "augmented"):
+        res = mcl.run_mcl(model, log.laser_pose[start:], log.ranges[start:], log.angles, rng=np.random.default_rng(2),
+                          init=lost.snapshots[0], times=log.laser_t[start:], variant=variant)
+        j = np.searchsorted(ref.scan_index, res.scan_index + start)
+        np.testing.assert_array_equal(ref.scan_index[j], res.scan_index + start)
+        err[variant] = np.hypot(*(res.estimate[:, :2] - ref.mean[j, :2]).T)
+    last = slice(-30, None)  # the last 30 updates (about 20 s)
+    assert np.median(err["mcl"][last]) > 2.0 and err["mcl"][-1] > 2.0, err["mcl"][last]
+    # the default leaves the wrong place; on this short log it is back near the track at the end
+    # (1.0 m here, not yet within 0.5 m: on the 240 s log 2 every one of 20 global runs ends within 0.5 m)
+    assert err["augmented"][-1] < 1.5 and err["augmented"][-1] < 0.1 * err0, err["augmented"][last]
+
+
+# --------------------------------------------------------------------------- recovery: the injected component
+def test_log_space_averages_follow_table_8_3():
+    """w_slow, w_fast kept in log space equal Table 8.3's recursion on the plain numbers."""
+    aug = mcl.AugmentedParams(alpha_slow=0.05, alpha_fast=0.5)
+    w_avg = np.exp(np.random.default_rng(0).normal(-3.0, 1.0, 30))
+    state = mcl.MCLState(np.zeros((1, 3)), np.zeros(1))
+    slow = fast = None
+    for w in w_avg:
+        ls, lf = mcl._averages(state, np.log(w), aug)
+        slow = w if slow is None else slow + 0.05 * (w - slow)
+        fast = w if fast is None else fast + 0.5 * (w - fast)
+        np.testing.assert_allclose([np.exp(ls), np.exp(lf)], [slow, fast], rtol=1e-12)
+        state = mcl.MCLState(np.zeros((1, 3)), np.zeros(1), log_w_slow=ls, log_w_fast=lf)
+    # no underflow where the plain numbers would be exp(-800) = 0
+    ls, lf = mcl._averages(mcl.MCLState(np.zeros((1, 3)), np.zeros(1), -800.0, -800.0), -810.0, aug)
+    assert np.isfinite(ls) and lf < ls < -800.0
+    assert mcl._injection_probability(ls, lf) == pytest.approx(1 - np.exp(lf - ls))
+
+
+def test_injected_fraction_is_bayes_rule_for_the_mixture_prior():
+    # p Z_U / (p Z_U + (1 - p) w_avg)
+    for p, w_avg, z_u in ((0.01, 1e-2, 1e-3), (0.3, 1e-5, 1e-3), (0.5, 1.0, 1.0)):
+        expected = p * z_u / (p * z_u + (1 - p) * w_avg)
+        assert mcl._injected_fraction(p, np.log(w_avg), np.log(z_u)) == pytest.approx(expected, rel=1e-12)
+    assert mcl._injected_fraction(0.0, 0.0, 0.0) == 0.0
+    assert mcl._injected_fraction(0.1, -np.inf, 0.0) == 1.0  # no particle explains the scan
+
+
+def test_sensor_proposal_puts_new_particles_where_the_scan_fits(sim):
+    """Z_U is the mean tempered likelihood over the free space, and the draws favour the true pose."""
+    grid, truth, _, z = sim
+    model = mcl.prepare_mcl(grid, mcl.MCLParams(**{**SIM_PARAMS, "augmented": mcl.AugmentedParams(candidates=20_000)}))
+    zz, aa = mcl._subsample(z[20], ANGLES, model.params)
+    cand, log_q, log_z = mcl._sensor_component(model, zz, aa, np.random.default_rng(3))
+    tll = model.params.likelihood_exponent * mcl.scan_log_likelihood(model, cand, z[20], ANGLES)
+    assert log_z == pytest.approx(np.log(np.mean(np.exp(tll))), rel=1e-12)
+    np.testing.assert_allclose(np.exp(log_q).sum(), 1.0)
+    near = np.hypot(*(cand[:, :2] - truth[20, :2]).T) < 0.5
+    near &= np.abs(sl.angle_diff(cand[:, 2], truth[20, 2])) < 0.3
+    share_uniform = near.mean()
+    share_drawn = np.exp(log_q)[near].sum()
+    assert share_drawn > 20 * share_uniform, (share_drawn, share_uniform)
+    # the true pose explains the scan far better than a random pose: Z_U << p(z | x_true)^tau
+    at_truth = model.params.likelihood_exponent * mcl.scan_log_likelihood(model, truth[20][None], z[20], ANGLES)[0]
+    assert at_truth > log_z + 3.0
+
+
+def test_augmented_step_keeps_weights_when_it_injects_without_resampling(sim):
+    grid, truth, _, z = sim
+    aug = mcl.AugmentedParams(p_min=0.5, candidates=2000)
+    model = mcl.prepare_mcl(grid, mcl.MCLParams(**{**SIM_PARAMS, "resample_threshold": 0.0, "augmented": aug}))
+    rng = np.random.default_rng(4)
+    wrong = mcl.mcl_initialize(model, rng=rng, poses=np.tile([10.5, 6.5, 0.0], (500, 1)) + rng.normal(0, 0.05, (500, 3)))
+    new, info = mcl.augmented_mcl_step(wrong, np.zeros(3), z[20], ANGLES, model, rng=rng)
+    assert not info.resampled and info.n_injected > 0
+    np.testing.assert_allclose(np.exp(logsumexp(new.log_weights)), 1.0)
+    moved = np.any(new.poses != wrong.poses, axis=1)
+    assert np.count_nonzero(moved) == info.n_injected
+    # the belief is wrong: the new particles, near where the scan fits, take most of the weight
+    assert new.weights[moved].sum() > 0.5
+    # a belief at the true pose keeps nearly all of it
+    right = mcl.mcl_initialize(model, rng=rng, poses=truth[20] + rng.normal(0, 0.05, (500, 3)))
+    new, info = mcl.augmented_mcl_step(right, np.zeros(3), z[20], ANGLES, model, rng=rng)
+    assert info.n_injected < 0.05 * 500
+
+
+def test_estimate_is_the_heaviest_cluster():
+    rng = np.random.default_rng(5)
+    a = np.array([2.0, 3.0, 0.5]) + rng.normal(0, 0.1, (600, 3))
+    b = np.array([14.0, 3.0, -2.0]) + rng.normal(0, 0.1, (400, 3))
+    poses = np.vstack([a, b])
+    lw = np.full(1000, -np.log(1000))
+    mean, _, _, est = mcl._summary(poses, lw)
+    assert abs(mean[0] - 6.8) < 0.2  # the mean lies between the clusters
+    np.testing.assert_allclose(est[:2], a[:, :2].mean(axis=0), atol=1e-9)
+    assert abs(sl.angle_diff(est[2], 0.5)) < 0.05
+    # weight, not the number of particles, decides
+    lw2 = np.log(np.r_[np.full(600, 0.2 / 600), np.full(400, 0.8 / 400)])
+    est2 = mcl._summary(poses, lw2)[3]
+    np.testing.assert_allclose(est2[:2], b[:, :2].mean(axis=0), atol=1e-9)

@@ -7,7 +7,8 @@ The data of the particle-filter localization assignment of CMU 16-831
 * ``wean.npz``: the 800 x 800 map of 10 cm cells, re-encoded losslessly from
   ``wean.dat`` (``free_permille`` uint16: the file's values times 1000, 65535
   for its ``-1`` "unknown").
-* ``robotdata1.log.gz``: 2218 lines, ``O x y theta ts`` odometry and
+* ``robotdata1.log.gz`` (135 s, 2218 lines) and ``robotdata2.log.gz`` (240 s,
+  5377 lines): ``O x y theta ts`` odometry and
   ``L x y theta xl yl thetal r1 .. r180 ts`` laser scans, in centimetres.
 
 Map values. The assignment's notes call the values occupancy probabilities,
@@ -45,7 +46,8 @@ from ..maps import OccupancyGrid
 from ..angles import wrap_angle
 from ..motion import odometry_from_poses
 
-__all__ = ["CmuLog", "load_cmu_map", "load_cmu_log", "CMU_SENSOR_OFFSET", "CMU_MAX_RANGE", "CMU_LOG_START"]
+__all__ = ["CmuLog", "load_cmu_map", "load_cmu_log", "CMU_SENSOR_OFFSET", "CMU_MAX_RANGE", "CMU_LOG_START",
+           "CMU_LOG_STARTS"]
 
 #: The laser sits 25 cm ahead of the robot centre (metres).
 CMU_SENSOR_OFFSET = 0.25
@@ -55,6 +57,12 @@ CMU_MAX_RANGE = 81.83
 #: long corridor, facing south. Found by scoring the first 240 scans, placed by odometry, with the
 #: likelihood field over a grid of poses; a scan-matching estimate, not ground truth.
 CMU_LOG_START = (40.0, 41.5, -1.6755)
+#: Start pose of each shipped log (1: ``robotdata1``, 2: ``robotdata2``), found the same way. Log 2
+#: starts in the same doorway; over its first 240 scans a look-alike doorway 12 m east (52.1, 40.6)
+#: scores higher, and only tracking the whole log from each candidate tells them apart: from this
+#: pose every scan's end points lie on walls (median distance <= 0.15 m), from the look-alike not.
+CMU_LOG_STARTS = {1: CMU_LOG_START, 2: (39.66, 41.50, -1.635)}
+_LOG_FILES = {1: "robotdata1.log.gz", 2: "robotdata2.log.gz"}
 _RESOLUTION = 0.1
 _N_BEAMS = 180
 
@@ -65,8 +73,37 @@ def _data_file(name):
     return data_path("cmu_wean", name)
 
 
-def load_cmu_map():
+def _read_map(path):
+    """The ``free_permille`` array of a map file, or a ValueError naming the file."""
+    import zipfile
+
+    try:
+        with np.load(path, allow_pickle=False) as f:
+            if not hasattr(f, "files") or "free_permille" not in f.files:
+                raise ValueError(f"{path}: not a Wean Hall map (an .npz file with an array 'free_permille')")
+            raw = f["free_permille"]
+    except (OSError, EOFError, zipfile.BadZipFile) as e:
+        raise ValueError(f"{path}: cannot read the map file (truncated or corrupt?): {e}") from e
+    except ValueError as e:
+        if str(e).startswith(str(path)):
+            raise
+        # numpy says "Cannot load file containing pickled data ..." for any file that is not .npy/.npz
+        raise ValueError(f"{path}: not an .npz map file (truncated, corrupt or another format)") from e
+    if raw.dtype != np.uint16 or raw.ndim != 2 or raw.shape[0] != raw.shape[1] or raw.size == 0:
+        raise ValueError(f"{path}: 'free_permille' must be a square uint16 array, got {raw.dtype} {raw.shape}")
+    if np.any((raw > 1000) & (raw != 65535)):
+        raise ValueError(f"{path}: 'free_permille' holds values other than 0..1000 and 65535 (unknown)")
+    return raw
+
+
+def load_cmu_map(path=None):
     """The Wean Hall occupancy grid in metres.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path, optional
+        A map in the shipped ``.npz`` format (``free_permille``, see the module
+        docstring); default the shipped ``wean.npz``.
 
     Returns
     -------
@@ -76,13 +113,18 @@ def load_cmu_map():
         ``resolution`` 0.1 m; ``origin`` (0, 0). Rows are y, columns x (see
         the module docstring for the orientation).
 
+    Raises
+    ------
+    ValueError
+        If the file is not a readable map (the message names the file).
+
     References
     ----------
     Thrun, Burgard & Fox (2005), Sec. 9.1 (occupancy grid maps); map of the
     CMU 16-831 assignment (``cmu16831wean``).
     """
-    with np.load(_data_file("wean.npz")) as f:
-        raw = f["free_permille"]
+    path = _data_file("wean.npz") if path is None else Path(path)
+    raw = _read_map(path)
     free = np.where(raw == 65535, np.nan, raw / 1000.0)
     # file index [i, j] is (x, y); the grid wants [row = y, col = x]
     return OccupancyGrid(occupancy=1.0 - free.T, resolution=_RESOLUTION, origin=np.zeros(2))
@@ -191,14 +233,79 @@ def _readonly(a):
     return a
 
 
-def load_cmu_log(path=None):
+def _read_lines(path):
+    """The text lines of a log (plain or gzip), or a ValueError naming the file."""
+    import zlib
+
+    opener = gzip.open if str(path).endswith(".gz") else open
+    try:
+        with opener(path, "rt", encoding="ascii") as f:
+            return f.read().splitlines()
+    except (EOFError, zlib.error, gzip.BadGzipFile) as e:
+        raise ValueError(f"{path}: cannot decompress the log (truncated or corrupt gzip file): {e}") from e
+    except UnicodeDecodeError as e:
+        raise ValueError(f"{path}: not a text log (byte {e.start} is not ASCII)") from e
+
+
+def _parse_records(path, lines):
+    """Numbers of the O and L records with their line numbers; ValueError naming file and line."""
+    recs = {"O": ([], []), "L": ([], [])}
+    for n, line in enumerate(lines, start=1):
+        parts = line.split()
+        if not parts:
+            continue
+        kind = parts[0]
+        if not (kind == "O" and len(parts) == 5 or kind == "L" and len(parts) == 8 + _N_BEAMS):
+            raise ValueError(f"{path}: line {n} is not an 'O' (5 fields) or 'L' ({8 + _N_BEAMS} fields) record")
+        try:
+            values = [float(v) for v in parts[1:]]
+        except ValueError:
+            bad = next(v for v in parts[1:] if not _is_float(v))
+            raise ValueError(f"{path}: line {n}: field {bad!r} is not a number") from None
+        recs[kind][0].append(values)
+        recs[kind][1].append(n)
+    return recs
+
+
+def _is_float(v):
+    try:
+        float(v)
+    except ValueError:
+        return False
+    return True
+
+
+def _check_records(path, odo, las, line_o, line_l):
+    """NaN/inf, negative ranges and time running backwards, reported with the file's line number."""
+    for arr, lines in ((odo, line_o), (las, line_l)):
+        bad = ~np.all(np.isfinite(arr), axis=1)
+        if np.any(bad):
+            raise ValueError(f"{path}: line {lines[np.argmax(bad)]}: NaN or infinite value")
+    if las.shape[0]:
+        neg = np.any(las[:, 6:6 + _N_BEAMS] < 0, axis=1)
+        if np.any(neg):
+            raise ValueError(f"{path}: line {line_l[np.argmax(neg)]}: negative range")
+    # time stamps in file order (O and L records interleaved) must not decrease
+    t = np.concatenate([odo[:, -1], las[:, -1]])
+    order = np.argsort(np.concatenate([line_o, line_l]), kind="stable")
+    t, lines = t[order], np.concatenate([line_o, line_l])[order]
+    back = np.flatnonzero(np.diff(t) < 0)
+    if back.size:
+        k = back[0] + 1
+        raise ValueError(f"{path}: line {lines[k]}: time runs backwards ({t[k]} s after {t[k - 1]} s on line {lines[k - 1]})")
+
+
+def load_cmu_log(path=None, *, log=1):
     """Parse a CMU 16-831 robot log into metres, radians and seconds.
 
     Parameters
     ----------
     path : str or pathlib.Path, optional
-        A log file (plain text or ``.gz``); default the shipped
-        ``robotdata1.log.gz`` (2218 lines: 1505 odometry, 713 scans).
+        A log file (plain text or ``.gz``); default the shipped log `log`.
+    log : {1, 2}, keyword-only
+        Which shipped log to read when `path` is omitted: 1 is
+        ``robotdata1.log.gz`` (135 s; 1505 odometry lines, 713 scans), 2 is
+        ``robotdata2.log.gz`` (240 s; 3126 odometry lines, 2251 scans).
 
     Returns
     -------
@@ -208,31 +315,31 @@ def load_cmu_log(path=None):
     Raises
     ------
     ValueError
-        On a line that is neither a 5-field ``O`` line nor a 188-field ``L``
-        line (the message gives the line number).
+        The message names the file and, where there is one, the line: a file
+        that cannot be decompressed or is not text; a line that is neither a
+        5-field ``O`` nor a 188-field ``L`` record; a field that is not a
+        number; NaN or infinite values; a negative range; a time stamp smaller
+        than the one before it (in file order); a file without scans.
 
     References
     ----------
     Thrun, Burgard & Fox (2005), Sec. 5.4 (odometry), Sec. 6.3 (range
     finders); log of the CMU 16-831 assignment (``cmu16831wean``).
     """
-    path = _data_file("robotdata1.log.gz") if path is None else Path(path)
-    opener = gzip.open if str(path).endswith(".gz") else open
-    with opener(path, "rt") as f:
-        lines = f.read().splitlines()
-    odo, las = [], []
-    for n, line in enumerate(lines, start=1):
-        parts = line.split()
-        if not parts:
-            continue
-        if parts[0] == "O" and len(parts) == 5:
-            odo.append(parts[1:])
-        elif parts[0] == "L" and len(parts) == 8 + _N_BEAMS:
-            las.append(parts[1:])
-        else:
-            raise ValueError(f"path {path}: line {n} is not an 'O' (5 fields) or 'L' ({8 + _N_BEAMS} fields) record")
-    odo = np.array(odo, dtype=float).reshape(-1, 4)
-    las = np.array(las, dtype=float).reshape(-1, 7 + _N_BEAMS)
+    if path is None:
+        if isinstance(log, bool) or log not in _LOG_FILES:
+            raise ValueError(f"log must be one of {sorted(_LOG_FILES)}, got {log!r}")
+        path = _data_file(_LOG_FILES[log])
+    else:
+        path = Path(path)
+    recs = _parse_records(path, _read_lines(path))
+    odo = np.array(recs["O"][0], dtype=float).reshape(-1, 4)
+    las = np.array(recs["L"][0], dtype=float).reshape(-1, 7 + _N_BEAMS)
+    line_o = np.array(recs["O"][1], dtype=np.intp)
+    line_l = np.array(recs["L"][1], dtype=np.intp)
+    if las.shape[0] == 0:
+        raise ValueError(f"{path}: no 'L' (laser scan) record")
+    _check_records(path, odo, las, line_o, line_l)
     cm = 0.01
     odom = odo[:, :3] * [cm, cm, 1.0]
     laser_pose = las[:, 0:3] * [cm, cm, 1.0]

@@ -191,14 +191,15 @@ def plot_mcl_run(results, axes=None, *, labels=None, converged=0.5):
 
 
 def plot_augmented_averages(result, ax=None):
-    """Augmented MCL's averages ``w_avg``, ``w_slow``, ``w_fast`` and the injected particles.
+    """Augmented MCL's averages ``w_avg``, ``w_slow``, ``w_fast`` (log scale) and the new particles.
 
     Parameters
     ----------
     result : MCLResult
         A run of :func:`~slamlib.mcl.run_mcl`.
     ax : matplotlib.axes.Axes, optional
-        Axes to draw on; the number of random particles goes on a twin axis.
+        Axes to draw on (a new figure if omitted); the number of new particles
+        goes on a twin axis.
 
     Returns
     -------
@@ -206,18 +207,18 @@ def plot_augmented_averages(result, ax=None):
 
     References
     ----------
-    Thrun, Burgard & Fox (2005), Table 8.3 lines 8-13.
+    Thrun, Burgard & Fox (2005), Table 8.3.
     """
     ax = _axes(ax)
     t = result.t - result.t[0]
-    ax.plot(t, result.w_avg, color="0.6", lw=0.8, label=r"$w_\mathrm{avg}$")
-    ax.plot(t, result.w_slow, color="C0", label=r"$w_\mathrm{slow}$")
-    ax.plot(t, result.w_fast, color="C1", label=r"$w_\mathrm{fast}$")
+    ax.plot(t, result.log_w_avg, color="0.6", lw=0.8, label=r"$\log w_\mathrm{avg}$")
+    ax.plot(t, result.log_w_slow, color="C0", label=r"$\log w_\mathrm{slow}$")
+    ax.plot(t, result.log_w_fast, color="C1", label=r"$\log w_\mathrm{fast}$")
     ax.set_xlabel("time [s]")
-    ax.set_ylabel("per-beam likelihood")
+    ax.set_ylabel("log average likelihood (tempered)")
     tw = ax.twinx()
-    tw.bar(t, result.n_injected, width=0.4, color="C3", alpha=0.4, label="random particles")
-    tw.set_ylabel("random particles", color="C3")
+    tw.bar(t, result.n_injected, width=0.4, color="C3", alpha=0.4, label="new particles")
+    tw.set_ylabel("new particles", color="C3")
     h1, l1 = ax.get_legend_handles_labels()
     h2, l2 = tw.get_legend_handles_labels()
     ax.legend(h1 + h2, l1 + l2, loc="upper right", fontsize=8)
