@@ -58,7 +58,6 @@ from ._checks import as_array, as_covariance, as_scalar, check_rng
 from .angles import wrap_angle
 from .motion import _arc, _arc_pose, _control_sqrt, sample_motion_model_velocity, velocity_motion
 from .sensors import landmark_from_measurement, landmark_measurement
-from .sim import LandmarkRun
 
 __all__ = [
     "fastslam_init_landmark",
@@ -1517,7 +1516,7 @@ class FastSLAMResult(NamedTuple):
         over the particles with their weights before the step (0 where the
         gate is off; ``rejected.sum()`` is the run's count).
     gate : float or None
-        The gate that was used.
+        The gate that was used (``None``: no gate).
     """
 
     x_est: np.ndarray
@@ -1542,7 +1541,7 @@ def _run_attr(run, name):
 
 
 def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=None, p0=None, weight_cov="S",
-                 resample_threshold=0.5, capacity=None, max_range=None, fov=None, version=1, gate="auto"):
+                 resample_threshold=0.5, capacity=None, max_range=None, fov=None, version=1, gate=None):
     """Run FastSLAM 1.0 or 2.0 over a landmark run (simulated or a real log).
 
     Parameters
@@ -1585,19 +1584,26 @@ def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=Non
     version : {1, 2}, keyword-only
         FastSLAM 1.0 (the motion model as proposal; default) or 2.0 (the
         proposal includes the step's measurements, Table 13.3).
-    gate : float, None or "auto", keyword-only
-        Per-particle chi-square gate on the innovation of a known
-        correspondence (:func:`fastslam_update_known`,
-        :func:`fastslam2_update_known`); ``None`` turns it off. ``"auto"``
-        (default): :data:`DEFAULT_GATE` (99.999 % of chi-square, 2 dof) for a
-        real log and off for a simulated :class:`slamlib.LandmarkRun`, whose
-        noise is exactly the Gaussian the filter assumes. Real sightings
-        include gross errors (a bearing off by pi, a range off by metres)
-        that a Gaussian likelihood turns into a collapse of the weights onto
-        whichever particle explains the blunder best, and into a landmark
-        pulled metres away in every particle; the gate caps such a
-        measurement's influence at that of an innovation on the gate. Not
-        used with unknown correspondences (there ``p0`` plays that role).
+    gate : float, optional, keyword-only
+        Per-particle chi-square gate on the squared Mahalanobis distance
+        ``nu^T S^-1 nu`` of a known correspondence's innovation (FastSLAM
+        2.0: ``nu^T L^-1 nu``; :func:`fastslam_update_known`,
+        :func:`fastslam2_update_known`); a distance above `gate` is an
+        outlier for that particle, one equal to it is not, as in
+        :func:`slamlib.run_ekf_slam`. ``None`` (default) takes ``run.gate`` if
+        the run has that attribute (the real-data loaders set it, e.g.
+        :func:`~slamlib.datasets.mrclam.load_mrclam`, whose
+        :data:`~slamlib.datasets.mrclam.MRCLAM_GATE` equals
+        :data:`DEFAULT_GATE`, the 99.999 % point of chi-square with 2 dof) and
+        no gate otherwise (a simulated :class:`slamlib.LandmarkRun`, whose
+        noise is exactly the Gaussian the filter assumes); ``numpy.inf``
+        turns it off. Real sightings include gross errors (a bearing off by
+        pi, a range off by metres) that a Gaussian likelihood turns into a
+        collapse of the weights onto whichever particle explains the blunder
+        best, and into a landmark pulled metres away in every particle; the
+        gate caps such a measurement's influence at that of an innovation on
+        the gate. Not used with unknown correspondences (there ``p0`` plays
+        that role).
 
     Returns
     -------
@@ -1638,10 +1644,11 @@ def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=Non
     if version == 2 and weight_cov != "S":
         raise ValueError("weight_cov='text' is FastSLAM 1.0's erratum; version=2 has its own weight")
     Q = _check_Q(_run_attr(run, "Q") if Q is None else Q)
-    if isinstance(gate, str) and gate == "auto":
-        gate = None if isinstance(run, LandmarkRun) else DEFAULT_GATE
-    else:
-        gate = _check_gate(gate)
+    if gate is None:
+        gate = getattr(run, "gate", None)  # the run's gate (real logs); none for simulated runs
+    if gate is not None:
+        gate = as_scalar(gate, "gate", nonnegative=True, finite=False)  # chi-square value on nu^T S^-1 nu
+        gate = None if gate == np.inf else gate  # inf: no gate
     if capacity is None:
         capacity = max(1, int(np.asarray(_run_attr(run, "landmarks")).shape[0]))
     log_p0 = None

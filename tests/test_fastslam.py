@@ -576,6 +576,10 @@ def test_run_rejects_bad_options(world):
         sl.run_fastslam(world, n_particles=3, M=np.eye(2), alpha=np.zeros(6), rng=np.random.default_rng())
     with pytest.raises(ValueError, match="resample_threshold must be non-negative"):
         sl.run_fastslam(world, n_particles=3, resample_threshold=-1.0, rng=np.random.default_rng())
+    with pytest.raises(ValueError, match="gate must be non-negative"):
+        sl.run_fastslam(world, n_particles=3, gate=-1.0, rng=np.random.default_rng())
+    with pytest.raises(TypeError, match="gate must be a real number"):
+        sl.run_fastslam(world, n_particles=3, gate="auto", rng=np.random.default_rng())
 
 
 # --------------------------------------------------------------------------- the particle set against theory
@@ -698,17 +702,71 @@ def _with_blunders(run, every, rng):
 def test_gate_in_the_run_counts_and_survives_gross_errors(world, version):
     bad, n_bad = _with_blunders(world, 40, np.random.default_rng(0))
     ate = {}
-    for gate in (None, sl.fastslam.DEFAULT_GATE):
+    for gate in (np.inf, sl.fastslam.DEFAULT_GATE):
         res = sl.run_fastslam(bad, n_particles=30, gate=gate, version=version, rng=np.random.default_rng(5))
         ate[gate] = sl.ate_rmse(res.x_est, world.x_true)
-        if gate is None:
+        if gate == np.inf:
             assert res.rejected.sum() == 0 and res.gate is None
         else:
             # every blunder of a landmark seen before is rejected by (nearly) every particle, and few good ones
             assert 0.8 * n_bad <= res.rejected.sum() <= n_bad + 0.01 * sum(len(z) for z in world.z)
-    assert ate[sl.fastslam.DEFAULT_GATE] < 0.5 * ate[None]
-    # "auto": off on a simulated LandmarkRun (its noise is the Gaussian the filter assumes)
+    assert ate[sl.fastslam.DEFAULT_GATE] < 0.5 * ate[np.inf]
+    # default: off on a simulated LandmarkRun, which carries no gate (its noise is the Gaussian the filter assumes)
+    assert not hasattr(world, "gate")
     assert sl.run_fastslam(world, n_particles=3, version=version, rng=np.random.default_rng(1)).gate is None
+
+
+def _GatedRun(run, gate):
+    """The simulated run carrying a ``gate`` attribute, as the real-data loaders' runs do."""
+    import dataclasses
+    cls = dataclasses.make_dataclass("GatedRun", [("gate", float, 0.0)], bases=(type(run),), frozen=True, eq=False)
+    return cls(**{f.name: getattr(run, f.name) for f in dataclasses.fields(run)}, gate=gate)
+
+
+def _same_run(a, b):
+    for name in ("x_est", "x_cov", "landmarks", "landmark_cov", "seen", "ess", "resampled", "rejected"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+
+
+@pytest.mark.parametrize("version", [1, 2])
+def test_gate_none_reads_the_runs_gate_as_ekf_slam_does(world, version):
+    bad, _ = _with_blunders(world, 40, np.random.default_rng(0))
+    gated = _GatedRun(bad, sl.fastslam.DEFAULT_GATE)
+
+    def run(r, **kw):
+        return sl.run_fastslam(r, n_particles=20, version=version, rng=np.random.default_rng(3), **kw)
+
+    default = run(gated)  # gate=None: the run's gate
+    assert default.gate == sl.fastslam.DEFAULT_GATE and default.rejected.sum() > 0
+    _same_run(default, run(bad, gate=sl.fastslam.DEFAULT_GATE))
+    off = run(gated, gate=np.inf)  # inf turns the run's gate off
+    assert off.gate is None and off.rejected.sum() == 0
+    _same_run(off, run(bad))
+    tight = run(gated, gate=2.0)  # an explicit value wins over the run's
+    assert tight.gate == 2.0 and tight.rejected.sum() > default.rejected.sum()
+    _same_run(tight, run(bad, gate=2.0))
+    _same_run(run(_GatedRun(bad, np.inf)), off)  # a run whose gate is inf (load_mrclam(gate=np.inf)): no gate
+
+
+@pytest.mark.parametrize("gate", [sl.fastslam.DEFAULT_GATE, stats.chi2.ppf(0.99, 2)])
+def test_gate_threshold_is_ekf_slams_with_one_particle(world, gate):
+    # One particle, no motion noise: FastSLAM 1.0 is EKF SLAM with decoupled landmarks (see the test above), and
+    # the innovation covariances agree, so the same chi-square value on nu^T S^-1 nu rejects the same sightings:
+    # the blunders, and at the 99 % gate some good sightings too.
+    bad, n_bad = _with_blunders(world, 40, np.random.default_rng(0))
+    gated = _GatedRun(bad, gate)
+    zero = np.zeros((2, 2))
+    ekf = sl.run_ekf_slam(gated, known=True, M=zero)  # gate=None: the run's gate
+    fs = sl.run_fastslam(gated, n_particles=1, M=zero, rng=np.random.default_rng(0))
+    assert ekf.n_gated > 0.8 * n_bad
+    assert fs.rejected.sum() == ekf.n_gated
+    np.testing.assert_allclose(fs.landmarks[ekf.landmark_ids], ekf.landmarks, rtol=0, atol=1e-4)
+    # and with the gate off (inf) in both, the blunders drag both maps alike, by metres
+    free_ekf = sl.run_ekf_slam(gated, known=True, M=zero, gate=np.inf)
+    free_fs = sl.run_fastslam(gated, n_particles=1, M=zero, gate=np.inf, rng=np.random.default_rng(0))
+    assert free_ekf.n_gated == 0 and free_fs.rejected.sum() == 0
+    np.testing.assert_allclose(free_fs.landmarks[free_ekf.landmark_ids], free_ekf.landmarks, rtol=0, atol=1e-4)
+    assert np.abs(free_fs.landmarks - fs.landmarks).max() > 1.0
 
 
 def test_capacity_limits_give_a_clear_error_instead_of_gigabytes():
