@@ -1534,8 +1534,8 @@ def landmark_graph_slam_row(run, *, name="graph SLAM, known", **kw):
     The default is plain least squares, the noise model the filters use. Real
     logs with wrong sightings need a robust kernel: on MRCLAM Dataset 6 (dt =
     0.1 s, the shipped ``M`` and ``Q``) least squares reaches an ATE of 0.10,
-    0.13, 0.92, 0.14 and 0.40 m on robots 1-5, the Cauchy kernel 0.10, 0.13,
-    0.12, 0.13 and 0.14 m.
+    0.13, 0.63, 0.13 and 0.47 m on robots 1-5, the Cauchy kernel 0.10, 0.14,
+    0.11, 0.13 and 0.13 m (chapter 9's table, ``tools/mrclam_table.py``).
 
     References
     ----------
