@@ -243,6 +243,10 @@ class Ctx:
             where = f" at index {tuple(int(i) for i in idx)}" if err.ndim else ""
             msg = (f"{name} is wrong: error {err[idx]:.3g}{where} (allowed {atol:g} + {rtol:g} |expected|)"
                    + (f" {note}" if note else "") + f"\n  expected {fmt_array(expected)}\n  got      {fmt_array(got)}")
+            if expected.size > 24 and err.ndim:
+                at = "[" + ", ".join(str(int(i)) for i in idx) + "]"
+                msg += (f"\n  expected {name}{at} = {fmt_array(expected[idx])}, got {name}{at} = "
+                        f"{fmt_array(got[idx])}")
             self.fail(msg)
 
     def wrapped(self, name, angles):

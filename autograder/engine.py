@@ -198,6 +198,8 @@ def run_tests(ex, fn, caller, *, seed=None, limits=None):
             if exc.outcome.status == "timeout":
                 skip_reason = (f"not run: an earlier call of {fn} timed out (a function that hangs gets no points "
                                "for the tests after it)")
+            elif exc.outcome.status == "error" and str(exc.outcome.error or "").startswith("NotImplementedError"):
+                skip_reason = f"not run: {fn} raised NotImplementedError in '{test.title}' (not implemented yet)"
         except SkipRest as exc:
             score, text = 0.0, str(exc)
         except Exception as exc:  # noqa: BLE001 - a bug in a test must not end grading

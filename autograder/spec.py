@@ -16,6 +16,43 @@ decorator::
 
 A test passes when ``run(ctx)`` returns; it fails when a check raises
 :class:`~autograder.context.Fail` or a call of the student's function fails.
+
+Every test pays only for right values
+-------------------------------------
+A function that returns garbage must score 0 on *all* of its tests, and a property
+(symmetry, agreement with finite differences, an integral, a distribution) must
+never pay for wrong values that happen to have it. Each exercise module therefore
+follows four rules:
+
+1. One ``_check_<function>(ctx, *args)`` helper per contract function calls the
+   student's function, checks the output form (``ctx.expect``) and compares every
+   returned value with ``slamlib`` on the same inputs (``ctx.close`` / ``ctx.equal``).
+   Value tests call it; so does every property test, *before* checking its
+   property (``ctx.symmetric``, finite differences ...), on its own scenario.
+2. End-to-end runs (:mod:`autograder.loops`) plug in a step that calls the same
+   helper, so a run fails at the first step whose output differs from ``slamlib``
+   on that step's inputs (the message names the step and the call); the comparison
+   of the final track with the reference filter's comes after.
+3. Random functions are judged on what the contract fixes: the exact indices for
+   the single draw of low-variance resampling, and for samplers the moments
+   (:func:`~autograder.stats.odometry_moment_problem`) or the distribution (KS)
+   of the sampled noise in every test, including the tests of shape and of the
+   use of ``rng``.
+4. Functions returning an index are asked, in every test, at least one case whose
+   answer is neither 0 nor the "none" answer (``-1``, ``n_seen``), so that a
+   constant cannot pass; thresholds are probed just below and just above the exact
+   distance, so the distance itself must be right.
+
+``tests/test_autograder_mutation.py`` proves the rules hold for every function of
+every exercise registered in :data:`autograder.exercises.EXERCISES`: submissions
+returning zeros, random values or their own inputs (in the form of the right
+answer) must score 0 on every test, and mutants of slamlib's own source
+(``tests/mutation.py``; ``python -m tests.mutation`` prints the kill rate per
+function) must lose points, at least 95 % of the non-equivalent ones and every
+survivor explained in ``tests/mutation_table.py``. A new exercise (say
+``graph_slam``) is covered as soon as it is registered: write its ``_check_*``
+helpers, use them in every test, then run ``python -m tests.mutation --function
+NAME`` and kill or explain the survivors.
 """
 
 from __future__ import annotations

@@ -10,7 +10,14 @@ probability at most ``MAX_STAT_TESTS * P_THRESHOLD = 1e-4`` -- whatever the
 seeds. ``python -m autograder calibrate`` checks the uniformity claim
 empirically on the reference implementation over many seeds.
 
-The grader's seeds are fixed, so grading itself is deterministic.
+Besides these, :func:`odometry_moment_problem` checks the mean and variance of
+sampled noise against bounds that a correct sampler crosses with probability
+below ``1e-12`` per check (a z-bound of 7.5 on the mean, chi-square quantiles of
+``1e-12`` on the variance); they make a property test (shape, wrapped headings,
+use of ``rng``) pay only for samples with the right distribution, and add
+nothing noticeable to the false-failure budget above.
+
+A grading is deterministic given its seed.
 """
 
 from __future__ import annotations
@@ -18,13 +25,15 @@ from __future__ import annotations
 import numpy as np
 from scipy import special, stats
 
-__all__ = ["P_THRESHOLD", "MAX_STAT_TESTS", "wrapped_normal_cdf", "ks_pvalue", "odometry_noise",
-           "odometry_ks_pvalues", "offspring_chi2_pvalue"]
+__all__ = ["P_THRESHOLD", "MAX_STAT_TESTS", "MOMENT_P", "wrapped_normal_cdf", "ks_pvalue", "odometry_noise",
+           "odometry_ks_pvalues", "odometry_moment_problem", "offspring_chi2_pvalue"]
 
 #: p-value below which a statistical test fails.
 P_THRESHOLD = 1e-5
 #: Upper bound on the statistical tests one submission meets (summed over all exercises' tests).
 MAX_STAT_TESTS = 10
+#: Two-sided false-failure probability of each bound of :func:`odometry_moment_problem`.
+MOMENT_P = 1e-12
 
 
 def _wrap(a):
@@ -103,3 +112,32 @@ def offspring_chi2_pvalue(counts, w, n_draws):
         return 0.0
     chi2 = float(np.sum((counts[keep] - expected[keep]) ** 2 / expected[keep]))
     return float(stats.chi2.sf(chi2, df=int(keep.sum()) - 1))
+
+
+def odometry_moment_problem(x, x_next, u, alpha):
+    """Why the noise recovered from odometry samples has the wrong mean or variance, or ``None``.
+
+    For each of ``rot1``, ``trans`` and ``rot2``, with ``n`` samples and the
+    contract's variance ``v``: the sample mean must satisfy
+    ``|mean| <= z sqrt(v / n)`` and ``(n - 1) s^2 / v`` must lie between the
+    ``MOMENT_P / 2`` and ``1 - MOMENT_P / 2`` quantiles of chi-square with
+    ``n - 1`` degrees of freedom (``z`` is the normal quantile of ``MOMENT_P / 2``).
+    A zero variance requires zero noise (to 1e-9).
+    """
+    n = x.shape[0]
+    z = float(stats.norm.isf(MOMENT_P / 2))
+    lo = float(stats.chi2.ppf(MOMENT_P / 2, n - 1)) / (n - 1)
+    hi = float(stats.chi2.isf(MOMENT_P / 2, n - 1)) / (n - 1)
+    for name, d, v in zip(("rot1", "trans", "rot2"), odometry_noise(x, x_next, u), odometry_variances(u, alpha)):
+        if not np.all(np.isfinite(d)):
+            return f"the {name} noise recovered from your samples is not finite"
+        if v <= 0:
+            if np.max(np.abs(d)) > 1e-9:
+                return f"the {name} noise must be zero (its variance is 0), got up to {np.max(np.abs(d)):.3g}"
+            continue
+        mean, var = float(np.mean(d)), float(np.var(d, ddof=1))
+        if abs(mean) > z * np.sqrt(v / n) or not lo <= var / v <= hi:
+            return (f"the {name} noise recovered from your samples has mean {mean:.4g} and variance {var:.4g}; "
+                    f"expected mean 0 and variance {v:.4g} (Table 5.6: the variance is "
+                    f"{'a1 rot1^2 + a2 trans^2' if name != 'trans' else 'a3 trans^2 + a4 (rot1^2 + rot2^2)'})")
+    return None

@@ -43,11 +43,14 @@ def _predict(ctx, mu, Sigma, u, dt, M):
     return mu_bar, S
 
 
-def _check_predict(ctx, mu, Sigma, u, dt, M):
+def _check_predict(ctx, mu, Sigma, u, dt, M, scaled=False):
+    """Call ekf_predict and compare both results with slamlib's (``scaled``: atol relative to max |Sigma_bar|)."""
     mu_bar, S = _predict(ctx, mu, Sigma, u, dt, M)
     ref = sl.ekf_predict(mu, Sigma, u, dt, M)
     ctx.close("mu_bar", mu_bar, ref[0], atol=1e-9, rtol=1e-9, angles=[2])
-    ctx.close("Sigma_bar", S, ref[1], atol=1e-9, rtol=1e-7)
+    ctx.close("Sigma_bar", S, ref[1], atol=1e-9 * (max(1.0, np.abs(ref[1]).max()) if scaled else 1.0), rtol=1e-7)
+    if scaled:
+        return mu_bar, S
     return S
 
 
@@ -86,7 +89,7 @@ def _(ctx):
         mu, Sigma = _belief(ctx.rng)
         Sigma = Sigma * 50.0
         u, dt = _control(ctx.rng)
-        _, S = _predict(ctx, mu, Sigma, u, dt, spd(ctx.rng, 2, scale=2.0))
+        S = _check_predict(ctx, mu, Sigma, u, dt, spd(ctx.rng, 2, scale=2.0))
         ctx.symmetric("Sigma_bar", S)
 
 
@@ -97,7 +100,7 @@ def _(ctx):
     run = loops.scenario("localization")
 
     def predict(t, mu, Sigma, u, dt, M):
-        return _predict(ctx, mu, Sigma, u, dt, M)
+        return _check_predict(ctx, mu, Sigma, u, dt, M, scaled=True)
 
     try:
         traj, _ = loops.ekf_localization_loop(run, predict=predict, update=loops.ref_ekf_update)
@@ -125,11 +128,12 @@ def _meas_case(rng, mu_bar, behind=False):
     return z, m
 
 
-def _check_update(ctx, mu_bar, Sigma_bar, z, m, Q):
+def _check_update(ctx, mu_bar, Sigma_bar, z, m, Q, scaled=False):
+    """Call ekf_update and compare both results with slamlib's (``scaled``: atol relative to max |Sigma_bar|)."""
     mu, S = _update(ctx, mu_bar, Sigma_bar, z, m, Q)
     ref = sl.ekf_update(mu_bar, Sigma_bar, z, m, Q)
     ctx.close("mu", mu, ref[0], atol=1e-9, rtol=1e-8, angles=[2])
-    ctx.close("Sigma", S, ref[1], atol=1e-10, rtol=1e-7)
+    ctx.close("Sigma", S, ref[1], atol=1e-10 * (max(1.0, np.abs(Sigma_bar).max()) if scaled else 1.0), rtol=1e-7)
     return mu, S
 
 
@@ -160,7 +164,7 @@ def _(ctx):
     for _ in range(4):
         mu_bar, Sigma_bar = _belief(ctx.rng)
         z, m = _meas_case(ctx.rng, mu_bar)
-        _, S = _update(ctx, mu_bar, Sigma_bar, z, m, spd(ctx.rng, 2, scale=0.05))
+        _, S = _check_update(ctx, mu_bar, Sigma_bar, z, m, spd(ctx.rng, 2, scale=0.05))
         ctx.symmetric("Sigma", S)
         D = Sigma_bar - 0.5 * (S + S.T)
         if np.linalg.eigvalsh(D).min() < -1e-9 * max(1.0, np.abs(Sigma_bar).max()):
@@ -174,7 +178,7 @@ def _(ctx):
     run = loops.scenario("localization")
 
     def update(t, mu, Sigma, z, m, Q):
-        return _update(ctx, mu, Sigma, z, m, Q)
+        return _check_update(ctx, mu, Sigma, z, m, Q, scaled=True)
 
     try:
         traj, _ = loops.ekf_localization_loop(run, predict=loops.ref_ekf_predict, update=update)
@@ -189,18 +193,23 @@ def _assoc(ctx, mu_bar, Sigma_bar, z, landmarks, Q, gate):
     return ctx.expect(ctx.call(mu_bar, Sigma_bar, z, landmarks, Q, gate), INDEX)
 
 
-def _clear_case(rng):
-    """A belief, landmarks and a measurement whose nearest neighbour is unambiguous."""
+def _clear_case(rng, nonzero=False):
+    """A belief, landmarks and a measurement whose nearest neighbour is unambiguous.
+
+    The measurement comes from landmark ``k`` and ``k`` is the nearest neighbour;
+    ``nonzero``: ``k >= 1``, so that a function returning a constant 0 cannot pass.
+    """
     while True:
         mu_bar = random_pose(rng, extent=2.0)
         Sigma_bar = spd(rng, 3, scale=0.5, cond=50.0)
         K = int(rng.integers(3, 8))
         landmarks = mu_bar[:2] + rng.uniform(-6, 6, size=(K, 2))
-        k = int(rng.integers(K))
+        k = int(rng.integers(1 if nonzero else 0, K))
         z = sl.landmark_measurement(mu_bar + rng.normal(0, [0.3, 0.3, 0.1]), landmarks[k])[0]
         Q = spd(rng, 2, scale=0.1)
-        d = np.sort(sl.landmark_mahalanobis(mu_bar, Sigma_bar, z, landmarks, Q))
-        if d.size < 2 or d[1] > d[0] * (1 + 1e-3) + 1e-6:
+        d = sl.landmark_mahalanobis(mu_bar, Sigma_bar, z, landmarks, Q)
+        ds = np.sort(d)
+        if int(np.argmin(d)) == k and ds[1] > ds[0] * (1 + 1e-3) + 1e-6:
             return mu_bar, Sigma_bar, z, landmarks, Q
 
 
@@ -209,8 +218,8 @@ def _clear_case(rng):
               "d_k = nu_k^T S_k^-1 nu_k; return the k with the smallest d_k (not the largest likelihood, which "
               "also weighs det S_k).")
 def _(ctx):
-    for _ in range(10):
-        mu_bar, Sigma_bar, z, landmarks, Q = _clear_case(ctx.rng)
+    for i in range(10):
+        mu_bar, Sigma_bar, z, landmarks, Q = _clear_case(ctx.rng, nonzero=i % 2 == 0)
         got = _assoc(ctx, mu_bar, Sigma_bar, z, landmarks, Q, 1e6)
         want = sl.associate_ml(mu_bar, Sigma_bar, z, landmarks, Q, 1e6)
         if got != want:
@@ -221,7 +230,9 @@ def _(ctx):
 
 @EX.test("associate_ml", "gate, equality at the gate and an empty map", weight=6,
          hint="Return -1 when the smallest distance exceeds gate or there are no landmarks; a distance equal to "
-              "the gate still counts as a match.")
+              "the gate still counts as a match. The gates here sit just below and above the smallest distance, so "
+              "d_k = nu_k^T S_k^-1 nu_k must be exact: S_k = H_k Sigma_bar H_k^T + Q with H_k at mu_bar, and the "
+              "bearing of nu_k wrapped.")
 def _(ctx):
     # an exactly representable case: S = I and nu = (0.5, 0), so d = 0.25 exactly
     mu0, S0, Q0 = np.zeros(3), np.zeros((3, 3)), np.eye(2)
@@ -235,19 +246,31 @@ def _(ctx):
     got = _assoc(ctx, mu_bar, Sigma_bar, z, np.zeros((0, 2)), Q, 10.0)
     if got != -1:
         ctx.fail(f"returned {got} for an empty map (landmarks of shape (0, 2)), expected -1")
+    _probe_gate(ctx, mu_bar, Sigma_bar, z, landmarks, Q)
+    # a landmark straight behind the robot: the bearing innovation must be wrapped
+    mu_bar = random_pose(ctx.rng, extent=2.0)
+    ang = mu_bar[2] + np.pi + 1e-3
+    landmarks = mu_bar[:2] + np.array([[3.0 * np.cos(ang), 3.0 * np.sin(ang)], [-4.0, 5.0]])
+    z = np.array([3.05, np.pi - 2e-3])
+    _probe_gate(ctx, mu_bar, spd(ctx.rng, 3, scale=0.3), z, landmarks, spd(ctx.rng, 2, scale=0.1))
+
+
+def _probe_gate(ctx, mu_bar, Sigma_bar, z, landmarks, Q):
+    """Gates just below and just above the smallest distance: the answer depends on its exact value."""
     d = sl.landmark_mahalanobis(mu_bar, Sigma_bar, z, landmarks, Q)
-    for gate in (0.5 * d.min(), 2.0 * d.min() + 1e-9):
+    for gate in (d.min() * (1 - 1e-6), d.min() * (1 + 1e-6)):
         got = _assoc(ctx, mu_bar, Sigma_bar, z, landmarks, Q, float(gate))
         want = sl.associate_ml(mu_bar, Sigma_bar, z, landmarks, Q, float(gate))
         if got != want:
-            ctx.fail(f"returned {got}, expected {want} (smallest distance {d.min():.4g}, gate {gate:.4g})")
+            ctx.fail(f"returned {got}, expected {want}: the smallest squared Mahalanobis distance is "
+                     f"{d.min():.10g} and the gate {gate:.10g} (the distances are {np.array2string(d, precision=6)})")
 
 
 @EX.test("associate_ml", "ties go to the smallest index", weight=4, visibility="hidden",
          hint="When two landmarks are equally close, return the smaller index (np.argmin does).")
 def _(ctx):
     for _ in range(3):
-        mu_bar, Sigma_bar, z, landmarks, Q = _clear_case(ctx.rng)
+        mu_bar, Sigma_bar, z, landmarks, Q = _clear_case(ctx.rng, nonzero=True)
         best = sl.associate_ml(mu_bar, Sigma_bar, z, landmarks, Q, 1e6)
         dup = np.vstack([landmarks, landmarks[best], landmarks[best]])
         got = _assoc(ctx, mu_bar, Sigma_bar, z, dup, Q, 1e6)
@@ -263,7 +286,13 @@ def _(ctx):
     run = loops.scenario("localization")
 
     def associate(t, mu, Sigma, z, landmarks, Q, gate):
-        return _assoc(ctx, mu, Sigma, z, landmarks, Q, gate)
+        got = _assoc(ctx, mu, Sigma, z, landmarks, Q, gate)
+        want = sl.associate_ml(mu, Sigma, z, landmarks, Q, gate)
+        if got != want:
+            ctx.fail(f"at step {t}: returned {got}, expected {want}; the squared Mahalanobis distances are "
+                     f"{np.array2string(sl.landmark_mahalanobis(mu, Sigma, z, landmarks, Q), precision=4)} "
+                     f"(gate {gate:.4g})")
+        return got
 
     try:
         traj, ids = loops.ekf_localization_loop(run, predict=loops.ref_ekf_predict, update=loops.ref_ekf_update,

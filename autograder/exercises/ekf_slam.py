@@ -52,10 +52,12 @@ def _predict(ctx, mu, Sigma, u, dt, M):
 
 
 def _check_predict(ctx, mu, Sigma, u, dt, M):
+    """Call ekf_slam_predict and compare both results with slamlib's (atol scaled by max |Sigma_bar|)."""
     mu_bar, S = _predict(ctx, mu, Sigma, u, dt, M)
     ref = sl.ekf_slam_predict(mu, Sigma, u, dt, M)
     ctx.close("mu_bar", mu_bar, ref[0], atol=1e-9, rtol=1e-9, angles=[2])
-    ctx.close("Sigma_bar", S, ref[1], atol=1e-9, rtol=1e-7)
+    ctx.close("Sigma_bar", S, ref[1], atol=1e-9 * max(1.0, float(np.abs(ref[1]).max())), rtol=1e-7)
+    return mu_bar, S
 
 
 @EX.test("ekf_slam_predict", "robot moves, landmarks stay", weight=8,
@@ -66,6 +68,10 @@ def _(ctx):
         mu, Sigma = _state(ctx.rng)
         u, dt = _control(ctx.rng)
         _check_predict(ctx, mu, Sigma, u, dt, spd(ctx.rng, 2, scale=0.05))
+    # a sharp turn (|omega dt| about 2): V far from its straight-line limit
+    mu, Sigma = _state(ctx.rng)
+    u = np.array([ctx.rng.uniform(0.5, 2.0), ctx.rng.choice([-1, 1]) * ctx.rng.uniform(2.0, 3.0)])
+    _check_predict(ctx, mu, Sigma, u, 0.8, spd(ctx.rng, 2, scale=0.5))
 
 
 @EX.test("ekf_slam_predict", "any number of landmarks (N = 0, 1, 7)", weight=4,
@@ -93,7 +99,7 @@ def _(ctx):
     run = loops.scenario("slam")
 
     def predict(t, mu, Sigma, u, dt, M):
-        return _predict(ctx, mu, Sigma, u, dt, M)
+        return _check_predict(ctx, mu, Sigma, u, dt, M)
 
     _slam_e2e(ctx, run, predict=predict)
 
@@ -158,7 +164,10 @@ def _(ctx):
     for _ in range(2):
         mu, _ = _state(ctx.rng, N=3)
         j = int(ctx.rng.integers(3))
-        _, H = _meas(ctx, mu, j)
+        z, H = _meas(ctx, mu, j)
+        ref = sl.ekf_slam_measurement(mu, j)
+        ctx.close("z_hat", z, ref[0], atol=1e-9, rtol=1e-9, angles=[1])
+        ctx.close("H", H, ref[1], atol=1e-9, rtol=1e-7)
         num = fd_jacobian(lambda mm: _meas(ctx, mm, j)[0], mu, angle_out=[1])
         ctx.last_call = ctx.describe_call("ekf_slam_measurement", (mu, j), {})
         check_fd(ctx, "H", H, num)
@@ -167,6 +176,13 @@ def _(ctx):
 # =========================================================================== ekf_slam_init_landmark
 def _init(ctx, mu, z, j):
     return ctx.expect(ctx.call(mu, z, j), Out("mu", mu.shape))
+
+
+def _check_init(ctx, mu, z, j):
+    """Call ekf_slam_init_landmark and compare with slamlib's result."""
+    got = _init(ctx, mu, z, j)
+    ctx.close("mu", got, sl.ekf_slam_init_landmark(mu, z, j), atol=1e-9, rtol=1e-9, angles=[2])
+    return got
 
 
 @EX.test("ekf_slam_init_landmark", "landmark mean from the first sighting", weight=8,
@@ -188,7 +204,7 @@ def _(ctx):
         mu, _ = _state(ctx.rng, N=6)
         j = int(ctx.rng.integers(6))
         z = np.array([ctx.rng.uniform(0.5, 8.0), ctx.rng.uniform(-np.pi, np.pi)])
-        got = _init(ctx, mu, z, j)
+        got = _check_init(ctx, mu, z, j)
         keep = np.ones(mu.shape, bool)
         keep[3 + 2 * j:5 + 2 * j] = False
         ctx.equal("the entries of mu other than landmark j", got[keep], mu[keep])
@@ -198,7 +214,7 @@ def _(ctx):
          hint="Plugged into EKF SLAM on a simulated run, your initialisation must give the reference's map.")
 def _(ctx):
     def init(t, mu, z, j):
-        return _init(ctx, mu, z, j)
+        return _check_init(ctx, mu, z, j)
 
     _slam_e2e(ctx, loops.scenario("slam"), init=init)
 
@@ -218,11 +234,12 @@ def _noisy_z(rng, mu, j):
 
 
 def _check_update(ctx, mu, Sigma, z, j, Q):
+    """Call ekf_slam_update and compare both results with slamlib's (atol scaled by max |Sigma_bar|)."""
     got_mu, got_S = _update(ctx, mu, Sigma, z, j, Q)
     ref = sl.ekf_slam_update(mu, Sigma, z, j, Q)
     ctx.close("mu", got_mu, ref[0], atol=1e-9, rtol=1e-8, angles=[2])
-    ctx.close("Sigma", got_S, ref[1], atol=1e-10, rtol=1e-7)
-    return got_S
+    ctx.close("Sigma", got_S, ref[1], atol=1e-10 * max(1.0, float(np.abs(Sigma).max())), rtol=1e-7)
+    return got_mu, got_S
 
 
 @EX.test("ekf_slam_update", "mean and covariance on random beliefs", weight=10,
@@ -241,8 +258,17 @@ def _(ctx):
     for th in (0.2, np.pi - 0.01):
         mu, Sigma = _state(ctx.rng, N=3, heading=th)
         j = int(ctx.rng.integers(3))
-        mu = _behind(mu, j)
-        _check_update(ctx, mu, Sigma, _noisy_z(ctx.rng, mu, j), j, np.diag([0.05, 0.02]))
+        mu = _behind(mu, j)  # z_hat's bearing is -pi + 1e-4
+        z = sl.ekf_slam_measurement(mu, j)[0] + np.array([ctx.rng.normal(0.0, 0.15), -ctx.rng.uniform(0.01, 0.1)])
+        z[1] = sl.wrap_angle(z[1])  # just below +pi: z - z_hat is about -2 pi before wrapping
+        _check_update(ctx, mu, Sigma, z, j, np.diag([0.05, 0.02]))
+    # a heading at pi - 1e-4 corrected both ways: one of the two updates crosses +-pi
+    mu, Sigma = _state(ctx.rng, N=3, heading=np.pi - 1e-4)
+    j = int(ctx.rng.integers(3))
+    for db in (-0.3, 0.3):
+        z = sl.ekf_slam_measurement(mu, j)[0] + np.array([0.0, db])
+        z[1] = sl.wrap_angle(z[1])
+        _check_update(ctx, mu, Sigma, z, j, np.diag([0.05, 0.02]))
 
 
 @EX.test("ekf_slam_update", "covariance symmetric and not larger than the prior", weight=3, visibility="hidden",
@@ -251,7 +277,7 @@ def _(ctx):
     for _ in range(3):
         mu, Sigma = _state(ctx.rng, N=4)
         j = int(ctx.rng.integers(4))
-        _, S = _update(ctx, mu, Sigma, _noisy_z(ctx.rng, mu, j), j, spd(ctx.rng, 2, scale=0.05))
+        _, S = _check_update(ctx, mu, Sigma, _noisy_z(ctx.rng, mu, j), j, spd(ctx.rng, 2, scale=0.05))
         ctx.symmetric("Sigma", S)
         if np.linalg.eigvalsh(Sigma - 0.5 * (S + S.T)).min() < -1e-9 * max(1.0, np.abs(Sigma).max()):
             ctx.fail("Sigma_bar - Sigma has a negative eigenvalue: the update increased the uncertainty")
@@ -262,7 +288,7 @@ def _(ctx):
               "as well as the reference.")
 def _(ctx):
     def update(t, mu, Sigma, z, j, Q):
-        return _update(ctx, mu, Sigma, z, j, Q)
+        return _check_update(ctx, mu, Sigma, z, j, Q)
 
     _slam_e2e(ctx, loops.scenario("slam"), update=update)
 
@@ -272,10 +298,12 @@ def _assoc(ctx, mu, Sigma, z, n_seen, Q, alpha):
     return ctx.expect(ctx.call(mu, Sigma, z, n_seen, Q, alpha), INDEX)
 
 
-def _clear_assoc(rng, N=5):
+def _clear_assoc(rng, N=5, k=None):
+    """A belief and a measurement of landmark ``k`` (random if None), which is clearly the nearest."""
+    want = k
     while True:
         mu, Sigma = _state(rng, N=N, scale=0.05)
-        k = int(rng.integers(N))
+        k = int(rng.integers(N)) if want is None else want
         z = _noisy_z(rng, mu, k)
         Q = spd(rng, 2, scale=0.05)
         d = []
@@ -285,8 +313,8 @@ def _clear_assoc(rng, N=5):
             nu = z - z_hat
             nu[1] = sl.wrap_angle(nu[1])
             d.append(nu @ np.linalg.solve(S, nu))
-        d = np.sort(d)
-        if d[1] > d[0] * (1 + 1e-3) + 1e-6:
+        ds = np.sort(d)
+        if int(np.argmin(d)) == k and ds[1] > ds[0] * (1 + 1e-3) + 1e-6:
             return mu, Sigma, z, Q
 
 
@@ -294,8 +322,8 @@ def _clear_assoc(rng, N=5):
          hint="For k < n_seen: d_k = nu_k^T S_k^-1 nu_k with S_k = H_k Sigma_bar H_k^T + Q; return the smallest "
               "if d_k <= alpha (Algorithm 2).")
 def _(ctx):
-    for _ in range(8):
-        mu, Sigma, z, Q = _clear_assoc(ctx.rng)
+    for i in range(8):
+        mu, Sigma, z, Q = _clear_assoc(ctx.rng, k=None if i % 2 else int(ctx.rng.integers(1, 5)))
         got = _assoc(ctx, mu, Sigma, z, 5, Q, 1e6)
         want = sl.ekf_slam_associate(mu, Sigma, z, 5, Q, 1e6)
         if got != want:
@@ -303,21 +331,57 @@ def _(ctx):
 
 
 @EX.test("ekf_slam_associate", "new landmark above alpha, and n_seen = 0", weight=5,
-         hint="Return n_seen (a new landmark) when every distance exceeds alpha, or when n_seen = 0.")
+         hint="Return n_seen (a new landmark) when every distance exceeds alpha, or when n_seen = 0; a distance "
+              "equal to alpha is a match. Some alphas sit just below and above the smallest distance, so "
+              "d_k = nu_k^T S_k^-1 nu_k must be exact: S_k = H_k Sigma_bar H_k^T + Q with the full H_k, and the "
+              "bearing of nu_k wrapped.")
 def _(ctx):
-    mu, Sigma, z, Q = _clear_assoc(ctx.rng)
-    for n_seen, alpha in ((5, 1e-9), (0, 1e6), (3, 5.99)):
+    mu, Sigma, z, Q = _clear_assoc(ctx.rng, k=int(ctx.rng.integers(1, 3)))
+    for n_seen, alpha in ((5, 1e-9), (0, 1e6), (0, np.inf), (3, 5.99), (5, 1e6), (5, np.inf)):
         got = _assoc(ctx, mu, Sigma, z, n_seen, Q, alpha)
         want = sl.ekf_slam_associate(mu, Sigma, z, n_seen, Q, alpha)
         if got != want:
             ctx.fail(f"returned {got}, expected {want} (n_seen = {n_seen}, alpha = {alpha:g})")
+    # an exactly representable case: Sigma_bar = 0, Q = I and nu = (0.5, 0), so d = 0.25 exactly
+    mu0, S0, z0 = np.array([0.0, 0.0, 0.0, 1.0, 0.0]), np.zeros((5, 5)), np.array([1.5, 0.0])
+    for alpha in (0.25, 0.2499):
+        got = _assoc(ctx, mu0, S0, z0, 1, np.eye(2), alpha)
+        want = sl.ekf_slam_associate(mu0, S0, z0, 1, np.eye(2), alpha)
+        if got != want:
+            ctx.fail(f"returned {got}, expected {want} (the distance is exactly 0.25, alpha {alpha})")
+    # alpha just below and above the smallest distance: the answer depends on its exact value
+    _probe_alpha(ctx, mu, Sigma, z, 5, Q)
+    mu, Sigma, z, Q = _clear_assoc(ctx.rng, k=int(ctx.rng.integers(0, 3)))
+    mu = _behind(mu, 3)
+    z = np.array([3.02, np.pi - 2e-3])  # landmark 3 is straight behind the robot: wrap the bearing innovation
+    _probe_alpha(ctx, mu, Sigma, z, 5, Q)
+
+
+def _distances(mu, Sigma, z, n_seen, Q):
+    d = []
+    for i in range(n_seen):
+        z_hat, H = sl.ekf_slam_measurement(mu, i)
+        nu = z - z_hat
+        nu[1] = sl.wrap_angle(nu[1])
+        d.append(nu @ np.linalg.solve(H @ Sigma @ H.T + Q, nu))
+    return np.array(d)
+
+
+def _probe_alpha(ctx, mu, Sigma, z, n_seen, Q):
+    d = _distances(mu, Sigma, z, n_seen, Q)
+    for alpha in (d.min() * (1 - 1e-6), d.min() * (1 + 1e-6)):
+        got = _assoc(ctx, mu, Sigma, z, n_seen, Q, float(alpha))
+        want = sl.ekf_slam_associate(mu, Sigma, z, n_seen, Q, float(alpha))
+        if got != want:
+            ctx.fail(f"returned {got}, expected {want}: the smallest squared Mahalanobis distance is "
+                     f"{d.min():.10g} and alpha {alpha:.10g} (the distances are {np.array2string(d, precision=6)})")
 
 
 @EX.test("ekf_slam_associate", "slots beyond n_seen are ignored", weight=4, visibility="hidden",
          hint="Only the first n_seen landmarks are in the map; later slots hold nothing yet.")
 def _(ctx):
     for _ in range(3):
-        mu, Sigma, z, Q = _clear_assoc(ctx.rng, N=6)
+        mu, Sigma, z, Q = _clear_assoc(ctx.rng, N=6, k=int(ctx.rng.integers(1, 4)))
         mu = mu.copy()
         m = sl.landmark_from_measurement(mu[:3], z)
         mu[3 + 2 * 4:5 + 2 * 4] = m  # slots 4 = n_seen and 5 match z perfectly but are not in the map yet
@@ -331,13 +395,16 @@ def _(ctx):
 @EX.test("ekf_slam_associate", "ties go to the smallest index", weight=3, visibility="hidden",
          hint="When two landmarks are equally close, return the smaller index.")
 def _(ctx):
-    mu, Sigma, z, Q = _clear_assoc(ctx.rng, N=4)
-    best = sl.ekf_slam_associate(mu, Sigma, z, 4, Q, 1e6)
-    mu = mu.copy()
-    Sigma = np.zeros_like(Sigma)
-    other = 3 if best != 3 else 2
-    lo, hi = min(best, other), max(best, other)
-    mu[3 + 2 * other:5 + 2 * other] = mu[3 + 2 * best:5 + 2 * best]
-    got = _assoc(ctx, mu, Sigma, z, 4, Q, 1e6)
-    if got != lo:
-        ctx.fail(f"landmarks {lo} and {hi} are identical and nearest; returned {got}, expected {lo}")
+    for _ in range(4):
+        while True:  # the nearest landmark with Sigma_bar = 0 must be 1 or 2 (so that a constant answer fails)
+            mu, Sigma, z, Q = _clear_assoc(ctx.rng, N=4, k=int(ctx.rng.integers(1, 3)))
+            Sigma = np.zeros_like(Sigma)
+            best = sl.ekf_slam_associate(mu, Sigma, z, 4, Q, 1e6)
+            if best in (1, 2):
+                break
+        mu = mu.copy()
+        lo, hi = best, 3
+        mu[3 + 2 * hi:5 + 2 * hi] = mu[3 + 2 * lo:5 + 2 * lo]
+        got = _assoc(ctx, mu, Sigma, z, 4, Q, 1e6)
+        if got != lo:
+            ctx.fail(f"landmarks {lo} and {hi} are identical and nearest; returned {got}, expected {lo}")

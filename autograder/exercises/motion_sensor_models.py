@@ -8,7 +8,7 @@ import slamlib as sl
 
 from ..context import Out, RngSeed
 from ..spec import Exercise
-from ..stats import P_THRESHOLD, odometry_ks_pvalues, odometry_noise, odometry_variances
+from ..stats import P_THRESHOLD, odometry_ks_pvalues, odometry_moment_problem, odometry_noise, odometry_variances
 from .common import check_fd, fd_jacobian, random_pose
 
 EX = Exercise(
@@ -39,6 +39,16 @@ def _vm_case(rng, *, omega=None, heading=None):
 
 def _vm(ctx, x, u, dt):
     return ctx.expect(ctx.call(x, u, dt), X_NEXT, G_OUT, V_OUT)
+
+
+def _check_vm(ctx, x, u, dt):
+    """Call velocity_motion and compare all three results with slamlib's."""
+    x_next, G, V = _vm(ctx, x, u, dt)
+    ref = sl.velocity_motion(x, u, dt)
+    ctx.close("x_next", x_next, ref[0], atol=1e-9, rtol=1e-9, angles=[2])
+    ctx.close("G", G, ref[1], atol=1e-8, rtol=1e-7)
+    ctx.close("V", V, ref[2], atol=1e-8, rtol=1e-6)
+    return x_next, G, V
 
 
 @EX.test("velocity_motion", "arc motion on random poses and controls", weight=6,
@@ -116,7 +126,7 @@ def _(ctx):
 def _(ctx):
     for _ in range(3):
         x, u, dt = _vm_case(ctx.rng)
-        _, G, V = _vm(ctx, x, u, dt)
+        _, G, V = _check_vm(ctx, x, u, dt)
         fx = fd_jacobian(lambda xx: _vm(ctx, xx, u, dt)[0], x, angle_out=[2])
         fu = fd_jacobian(lambda uu: _vm(ctx, x, uu, dt)[0], u, angle_out=[2])
         ctx.last_call = ctx.describe_call("velocity_motion", (x, u, dt), {})
@@ -139,6 +149,7 @@ def _(ctx):
     alpha = np.array([0.05, 0.01, 0.02, 0.01])
     out = _odo_sample(ctx, x, u, alpha, 11)
     ctx.wrapped("sampled headings", out[:, 2])
+    _moment_check(ctx, x, out, u, alpha)
 
 
 @EX.test("sample_motion_model_odometry", "no noise when alpha = 0", weight=4,
@@ -151,6 +162,13 @@ def _(ctx):
     out = _odo_sample(ctx, x, u, alpha, 12)
     ref = sl.sample_motion_model_odometry(x, u, alpha, rng=np.random.default_rng(12))
     ctx.close("samples", out, ref, atol=1e-9, rtol=1e-9, angles=[2])
+
+
+def _moment_check(ctx, x, out, u, alpha):
+    """The noise recovered from the samples has the contract's mean and variance (z-bound, see stats)."""
+    problem = odometry_moment_problem(x, out, u, alpha)
+    if problem:
+        ctx.fail(problem)
 
 
 def _ks_check(ctx, x, out, u, alpha):
@@ -166,7 +184,7 @@ def _ks_check(ctx, x, out, u, alpha):
 
 
 _KS_SCENARIOS = (
-    (np.array([0.4, 1.0, -0.3]), np.array([0.05, 0.01, 0.02, 0.01])),
+    (np.array([0.4, 2.5, -0.3]), np.array([0.05, 0.01, 0.02, 0.01])),
     (np.array([2.5, 0.5, 3.0]), np.array([0.2, 0.1, 0.004, 0.0002])),
 )
 
@@ -204,11 +222,15 @@ def _(ctx):
     a = _odo_sample(ctx, x, u, alpha, 77, global_seed=1)
     b = _odo_sample(ctx, x, u, alpha, 77, global_seed=2)
     if not np.array_equal(a, b):
+        i = tuple(int(k) for k in np.argwhere(a != b)[0])
         ctx.fail("two calls with the same rng seed gave different samples: the function draws from a source "
-                 "other than rng (the global NumPy or Python random state)")
+                 f"other than rng (the global NumPy or Python random state); expected identical samples, got "
+                 f"samples[{i[0]}, {i[1]}] = {a[i]:.6g} and {b[i]:.6g}")
     c = _odo_sample(ctx, x, u, alpha, 78, global_seed=1)
     if np.array_equal(a, c):
-        ctx.fail("two calls with different rng seeds gave identical samples: the noise does not come from rng")
+        ctx.fail("two calls with different rng seeds gave identical samples: the noise does not come from rng "
+                 "(expected different samples for different seeds)")
+    _moment_check(ctx, x, a, u, alpha)
 
 
 # =========================================================================== motion_model_odometry
@@ -316,7 +338,11 @@ def _(ctx):
          hint="Your Jacobians disagree with the numerical derivatives of your own z_hat.")
 def _(ctx):
     for x, m in _lm_cases(ctx.rng, 3)[:3]:
-        _, Hx, Hm = _lm(ctx, x, m)
+        z, Hx, Hm = _lm(ctx, x, m)
+        ref = sl.landmark_measurement(x, m)
+        ctx.close("z_hat", z, ref[0], atol=1e-9, rtol=1e-9, angles=[1])
+        ctx.close("Hx", Hx, ref[1], atol=1e-9, rtol=1e-7)
+        ctx.close("Hm", Hm, ref[2], atol=1e-9, rtol=1e-7)
         fx = fd_jacobian(lambda xx: _lm(ctx, xx, m)[0], x, angle_out=[1])
         fm = fd_jacobian(lambda mm: _lm(ctx, x, mm)[0], m, angle_out=[1])
         ctx.last_call = ctx.describe_call("landmark_measurement", (x, m), {})
@@ -392,12 +418,12 @@ def _(ctx):
 
 @EX.test("beam_range_finder_model", "boundaries: z = 0, z = z_star, z = z_max", weight=3,
          hint="p_short is non-zero on the closed interval [0, z_star]; p_max = 1 for z >= z_max; "
-              "p_rand = 1/z_max on [0, z_max) only; p_hit is non-zero on [0, z_max].")
+              "p_rand = 1/z_max on [0, z_max) only; p_hit is non-zero on [0, z_max] only (0 beyond z_max).")
 def _(ctx):
     params = _beam_params(ctx.rng)
     zm = params["z_max"]
-    z_star = np.array([3.0, 3.0, 3.0, 3.0, zm, zm * 0.5])
-    z = np.array([0.0, 3.0, zm, zm + 0.5, zm, zm * 0.5])
+    z_star = np.array([3.0, 3.0, 3.0, 3.0, zm, zm * 0.5, zm - 0.05])
+    z = np.array([0.0, 3.0, zm, zm + 0.5, zm, zm * 0.5, zm + 0.05])
     p = _beam(ctx, z, z_star, params)
     ctx.close("p", p, sl.beam_range_finder_model(z, z_star, **params), atol=1e-12, rtol=1e-9)
 
@@ -411,6 +437,7 @@ def _(ctx):
     z = np.linspace(0.0, zm, 40001)[:-1]
     z_star = np.full(z.shape, 0.6 * zm)
     p = _beam(ctx, z, z_star, params)
+    ctx.close("p", p, sl.beam_range_finder_model(z, z_star, **params), atol=1e-12, rtol=1e-9)
     integral = float(np.sum(0.5 * (p[1:] + p[:-1]) * np.diff(z)))
     want = params["w_hit"] + params["w_short"] + params["w_rand"]
     if abs(integral - want) > 2e-3:

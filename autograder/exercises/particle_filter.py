@@ -103,14 +103,17 @@ def _resample(ctx, w, seed, global_seed=None):
 
 
 def _check_lvr(ctx, w, seed):
+    """Call low_variance_resample with a generator seeded ``seed``; the indices must be slamlib's."""
     got = _resample(ctx, w, seed)
     ref = sl.low_variance_resample(w, rng=np.random.default_rng(seed))
     ctx.equal("indices", got, ref)
+    return got
 
 
 @EX.test("low_variance_resample", "indices of Table 4.4 with the single draw", weight=12,
          hint="Normalise w, draw exactly one r = rng.uniform(0.0, 1.0 / M), then index m is the first i with "
-              "cumsum(w)[i] >= r + m / M (clipped to M - 1); return an integer array.")
+              "cumsum(w)[i] >= r + m / M (clipped to M - 1), compared as computed (a pointer equal to a cumulative "
+              "weight goes to that particle); return an integer array.")
 def _(ctx):
     for k, M in enumerate((10, 50, 200, 7)):
         w = ctx.rng.dirichlet(np.full(M, 0.7))
@@ -118,6 +121,27 @@ def _(ctx):
     w = np.zeros(12)
     w[[2, 9]] = [0.25, 0.75]
     _check_lvr(ctx, w, 310)
+    w, seed = _tie_case(ctx.rng)
+    _check_lvr(ctx, w, seed)
+
+
+def _tie_case(rng, M=8):
+    """Weights whose cumulative sum equals the pointer ``r + 4 / M`` exactly (the seed fixes ``r``).
+
+    ``w[1] = r + 1/2`` and ``w[-1] = 1 - w[1]`` sum to exactly 1 in any order, so
+    normalising changes nothing, and ``cumsum(w)[1] >= r + 4 / M`` holds with
+    equality: pointers 0-4 go to particle 1, pointers 5-7 to particle ``M - 1``. The
+    seed is chosen so that ``(cumsum(w)[1] - r) M`` rounds below 4, where counting
+    pointers by a formula instead of comparing them goes wrong.
+    """
+    while True:
+        seed = int(rng.integers(2**31))
+        r = np.random.default_rng(seed).uniform(0.0, 1.0 / M)
+        c = r + 4 / M
+        if (c - r) * M < 4:
+            w = np.zeros(M)
+            w[1], w[-1] = c, 1.0 - c
+            return w, seed
 
 
 @EX.test("low_variance_resample", "unnormalised weights", weight=6,
@@ -138,7 +162,7 @@ def _(ctx):
     M = 40
     for k in range(12):
         w = ctx.rng.dirichlet(np.full(M, 0.8))
-        idx = _resample(ctx, w, 500 + k)
+        idx = _check_lvr(ctx, w, 500 + k)
         if idx.min() < 0 or idx.max() >= M:
             ctx.fail(f"indices must lie in [0, {M}), got range [{idx.min()}, {idx.max()}]")
         c = _counts(idx, M)
@@ -157,7 +181,7 @@ def _(ctx):
     w = ctx.rng.dirichlet(np.full(M, 1.0))
     total = np.zeros(M)
     for k in range(R):
-        idx = _resample(ctx, w, 600 + k)
+        idx = _check_lvr(ctx, w, 600 + k)
         if idx.min() < 0 or idx.max() >= M:
             ctx.fail(f"indices must lie in [0, {M}), got range [{idx.min()}, {idx.max()}]")
         total += _counts(idx, M)
@@ -176,7 +200,7 @@ def _(ctx):
     run = loops.scenario("localization")
 
     def resample(t, w, seed):
-        return _resample(ctx, w, seed)
+        return _check_lvr(ctx, w, seed)
 
     try:
         traj = loops.particle_filter_loop(run, likelihood=loops.ref_likelihood, normalize=loops.ref_normalize,
@@ -200,9 +224,11 @@ def _particles(rng, M, centre=None, spread=0.5):
 
 
 def _check_lik(ctx, particles, z, m, Q):
+    """Call landmark_likelihood and compare with slamlib's densities."""
     p = _lik(ctx, particles, z, m, Q)
     ref = sl.landmark_likelihood(particles, z, m, Q)
     ctx.close("p", p, ref, atol=1e-12 * max(float(ref.max()), 1e-300), rtol=1e-8)
+    return p
 
 
 @EX.test("landmark_likelihood", "densities for random particles", weight=10,
@@ -244,7 +270,7 @@ def _(ctx):
     run = loops.scenario("localization")
 
     def likelihood(t, particles, z, m, Q):
-        return _lik(ctx, particles, z, m, Q)
+        return _check_lik(ctx, particles, z, m, Q)
 
     try:
         traj = loops.particle_filter_loop(run, likelihood=likelihood, normalize=loops.ref_normalize,
