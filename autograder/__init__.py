@@ -7,10 +7,12 @@ in a notebook. The instructors' chapter of the book describes grading, Gradescop
 test cases and the isolation model.
 
 Layout: ``submission`` (reading notebooks statically), ``sandbox`` and ``_runner``
-(the child processes that run student code), ``context`` and ``spec`` (test cases and
-checks), ``exercises/`` (one module of test cases per exercise), ``loops`` (end-to-end
+(the isolated process that loads a submission once and forks a worker per
+function), ``seeds`` (scenario seeds from a deployment secret and the submission's
+content), ``context`` and ``spec`` (test cases, checks, time budgets),
+``exercises/`` (one module of test cases per exercise), ``loops`` (end-to-end
 filters), ``stats`` and ``calibrate`` (statistical tests), ``engine`` (grading),
-``batch``, ``bundle`` and ``results`` (outputs).
+``results`` (result types, reports, results.json), ``batch`` and ``bundle``.
 """
 
 __all__ = ["grade", "run_public_tests"]

@@ -34,7 +34,21 @@ def _limits(args):
         kw["call_timeout"] = float(args.timeout)
     if getattr(args, "import_timeout", None):
         kw["import_timeout"] = float(args.import_timeout)
+    for name in ("statement_timeout", "test_budget", "submission_budget"):
+        if getattr(args, name, None):
+            kw[name] = float(getattr(args, name))
     return Limits(**kw)
+
+
+def _secret(args):
+    path = getattr(args, "secret_file", None)
+    if path:
+        import os
+
+        from .seeds import SECRET_ENV
+
+        os.environ[SECRET_ENV] = str(path)  # batch workers read it too
+    return path
 
 
 def _cmd_grade(args):
@@ -42,7 +56,8 @@ def _cmd_grade(args):
     from .results import fallback_results, write_json_atomic
 
     try:
-        result = grade(args.submission, args.exercise, limits=_limits(args), workers=args.workers)
+        result = grade(args.submission, args.exercise, limits=_limits(args), workers=args.workers, seed=args.seed,
+                       secret=_secret(args))
     except Exception:  # noqa: BLE001 - a grader bug still leaves a valid results.json
         msg = "The autograder failed internally while grading this submission:\n" + traceback.format_exc(limit=5)
         print(msg, file=sys.stderr)
@@ -60,8 +75,9 @@ def _cmd_grade(args):
 def _cmd_batch(args):
     from .batch import run_batch
 
+    _secret(args)
     run_batch(args.folder, args.exercise, out_csv=args.out, jobs=args.jobs, results_dir=args.results_dir,
-              limits=_limits(args), progress=not args.quiet)
+              limits=_limits(args), progress=not args.quiet, restart=args.restart, seed=args.seed)
     return 0
 
 
@@ -76,7 +92,7 @@ def _cmd_bundle(args):
 def _cmd_gradescope(args):
     from .bundle import run_gradescope
 
-    return run_gradescope(args.root, args.exercise, limits=_limits(args))
+    return run_gradescope(args.root, args.exercise, limits=_limits(args), secret=_secret(args))
 
 
 def _cmd_calibrate(args):
@@ -97,6 +113,18 @@ def _cmd_list(args):
     return 0
 
 
+def _budget_options(p):
+    p.add_argument("--timeout", type=float, help="cap on every call's wall-clock timeout (seconds)")
+    p.add_argument("--import-timeout", type=float, help="time allowed to load a submission (seconds, default 30)")
+    p.add_argument("--statement-timeout", type=float,
+                   help="time allowed to one top-level statement while loading; longer ones are skipped (default 10)")
+    p.add_argument("--test-budget", type=float, help="wall time of one test, all its calls (default: the exercise's)")
+    p.add_argument("--submission-budget", type=float,
+                   help="wall time of one whole grading (default: the exercise's)")
+    p.add_argument("--secret-file", help="the deployment's grading secret (default: $AUTOGRADER_SECRET_FILE, else "
+                                         "~/.config/slam-autograder/secret, created on first use)")
+
+
 def build_parser():
     ap = argparse.ArgumentParser(prog="python -m autograder", description="Autograder of the course exercises.")
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -106,8 +134,9 @@ def build_parser():
     g.add_argument("--exercise", "-e", help="exercise name (default: from the notebook's metadata)")
     g.add_argument("--results", "-r", help="write Gradescope's results.json here")
     g.add_argument("--workers", type=int, default=None, help="functions graded in parallel (default: CPU count)")
-    g.add_argument("--timeout", type=float, help="cap on every call's wall-clock timeout (seconds)")
-    g.add_argument("--import-timeout", type=float, help="time allowed to load the submission (seconds)")
+    g.add_argument("--seed", type=int, help="base seed of the scenarios (default: from the secret and the submission; "
+                                            "the one used is in results.json, extra_data.seed)")
+    _budget_options(g)
     g.add_argument("--verbose", "-v", action="store_true", help="show the output of passed tests too")
     g.set_defaults(func=_cmd_grade)
 
@@ -117,8 +146,10 @@ def build_parser():
     b.add_argument("--out", "-o", default="grades.csv", help="CSV file (default grades.csv)")
     b.add_argument("--results-dir", help="folder of per-submission results JSON (default: <out stem>_results/)")
     b.add_argument("--jobs", "-j", type=int, default=2, help="submissions graded in parallel")
-    b.add_argument("--timeout", type=float, help="cap on every call's wall-clock timeout (seconds)")
-    b.add_argument("--import-timeout", type=float, help="time allowed to load a submission (seconds)")
+    b.add_argument("--restart", action="store_true",
+                   help="grade every submission again (default: keep results whose submission did not change)")
+    b.add_argument("--seed", type=int, help="one base seed for every submission (default: derived per submission)")
+    _budget_options(b)
     b.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
     b.set_defaults(func=_cmd_batch)
 
@@ -130,8 +161,7 @@ def build_parser():
     s = sub.add_parser("gradescope", help="grade ROOT/submission into ROOT/results/results.json")
     s.add_argument("--root", default="/autograder")
     s.add_argument("--exercise", "-e", required=True)
-    s.add_argument("--timeout", type=float)
-    s.add_argument("--import-timeout", type=float)
+    _budget_options(s)
     s.set_defaults(func=_cmd_gradescope)
 
     c = sub.add_parser("calibrate", help="false-failure calibration of the statistical checks")

@@ -4,7 +4,16 @@ A submission is a ``.ipynb`` or ``.py`` file directly in the folder, or a
 sub-folder holding one (as in a Gradescope or LMS export: the exercise's notebook
 by name, else the only notebook, else the only Python file). Submissions are
 graded in ``jobs`` worker processes; within a worker the functions of a
-submission are graded one after another, each still in its own child process.
+submission are graded one after another, each in a worker forked from the
+submission's sandbox.
+
+Stopping and resuming: the worker processes die with the batch (a parent-death
+signal; SIGTERM and SIGINT stop them explicitly), and every sandbox dies with its
+worker, so killing ``batch`` by any means leaves no process behind. Each
+submission's results JSON is written atomically as soon as it is graded and
+records the submission's hash; a rerun skips every submission whose JSON matches
+its current content (``--restart`` grades everything again). The CSV is rewritten
+atomically after each submission.
 """
 
 from __future__ import annotations
@@ -13,11 +22,13 @@ import csv
 import io
 import multiprocessing
 import os
+import signal
+import sys
 import traceback
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
 
-from .results import fallback_results, write_json_atomic
+from .results import fallback_results, read_results, write_json_atomic, write_text_atomic
 from .spec import VISIBILITY
 
 __all__ = ["find_submissions", "run_batch", "pick_submission_file"]
@@ -58,7 +69,34 @@ def find_submissions(folder, notebook_name=None):
     return out
 
 
-def _grade_one(sid, path, problem, exercise, results_path, limits):
+def _fingerprint(path, problem):
+    from .seeds import content_hash
+
+    if path is None:
+        return "missing:" + str(problem)
+    try:
+        return content_hash(Path(path).read_bytes())
+    except OSError as exc:
+        return f"unreadable:{exc}"
+
+
+def _worker_init(parent):
+    """In each pool worker: die with the batch (SIGKILL when the parent ends), leave SIGINT to the batch."""
+    try:
+        import ctypes
+        import ctypes.util
+
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+        libc.prctl(1, signal.SIGKILL, 0, 0, 0)  # PR_SET_PDEATHSIG
+    except OSError:
+        pass
+    if os.getppid() != parent:  # the batch ended before the line above
+        os._exit(1)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+def _grade_one(sid, path, problem, exercise, results_path, limits, fingerprint, seed=None):
     from .engine import grade
     from .exercises import get_exercise
 
@@ -67,31 +105,74 @@ def _grade_one(sid, path, problem, exercise, results_path, limits):
            "status": "ok", "message": ""}
     for fn in ex.functions:
         row[fn] = 0.0
+    extra = {"exercise": exercise, "submission_sha256": fingerprint}
     try:
         if path is None:
             row["status"] = "error"
             row["message"] = problem
             tests = [{"name": t.name, "score": 0.0, "max_score": t.weight, "status": "failed", "output": problem,
                       "visibility": VISIBILITY[t.visibility]} for t in ex.tests]
-            write_json_atomic(results_path, {**fallback_results(problem), "tests": tests})
+            write_json_atomic(results_path, {**fallback_results(problem), "tests": tests,
+                                             "extra_data": {**extra, "batch_row": row}})
             return row
-        result = grade(path, exercise, limits=limits, workers=1)
-        write_json_atomic(results_path, result.to_gradescope())
+        result = grade(path, exercise, limits=limits, workers=1, seed=seed)
         row["score"] = result.score
         for fn, (s, _) in result.by_function().items():
             row[fn] = s
         if result.error:
             row["status"] = "error"
             row["message"] = result.error.splitlines()[0]
+        data = result.to_gradescope()
+        data["extra_data"] = {**data.get("extra_data", {}), **extra, "batch_row": row}
+        write_json_atomic(results_path, data)
     except Exception as exc:  # noqa: BLE001 - one bad submission must not stop the batch
         row["status"] = "grader-error"
         row["message"] = f"{type(exc).__name__}: {exc}"
-        write_json_atomic(results_path, fallback_results("The autograder failed internally:\n" + traceback.format_exc()))
+        write_json_atomic(results_path, {**fallback_results("The autograder failed internally:\n"
+                                                            + traceback.format_exc()),
+                                         "extra_data": {**extra, "batch_row": row}})
     return row
 
 
-def run_batch(folder, exercise, *, out_csv="grades.csv", jobs=2, results_dir=None, limits=None, progress=True):
+def _write_csv(out_csv, rows, ex):
+    rows = sorted(rows, key=lambda r: r["submission"])
+    fields = ["submission", "file", "score", "max_score", "percent", *ex.functions, "status", "message"]
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=fields, extrasaction="ignore")
+    writer.writeheader()
+    for r in rows:
+        r["percent"] = round(100.0 * float(r["score"]) / float(r["max_score"]), 2) if float(r["max_score"]) else 0.0
+        writer.writerow(r)
+    write_text_atomic(out_csv, buf.getvalue())
+    return rows
+
+
+def _remove_stale_temporaries(*folders):
+    for folder in folders:
+        for p in Path(folder).glob(".*.tmp"):
+            try:
+                p.unlink()
+            except OSError:
+                pass
+
+
+class _Stop(Exception):
+    """SIGTERM or SIGINT arrived."""
+
+
+def run_batch(folder, exercise, *, out_csv="grades.csv", jobs=2, results_dir=None, limits=None, progress=True,
+              restart=False, seed=None):
     """Grade every submission under ``folder``; write the CSV and one results JSON per submission.
+
+    Parameters
+    ----------
+    restart : bool
+        Grade every submission again. By default a submission whose results JSON
+        records the same content hash (from an interrupted or earlier run) is
+        not graded again.
+    seed : int, optional
+        One base seed for every submission (default: each derived from the
+        deployment's secret and its own content).
 
     Returns
     -------
@@ -99,45 +180,108 @@ def run_batch(folder, exercise, *, out_csv="grades.csv", jobs=2, results_dir=Non
         The CSV rows, sorted by submission id.
     """
     from .exercises import get_exercise
+    from .seeds import load_secret
 
     ex = get_exercise(exercise)
     out_csv = Path(out_csv)
+    out_csv.parent.mkdir(parents=True, exist_ok=True)
     results_dir = Path(results_dir) if results_dir else out_csv.with_name(out_csv.stem + "_results")
     results_dir.mkdir(parents=True, exist_ok=True)
+    _remove_stale_temporaries(results_dir, out_csv.parent)
+    if seed is None:
+        load_secret()  # created here once, not by two workers at the same time
     subs = find_submissions(folder, ex.notebook)
-    rows = []
-    ctx = multiprocessing.get_context("spawn")
+    rows, todo = [], []
+    for sid, path, why in subs:
+        fp = _fingerprint(path, why)
+        old = None if restart else read_results(results_dir / f"{sid}.json")
+        extra = (old or {}).get("extra_data") or {}
+        if (old and extra.get("submission_sha256") == fp and extra.get("exercise") == exercise
+                and isinstance(extra.get("batch_row"), dict) and (seed is None or extra.get("seed") == seed)):
+            rows.append(extra["batch_row"])
+        else:
+            todo.append((sid, path, why, fp))
     bar = None
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=len(subs), desc=f"grading {exercise}", unit="submission")
-    with ProcessPoolExecutor(max_workers=max(1, int(jobs)), mp_context=ctx) as pool:
-        futures = {pool.submit(_grade_one, sid, path, why, exercise, results_dir / f"{sid}.json", limits): sid
-                   for sid, path, why in subs}
-        for fut in as_completed(futures):
-            sid = futures[fut]
-            try:
-                rows.append(fut.result())
-            except Exception as exc:  # noqa: BLE001 - a worker that died
-                row = {"submission": sid, "file": "", "score": 0.0, "max_score": ex.max_score(),
-                       "status": "grader-error", "message": f"{type(exc).__name__}: {exc}"}
-                row.update({fn: 0.0 for fn in ex.functions})
-                rows.append(row)
-                write_json_atomic(results_dir / f"{sid}.json", fallback_results(f"grading failed: {exc}"))
-            if bar is not None:
-                bar.update(1)
-    if bar is not None:
-        bar.close()
-    rows.sort(key=lambda r: r["submission"])
-    fields = ["submission", "file", "score", "max_score", "percent", *ex.functions, "status", "message"]
-    buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=fields, extrasaction="ignore")
-    writer.writeheader()
-    for r in rows:
-        r["percent"] = round(100.0 * r["score"] / r["max_score"], 2) if r["max_score"] else 0.0
-        writer.writerow(r)
-    tmp = out_csv.with_name(f".{out_csv.name}.tmp")
-    tmp.write_text(buf.getvalue(), encoding="utf-8")
-    os.replace(tmp, out_csv)
+        bar = tqdm(total=len(subs), initial=len(rows), desc=f"grading {exercise}", unit="submission")
+    ctx = multiprocessing.get_context("spawn")
+    old_handlers = {}
+
+    def stop(signum, frame):
+        raise _Stop(signum)
+
+    if todo and threading_main():
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            old_handlers[sig] = signal.signal(sig, stop)
+    pool = None
+    try:
+        if todo:
+            pool = ProcessPoolExecutor(max_workers=max(1, int(jobs)), mp_context=ctx, initializer=_worker_init,
+                                       initargs=(os.getpid(),))
+            futures = {pool.submit(_grade_one, sid, path, why, exercise, results_dir / f"{sid}.json", limits, fp,
+                                   seed): sid for sid, path, why, fp in todo}
+            pending = set(futures)
+            while pending:
+                done, pending = wait(pending, timeout=1.0, return_when=FIRST_COMPLETED)
+                for fut in done:
+                    sid = futures[fut]
+                    try:
+                        rows.append(fut.result())
+                    except Exception as exc:  # noqa: BLE001 - a worker that died
+                        row = {"submission": sid, "file": "", "score": 0.0, "max_score": ex.max_score(),
+                               "status": "grader-error", "message": f"{type(exc).__name__}: {exc}"}
+                        row.update({fn: 0.0 for fn in ex.functions})
+                        rows.append(row)
+                        write_json_atomic(results_dir / f"{sid}.json", fallback_results(f"grading failed: {exc}"))
+                    if bar is not None:
+                        bar.update(1)
+                if done:
+                    _write_csv(out_csv, rows, ex)
+        rows = _write_csv(out_csv, rows, ex)
+    except (_Stop, KeyboardInterrupt) as exc:
+        _kill_pool(pool)
+        pool = None
+        if bar is not None:
+            bar.close()
+            bar = None
+        signum = exc.args[0] if isinstance(exc, _Stop) else signal.SIGINT
+        print(f"\nbatch stopped ({signal.Signals(signum).name}): {len(rows)} of {len(subs)} submissions graded; "
+              "run the same command again to grade the rest", file=sys.stderr)
+        raise SystemExit(128 + int(signum)) from None
+    finally:
+        if pool is not None:
+            pool.shutdown(wait=True)
+        for sig, h in old_handlers.items():
+            signal.signal(sig, h)
+        if bar is not None:
+            bar.close()
     return rows
+
+
+def threading_main():
+    import threading
+
+    return threading.current_thread() is threading.main_thread()
+
+
+def _kill_pool(pool):
+    """SIGKILL every worker of ``pool`` (their sandboxes die with them)."""
+    if pool is None:
+        return
+    procs = list(getattr(pool, "_processes", {}).values())
+    for p in procs:
+        try:
+            p.kill()
+        except (OSError, AttributeError):
+            pass
+    for p in procs:
+        try:
+            p.join(timeout=5)
+        except (OSError, AssertionError):
+            pass
+    try:
+        pool.shutdown(wait=False, cancel_futures=True)
+    except Exception:  # noqa: BLE001 - a broken pool
+        pass

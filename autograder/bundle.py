@@ -4,13 +4,19 @@
 
 * ``setup.sh`` -- run once by Gradescope when the image is built: finds (or
   installs) Python >= 3.11, creates ``/autograder/venv``, installs the pinned
-  requirements and the project's wheel from the zip (no access to this
-  repository is needed);
+  requirements (binary wheels only) and the project's wheel from the zip, installs
+  the grading secret readable by root only, and takes read permission on the
+  reference and the grader away from other users (the fallback protection where
+  the sandbox cannot use namespaces);
 * ``run_autograder`` -- run for every submission: grades
   ``$AUTOGRADER_ROOT/submission/*`` (``AUTOGRADER_ROOT`` defaults to
   ``/autograder``) and writes ``$AUTOGRADER_ROOT/results/results.json``; if the
   grader cannot even start it still leaves a valid results.json;
-* ``requirements.txt`` -- the runtime dependencies;
+* ``requirements.txt`` -- exactly the versions of the runtime dependencies this
+  bundle was built (and tested) with: NumPy, SciPy, nbformat and what they need,
+  nothing else (no matplotlib, ipywidgets or tqdm: grading does not use them);
+* ``grading_secret`` -- a fresh secret per bundle: each submission's scenarios are
+  drawn from a seed derived from it and from the submission's content;
 * ``wheels/slamlib-<version>-py3-none-any.whl`` -- this project (``slamlib`` and
   ``autograder``), built from the source tree by :func:`build_wheel`.
 """
@@ -55,9 +61,16 @@ if ! "$PY" -m venv --help >/dev/null 2>&1; then
   apt-get update && apt-get install -y python3-venv
 fi
 "$PY" -m venv "$ROOT/venv"
-"$ROOT/venv/bin/python" -m pip install --upgrade pip
-"$ROOT/venv/bin/python" -m pip install -r requirements.txt
-"$ROOT/venv/bin/python" -m pip install --no-deps wheels/*.whl
+export PIP_DISABLE_PIP_VERSION_CHECK=1 PIP_NO_INPUT=1
+"$ROOT/venv/bin/python" -m pip install --quiet --no-cache-dir --only-binary=:all: -r requirements.txt
+"$ROOT/venv/bin/python" -m pip install --quiet --no-cache-dir --no-deps wheels/*.whl
+# the secret: root only (and outside the sandbox's root anyway)
+install -m 600 grading_secret "$ROOT/grading_secret"
+rm -f grading_secret
+# fallback protection where namespaces are unavailable: the submission runs as another
+# uid, which must not read the reference, the tests or this bundle
+SITE=$("$ROOT/venv/bin/python" -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')
+chmod -R go-rwx "$SITE/slamlib" "$SITE/autograder" "$SITE"/slamlib-*.dist-info "$(pwd)"
 "$ROOT/venv/bin/python" -m autograder list >/dev/null
 """
 
@@ -68,7 +81,8 @@ PY="${AUTOGRADER_PYTHON:-$ROOT/venv/bin/python}"
 if [ ! -x "$PY" ]; then PY=python3; fi
 mkdir -p "$ROOT/results"
 cd "$ROOT" || exit 0
-"$PY" -m autograder gradescope --root "$ROOT" --exercise "@EXERCISE@"
+AUTOGRADER_SECRET_FILE="${AUTOGRADER_SECRET_FILE:-$ROOT/grading_secret}" \
+  "$PY" -m autograder gradescope --root "$ROOT" --exercise "@EXERCISE@"
 status=$?
 if [ ! -s "$ROOT/results/results.json" ]; then
   printf '{"score": 0.0, "execution_time": 0, "output": "The autograder could not run (exit status %s); please tell the course staff.", "tests": []}\n' "$status" > "$ROOT/results/results.json"
@@ -143,15 +157,59 @@ def build_wheel(root=None):
     return f"{name}-{version}-py3-none-any.whl", buf.getvalue()
 
 
+#: What grading imports (the grader's process); everything else in the project's dependencies is left out.
+GRADING_REQUIREMENTS = ("numpy", "scipy", "nbformat")
+
+
+def pinned_requirements(names=GRADING_REQUIREMENTS):
+    """``name==version`` of ``names`` and of everything they require, as installed here.
+
+    The versions are those of the environment that builds the bundle (and runs the
+    test suite), so Gradescope grades with exactly what was tested.
+    """
+    import re
+    from importlib import metadata
+
+    def canon(n):
+        return re.sub(r"[-_.]+", "-", n).lower()
+
+    seen, todo = {}, [canon(n) for n in names]
+    while todo:
+        name = todo.pop()
+        if name in seen:
+            continue
+        try:
+            dist = metadata.distribution(name)
+        except metadata.PackageNotFoundError:
+            raise RuntimeError(f"{name} is not installed: cannot pin it for the bundle") from None
+        seen[name] = (dist.metadata["Name"], dist.version)
+        for req in dist.requires or []:
+            spec, _, marker = req.partition(";")
+            if "extra" in marker:
+                continue
+            if marker.strip():
+                try:
+                    from packaging.markers import Marker
+
+                    if not Marker(marker.strip()).evaluate():
+                        continue
+                except ImportError:
+                    pass
+            m = re.match(r"\s*([A-Za-z0-9][A-Za-z0-9._-]*)", spec)
+            if m:
+                todo.append(canon(m.group(1)))
+    return [f"{n}=={v}" for n, v in sorted(seen.values(), key=lambda t: t[0].lower())]
+
+
 def build_bundle(exercise, output="autograder.zip"):
     """Write the Gradescope autograder zip for ``exercise``; returns its path."""
     from .exercises import get_exercise
+    from .seeds import new_secret
 
     ex = get_exercise(exercise)
     root = project_root()
-    meta = _project_meta(root)
     wheel_name, wheel = build_wheel(root)
-    reqs = "\n".join(meta.get("dependencies", [])) + "\n"
+    reqs = "\n".join(pinned_requirements()) + "\n"
     output = Path(output)
     output.parent.mkdir(parents=True, exist_ok=True)
     entries = {
@@ -159,6 +217,7 @@ def build_bundle(exercise, output="autograder.zip"):
         "run_autograder": (RUN_AUTOGRADER.replace("@EXERCISE@", ex.name).encode(), 0o755),
         "requirements.txt": (reqs.encode(), 0o644),
         f"wheels/{wheel_name}": (wheel, 0o644),
+        "grading_secret": ((new_secret() + "\n").encode(), 0o600),
         "README.txt": (f"Gradescope autograder for exercise {ex.name} ({ex.notebook}).\n"
                        "Upload this zip as the autograder of a programming assignment; students submit "
                        f"{ex.notebook}.\n".encode(), 0o644),
@@ -174,7 +233,18 @@ def build_bundle(exercise, output="autograder.zip"):
     return output
 
 
-def run_gradescope(root, exercise, *, limits=None):
+def _gradescope_secret(root, secret=None):
+    from .seeds import SECRET_ENV
+
+    if secret or os.environ.get(SECRET_ENV):
+        return secret or os.environ[SECRET_ENV]
+    for p in (root / "grading_secret", root / "source" / "grading_secret"):
+        if p.is_file():
+            return str(p)
+    return None
+
+
+def run_gradescope(root, exercise, *, limits=None, secret=None):
     """Grade ``root/submission`` into ``root/results/results.json`` (always written)."""
     from .batch import pick_submission_file
     from .engine import grade
@@ -192,7 +262,7 @@ def run_gradescope(root, exercise, *, limits=None):
             write_json_atomic(results, {**fallback_results(msg), "tests": tests})
             print(msg)
             return 0
-        result = grade(path, ex.name, limits=limits)
+        result = grade(path, ex.name, limits=limits, secret=_gradescope_secret(root, secret))
         write_json_atomic(results, result.to_gradescope())
         print(result.text_report())
         return 0

@@ -1,130 +1,50 @@
-"""Grading one submission: static checks, one child per function, the tests, the results.
+"""Grading one submission: static checks, one sandbox per submission, a fresh worker per function, the tests.
 
 :func:`grade` never raises on account of the submission: a file that cannot be
 read, a syntax error, a missing function, a crash, a hang or garbage output all
 end as failed tests with a message, and every function keeps its ``max_score``.
+
+The submission is loaded once, in one :class:`~autograder.sandbox.Sandbox`; each
+contract function is graded in a worker process forked from it (and forked again
+after a crash or a timeout), so slow top-level code runs once and one function's
+state never leaks into another's. Scenarios come from a seed derived from the
+deployment's secret and the submission's content (:mod:`autograder.seeds`), and
+time is bounded per call, per test and per submission.
 """
 
 from __future__ import annotations
 
 import os
+import threading
 import time
 import traceback
 import zlib
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
 
 import numpy as np
 
 from .context import CallError, Ctx, Fail, SkipRest
 from .exercises import EXERCISES, get_exercise
-from .sandbox import Child, ChildFailed, Limits, describe_isolation
+from .results import GradeResult, TestResult
+from .sandbox import CallOutcome, ChildFailed, Limits, Sandbox
 from .spec import VISIBILITY
 from .submission import FORBIDDEN, SubmissionError, forbidden_usage, load_submission
 
-__all__ = ["grade", "GradeResult", "TestResult", "run_tests"]
+__all__ = ["grade", "GradeResult", "TestResult", "run_tests", "Budget"]
 
-#: A child that crashed is restarted (fresh import) at most this many times per function.
+#: A worker that died is forked again at most this many times per function.
 MAX_RESTARTS = 3
-
-
-@dataclass
-class TestResult:
-    name: str
-    function: str
-    score: float
-    max_score: float
-    output: str
-    visibility: str
-
-    @property
-    def status(self):
-        return "passed" if self.score >= self.max_score - 1e-9 else "failed"
-
-
-@dataclass
-class GradeResult:
-    """The outcome of grading one submission."""
-
-    submission: str
-    exercise: str | None
-    tests: list = field(default_factory=list)
-    notes: list = field(default_factory=list)
-    isolation: dict = field(default_factory=dict)
-    error: str | None = None
-    execution_time: float = 0.0
-
-    @property
-    def score(self):
-        return round(sum(t.score for t in self.tests), 6)
-
-    @property
-    def max_score(self):
-        return round(sum(t.max_score for t in self.tests), 6)
-
-    def by_function(self):
-        out = {}
-        for t in self.tests:
-            s, m = out.get(t.function, (0.0, 0.0))
-            out[t.function] = (round(s + t.score, 6), round(m + t.max_score, 6))
-        return out
-
-    def summary_text(self):
-        lines = []
-        if self.exercise:
-            lines.append(f"Exercise {self.exercise}: {self.score:g} / {self.max_score:g} points")
-        if self.error:
-            lines.append(self.error)
-        for n in self.notes:
-            lines.append(f"Note: {n}")
-        if self.isolation:
-            lines.append("Isolation of the submission's code:")
-            lines.extend(f"  - {s}" for s in describe_isolation(self.isolation))
-        return "\n".join(lines)
-
-    def to_gradescope(self):
-        """Gradescope's ``results.json`` content."""
-        return {
-            "score": self.score,
-            "execution_time": int(round(self.execution_time)),
-            "output": self.summary_text(),
-            "tests": [
-                {"name": t.name, "score": round(t.score, 6), "max_score": round(t.max_score, 6), "status": t.status,
-                 "output": t.output, "visibility": t.visibility}
-                for t in self.tests
-            ],
-        }
-
-    def text_report(self, *, verbose=False):
-        """Readable per-function, per-test report."""
-        lines = [f"Grading {self.submission}"]
-        lines.append(self.summary_text())
-        current = None
-        per_fn = self.by_function()
-        for t in self.tests:
-            if t.function != current:
-                current = t.function
-                s, m = per_fn[current]
-                lines.append("")
-                lines.append(f"{current}  {s:g}/{m:g}")
-            mark = "PASS" if t.status == "passed" else "FAIL"
-            lines.append(f"  [{mark}] {t.name}  ({t.score:g}/{t.max_score:g})")
-            if t.status != "passed" or verbose or "note:" in t.output.lower():
-                body = t.output if t.status != "passed" else "\n".join(
-                    ln for ln in t.output.splitlines() if ln.lower().startswith("note:"))
-                for ln in body.splitlines():
-                    lines.append(f"         {ln}")
-        lines.append("")
-        lines.append(f"Total: {self.score:g} / {self.max_score:g}")
-        return "\n".join(lines)
+#: The sandbox itself (the loaded submission) is started again at most this many times per grading.
+MAX_RELOADS = 2
 
 
 def _test_seed(exercise, test_name, base):
     return [int(base), int(zlib.crc32(f"{exercise}/{test_name}".encode()))]
 
 
-def _zero_all(ex, message):
-    return [TestResult(t.name, t.function, 0.0, t.weight, message, VISIBILITY[t.visibility]) for t in ex.tests]
+def _zero_all(ex, message, functions=None):
+    return [TestResult(t.name, t.function, 0.0, t.weight, message, VISIBILITY[t.visibility]) for t in ex.tests
+            if functions is None or t.function in functions]
 
 
 def _call_failure_text(err):
@@ -143,38 +63,88 @@ def _call_failure_text(err):
     return "\n".join(lines)
 
 
-class _GroupCaller:
-    """Routes a test's calls to the function's child, restarting it after a crash."""
+class Budget:
+    """Wall-time budgets: one per test (reset by :meth:`start_test`) and one for the whole submission."""
 
-    def __init__(self, child, fn):
-        self.child = child
+    def __init__(self, test_budget, submission_budget, start=None):
+        self.test_budget = float(test_budget)
+        self.submission_budget = float(submission_budget)
+        self.start = time.monotonic() if start is None else start
+        self.deadline = self.start + self.submission_budget
+        self.test_deadline = None
+
+    def start_test(self, budget=None):
+        self.test_deadline = time.monotonic() + float(budget or self.test_budget)
+        self.current = float(budget or self.test_budget)
+
+    @property
+    def exhausted(self):
+        return time.monotonic() >= self.deadline
+
+    def limit(self, timeout):
+        """``(seconds, reason)``: the call's time limit and which budget (if any) shortened it."""
+        now = time.monotonic()
+        limit, reason = float(timeout), None
+        if self.test_deadline is not None and self.test_deadline - now < limit:
+            limit, reason = self.test_deadline - now, "test"
+        if self.deadline - now < limit:
+            limit, reason = self.deadline - now, "submission"
+        return limit, reason
+
+    def message(self, reason):
+        if reason == "submission":
+            return (f"the submission's time budget of {self.submission_budget:g} s was used up (grading stops "
+                    "there; the remaining tests score 0)")
+        return (f"the test's time budget of {self.current:g} s was used up: the function is too slow for this "
+                "test (the other tests still run)")
+
+
+class _WorkerCaller:
+    """Routes a test's calls to a worker forked for one function, forking a fresh one after a crash."""
+
+    def __init__(self, grading, fn, budget):
+        self.grading = grading
         self.fn = fn
-        self.restarts = 0
+        self.budget = budget
+        self.worker = None
+        self.started = 0
         self.timed_out = False
         self.broken = None
 
     def call(self, fn, args, kwargs, *, timeout, names=(), global_seed=None):
-        from .sandbox import CallOutcome
-
         if self.broken:
             return CallOutcome("skipped", error=self.broken)
-        if self.child.proc is None:
-            if self.restarts >= MAX_RESTARTS:
-                self.broken = f"not run: the process running {self.fn} died {self.restarts + 1} times"
+        limit, reason = self.budget.limit(timeout) if self.budget else (timeout, None)
+        if limit <= 0:
+            return CallOutcome("timeout", error=self.budget.message(reason), budget=reason)
+        if self.worker is None or self.worker.dead:
+            if self.started > MAX_RESTARTS:
+                self.broken = f"not run: the process running {self.fn} died {self.started} times"
                 return CallOutcome("skipped", error=self.broken)
-            self.restarts += 1
             try:
-                self.child.start()
+                self.worker = self.grading.fork_worker()
             except ChildFailed as exc:
                 self.broken = f"not run: {exc.outcome.error}"
                 return exc.outcome
-        out = self.child.call(fn, args, kwargs, timeout=timeout, names=names, global_seed=global_seed)
+            self.started += 1
+        out = self.worker.call(fn, args, kwargs, timeout=max(limit, 0.001), names=names, global_seed=global_seed)
         if out.status == "timeout":
-            self.timed_out = True
+            if reason:
+                out.error = self.budget.message(reason)
+                out.budget = reason
+            else:
+                self.timed_out = True
+        if self.worker.dead:
+            self.worker = None
         return out
 
+    def close(self):
+        if self.worker is not None:
+            self.worker.close()
+            self.worker = None
 
-def run_tests(ex, fn, caller, *, seed=None, limits=None):
+
+def run_tests(ex, fn, caller, *, seed=None, limits=None, budget=None):
     """Run every test of ``fn`` through ``caller``; return TestResults and blocked attempts."""
     results = []
     blocked = []
@@ -182,10 +152,14 @@ def run_tests(ex, fn, caller, *, seed=None, limits=None):
     cap = limits.call_timeout if (limits and limits.call_timeout) else None
     for test in ex.tests_for(fn):
         vis = VISIBILITY[test.visibility]
+        if budget is not None and budget.exhausted and not skip_reason:
+            skip_reason = "not run: " + budget.message("submission")
         if skip_reason:
             results.append(TestResult(test.name, fn, 0.0, test.weight, skip_reason, vis))
             continue
         timeout = min(test.timeout, cap) if cap else test.timeout
+        if budget is not None:
+            budget.start_test(test.budget)
         s = _test_seed(ex.name, test.name, ex.seed if seed is None else seed)
         ctx = Ctx(caller, fn, ex.params(fn), timeout, np.random.default_rng(s), s)
         try:
@@ -196,8 +170,11 @@ def run_tests(ex, fn, caller, *, seed=None, limits=None):
         except CallError as exc:
             score, text = 0.0, "FAILED\n" + _call_failure_text(exc)
             if exc.outcome.status == "timeout":
-                skip_reason = (f"not run: an earlier call of {fn} timed out (a function that hangs gets no points "
-                               "for the tests after it)")
+                if exc.outcome.budget == "submission":
+                    skip_reason = "not run: " + budget.message("submission")
+                elif exc.outcome.budget is None:
+                    skip_reason = (f"not run: an earlier call of {fn} timed out (a function that hangs gets no points "
+                                   "for the tests after it)")
             elif exc.outcome.status == "error" and str(exc.outcome.error or "").startswith("NotImplementedError"):
                 skip_reason = f"not run: {fn} raised NotImplementedError in '{test.title}' (not implemented yet)"
         except SkipRest as exc:
@@ -222,51 +199,64 @@ def run_tests(ex, fn, caller, *, seed=None, limits=None):
     return results, blocked
 
 
-def _grade_function(ex, fn, sub, limits, seed, forbidden):
+class _Grading:
+    """The sandbox of one submission, shared by the functions' threads (started again if it dies)."""
+
+    def __init__(self, sub, functions, limits):
+        self.box = Sandbox(sub.units, functions, limits, sub.display_name)
+        self.lock = threading.Lock()
+        self.reloads = 0
+
+    def start(self):
+        return self.box.start()
+
+    def fork_worker(self):
+        try:
+            return self.box.fork_worker()
+        except ChildFailed:
+            with self.lock:
+                if not self.box.alive:
+                    if self.reloads >= MAX_RELOADS:
+                        raise
+                    self.reloads += 1
+                    self.box.start()
+            return self.box.fork_worker()
+
+    def close(self):
+        self.box.close()
+
+
+def _grade_function(ex, fn, grading, ready, limits, seed, budget):
     tests = ex.tests_for(fn)
     vis = {t.name: VISIBILITY[t.visibility] for t in tests}
 
     def zero(msg):
         return [TestResult(t.name, fn, 0.0, t.weight, msg, vis[t.name]) for t in tests]
 
-    if fn in forbidden:
-        return zero(f"FAILED\nNo credit: {forbidden[fn]}. Graded functions must be your own code "
-                    "(NumPy, SciPy and the standard library are fine; slamlib and the autograder are not)."), None
-    child = Child(sub.units, [fn], limits, sub.display_name)
+    info = (ready.get("functions") or {}).get(fn) or {}
+    if not info.get("defined"):
+        return zero(f"FAILED\n{fn} is not defined in your submission")
+    if not info.get("callable"):
+        return zero(f"FAILED\n{fn} is defined but is not a function")
+    unit_files = {u["filename"] for u in grading.box.units}
+    module = info.get("module") or ""
+    filename = info.get("filename")
+    if (isinstance(module, str) and module.split(".")[0] in FORBIDDEN) or (
+            filename is not None and filename not in unit_files and _in_blocked_tree(filename)):
+        return zero(f"FAILED\nNo credit: {fn} is not defined by your code (it comes from {module or filename}).")
+    caller = _WorkerCaller(grading, fn, budget)
     try:
-        try:
-            ready = child.start()
-        except ChildFailed as exc:
-            return zero(f"FAILED\n{exc.outcome.error}"), None
-        info = (ready.get("functions") or {}).get(fn) or {}
-        if not info.get("defined"):
-            msg = f"FAILED\n{fn} is not defined in your submission"
-            if sub.syntax_errors:
-                msg += (" (some cells could not be read: "
-                        + "; ".join(f"{k}: {v}" for k, v in sub.syntax_errors.items()) + ")")
-            return zero(msg), ready
-        if not info.get("callable"):
-            return zero(f"FAILED\n{fn} is defined but is not a function"), ready
-        unit_files = {u["filename"] for u in sub.units}
-        module = info.get("module") or ""
-        filename = info.get("filename")
-        if (isinstance(module, str) and module.split(".")[0] in FORBIDDEN) or (
-                filename is not None and filename not in unit_files and _in_blocked_tree(filename)):
-            return zero(f"FAILED\nNo credit: {fn} is not defined by your code (it comes from {module or filename})."), ready
-        caller = _GroupCaller(child, fn)
-        results, blocked = run_tests(ex, fn, caller, seed=seed, limits=limits)
-        if blocked:
-            what = ", ".join(dict.fromkeys(blocked))
-            uses_forbidden = any(b.startswith(("import ", "open ")) for b in blocked)
-            if uses_forbidden:
-                msg = (f"FAILED\nNo credit: while being graded, {fn} tried to use slamlib or the autograder ({what}). "
-                       "Graded functions must be your own code.")
-                return zero(msg), ready
-            for r in results:
-                r.output += f"\nNote: refused while running {fn}: {what} (no processes, network or ctypes while grading)"
-        return results, ready
+        results, blocked = run_tests(ex, fn, caller, seed=seed, limits=limits, budget=budget)
     finally:
-        child.close()
+        caller.close()
+    if blocked:
+        what = ", ".join(dict.fromkeys(blocked))
+        if any(b.startswith(("import ", "open ")) for b in blocked):
+            return zero(f"FAILED\nNo credit: while being graded, {fn} tried to use slamlib or the autograder ({what}). "
+                        "Graded functions must be your own code.")
+        for r in results:
+            r.output += f"\nNote: refused while running {fn}: {what} (no processes, network or ctypes while grading)"
+    return results
 
 
 def _in_blocked_tree(filename):
@@ -276,7 +266,7 @@ def _in_blocked_tree(filename):
     return any(full.startswith(p) for p in BLOCKED_PATHS)
 
 
-def grade(path, exercise=None, *, limits=None, workers=None, seed=None, functions=None):
+def grade(path, exercise=None, *, limits=None, workers=None, seed=None, functions=None, secret=None):
     """Grade one submission file.
 
     Parameters
@@ -286,20 +276,25 @@ def grade(path, exercise=None, *, limits=None, workers=None, seed=None, function
     exercise : str, optional
         Exercise name; defaults to the one the notebook names in its metadata.
     limits : Limits, optional
-        Child resource limits.
+        Sandbox resource limits and time budgets.
     workers : int, optional
-        Functions graded in parallel (each in its own child); default: CPU count.
+        Functions graded in parallel (each in its own worker process); default: CPU count.
     seed : int, optional
-        Base seed of the test inputs (the exercise's fixed seed by default).
+        Base seed of the scenarios. By default it is derived from the deployment's
+        secret and the submission's content (:func:`autograder.seeds.derive_seed`);
+        the seed used is in ``GradeResult.seed``, and passing it back reproduces
+        the grade exactly.
     functions : list of str, optional
-        Grade only these contract functions (for re-grading one function; the
-        results then hold only their tests).
+        Grade only these contract functions (the results then hold only their tests).
+    secret : str or Path, optional
+        File holding the deployment's secret (default: see :mod:`autograder.seeds`).
 
     Returns
     -------
     GradeResult
     """
     t0 = time.perf_counter()
+    start = time.monotonic()
     limits = limits or Limits()
     name = os.path.basename(str(path))
     result = GradeResult(name, None)
@@ -311,38 +306,21 @@ def grade(path, exercise=None, *, limits=None, workers=None, seed=None, function
     else:
         load_error = None
     ex_name = exercise or (sub.exercise if sub else None)
+
+    def done():
+        result.execution_time = time.perf_counter() - t0
+        return result
+
     if ex_name is None:
         result.error = ((load_error + "\n") if load_error else "") + (
             "Cannot tell which exercise this is: pass --exercise NAME (one of " + ", ".join(EXERCISES) + ")")
-        result.execution_time = time.perf_counter() - t0
-        return result
+        return done()
     try:
         ex = get_exercise(ex_name)
     except KeyError:
         result.error = f"Unknown exercise {ex_name!r}; known: {', '.join(EXERCISES)}"
-        result.execution_time = time.perf_counter() - t0
-        return result
+        return done()
     result.exercise = ex.name
-    if load_error:
-        result.error = f"The submission could not be read: {load_error}"
-        result.tests = _zero_all(ex, f"FAILED\n{load_error}")
-        result.execution_time = time.perf_counter() - t0
-        return result
-    result.notes.extend(sub.notes)
-    if sub.exercise and sub.exercise != ex.name:
-        msg = (f"This is the notebook of exercise {sub.exercise!r}, but it was submitted for {ex.name!r}: "
-               f"submit {ex.notebook}.")
-        result.error = msg
-        result.tests = _zero_all(ex, "FAILED\n" + msg)
-        result.execution_time = time.perf_counter() - t0
-        return result
-    if not any(u["source"].strip() for u in sub.units):
-        msg = "The submission contains no code."
-        result.error = msg
-        result.tests = _zero_all(ex, "FAILED\n" + msg)
-        result.execution_time = time.perf_counter() - t0
-        return result
-    forbidden = forbidden_usage(sub.units, list(ex.functions))
     if functions:
         unknown = [f for f in functions if f not in ex.functions]
         if unknown:
@@ -350,19 +328,79 @@ def grade(path, exercise=None, *, limits=None, workers=None, seed=None, function
         functions = [f for f in ex.functions if f in functions]
     else:
         functions = list(ex.functions)
-    workers = workers or min(len(functions), os.cpu_count() or 2)
-    if workers <= 1:
-        outs = [_grade_function(ex, fn, sub, limits, seed, forbidden) for fn in functions]
-    else:
-        with ThreadPoolExecutor(max_workers=workers) as pool:
-            outs = list(pool.map(lambda fn: _grade_function(ex, fn, sub, limits, seed, forbidden), functions))
-    load_notes = None
-    for results, ready in outs:
-        result.tests.extend(results)
-        if ready and load_notes is None:
-            load_notes = ready.get("notes") or []
+    if load_error:
+        result.error = f"The submission could not be read: {load_error}"
+        result.tests = _zero_all(ex, f"FAILED\n{load_error}", functions)
+        return done()
+    result.submission_sha256 = sub.sha256
+    if seed is None:
+        from .seeds import derive_seed, load_secret
+
+        seed = derive_seed(load_secret(secret), ex.name, sub.sha256)
+    result.seed = int(seed)
+    result.notes.extend(sub.notes)
+    if sub.exercise and sub.exercise != ex.name:
+        msg = (f"This is the notebook of exercise {sub.exercise!r}, but it was submitted for {ex.name!r}: "
+               f"submit {ex.notebook}.")
+        result.error = msg
+        result.tests = _zero_all(ex, "FAILED\n" + msg, functions)
+        return done()
+    if not any(u["source"].strip() for u in sub.units):
+        msg = "The submission contains no code."
+        result.error = msg
+        result.tests = _zero_all(ex, "FAILED\n" + msg, functions)
+        return done()
+    forbidden = forbidden_usage(sub.units, list(ex.functions))
+    budget_args = (limits.test_budget or ex.test_budget, limits.submission_budget or ex.submission_budget)
+    grading = _Grading(sub, list(ex.functions), limits)
+    outs = {}
+    try:
+        try:
+            ready = grading.start()
+        except ChildFailed as exc:
+            ready = None
+            load_failure = exc.outcome.error
+        result.loads = grading.box.loads
+        todo = []
+        for fn in functions:
+            tests = ex.tests_for(fn)
+            if fn in forbidden:
+                outs[fn] = [TestResult(t.name, fn, 0.0, t.weight,
+                                       f"FAILED\nNo credit: {forbidden[fn]}. Graded functions must be your own code "
+                                       "(NumPy, SciPy and the standard library are fine; slamlib and the autograder "
+                                       "are not).", VISIBILITY[t.visibility]) for t in tests]
+            elif ready is None:
+                outs[fn] = [TestResult(t.name, fn, 0.0, t.weight, f"FAILED\n{load_failure}", VISIBILITY[t.visibility])
+                            for t in tests]
+            else:
+                todo.append(fn)
+        if ready is not None:
             result.isolation = ready.get("isolation") or {}
-    for n in load_notes or []:
-        result.notes.append(f"while loading: {n}")
-    result.execution_time = time.perf_counter() - t0
-    return result
+            for n in ready.get("notes") or []:
+                result.notes.append(f"while loading: {n}")
+        n_workers = workers or min(len(todo), os.cpu_count() or 2) or 1
+
+        def one(fn):
+            budget = Budget(*budget_args, start=start)
+            out = _grade_function(ex, fn, grading, ready, limits, seed, budget)
+            if sub.syntax_errors and out and "is not defined in your submission" in out[0].output:
+                extra = (" (some cells could not be read: "
+                         + "; ".join(f"{k}: {v}" for k, v in sub.syntax_errors.items()) + ")")
+                for r in out:
+                    r.output = r.output.replace("is not defined in your submission",
+                                                "is not defined in your submission" + extra, 1)
+            return fn, out
+
+        if todo:
+            if n_workers <= 1:
+                got = [one(fn) for fn in todo]
+            else:
+                with ThreadPoolExecutor(max_workers=n_workers) as pool:
+                    got = list(pool.map(one, todo))
+            outs.update(dict(got))
+        result.loads = grading.box.loads
+    finally:
+        grading.close()
+    for fn in functions:
+        result.tests.extend(outs.get(fn, []))
+    return done()

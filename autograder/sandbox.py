@@ -1,33 +1,35 @@
-"""Running untrusted submission code in a child process.
+"""Running untrusted submission code: one sandbox per submission, one fresh worker per function.
 
-A :class:`Child` is one Python process (``python -I -S autograder/_runner.py``)
-that loads the submission and then answers calls of one contract function. The
+A :class:`Sandbox` is one Python process (``python -I -S autograder/_runner.py``)
+that isolates itself, loads the submission once and then serves as a *zygote*:
+for every contract function (and after every crash or timeout) the grader asks it
+to fork a fresh :class:`Worker`, which answers calls on its own pipes. The
 grader's process only sends arguments and reads back plain arrays; it never
-imports or executes submission code.
+imports or executes submission code, and expected values are computed only here.
 
-What isolates a child (the runner applies the OS-level parts to itself before the
-first line of submission code runs; see ``_runner.py``):
+What isolates the submission (the runner applies the OS-level parts to itself
+before the first line of submission code runs; see ``_runner.py``):
 
-* a fresh process in its own session (process group), started in an empty
-  scratch directory with a scrubbed environment and stdin closed;
-* a wall-clock deadline per call, enforced here: on expiry the whole process
-  group is killed with ``SIGKILL``;
-* stdout and stderr read through one pipe with a byte cap (more output kills
-  the child);
-* results through a separate pipe, in a framed format of JSON and raw array
-  bytes that this module validates (no pickles);
-* resource limits (CPU seconds, 2 GiB of address space, file size, no new
-  processes, no core dumps);
-* when the grader runs as root: a unique unprivileged uid/gid per child (so
-  ``RLIMIT_NPROC`` applies and one child cannot signal another); otherwise the
-  caller's own uid inside a new user namespace;
-* new network and PID namespaces where the kernel allows them (no interface but a
-  down loopback; the submission is process 1 of its own PID namespace and cannot
-  see or signal anything outside it);
-* an audit hook refusing imports of ``slamlib``/``autograder``, reads of their
-  files, new processes, sockets and ``ctypes`` symbol lookups.
+* mount, PID, network, IPC and UTS namespaces, and a minimal root built from a
+  tmpfs: read-only binds of the system libraries, the Python standard library and
+  the NumPy and SciPy package folders only; a private ``/tmp`` and ``/dev/shm``
+  with a size cap; a fresh ``/proc``; ``/dev/null``, ``zero``, ``urandom``. The
+  reference (``slamlib``), the tests (``autograder``), the bundle, the batch folder
+  and other submissions are not in that root;
+* a unique unprivileged uid/gid when the grader runs as root (else no capabilities
+  in a user namespace), ``no_new_privs``, not dumpable, a parent-death signal;
+* resource limits (CPU, 2 GiB of address space, file size, no new processes in a
+  worker, no core dumps);
+* an audit hook as a second line (imports of ``slamlib``/``autograder``, reads of
+  their files, processes, sockets, ``ctypes`` lookups);
+* a wall-clock deadline per call and per top-level statement while loading,
+  enforced here; output read through pipes with a byte cap; results through a
+  framed format of JSON and raw array bytes that this module validates (no pickles).
 
-:func:`isolation_report` describes what actually held on this machine.
+Where namespaces are not available the protection falls back to a separate
+unprivileged uid (root) that cannot read the reference when the files'
+permissions say so (the bundle's ``setup.sh`` sets them); :func:`describe_isolation`
+says which protection was in force.
 """
 
 from __future__ import annotations
@@ -38,9 +40,10 @@ import os
 import selectors
 import signal
 import site
+import socket
 import subprocess
 import sys
-import tempfile
+import sysconfig
 import threading
 import time
 from dataclasses import dataclass, field
@@ -51,7 +54,8 @@ import numpy as np
 from . import _runner
 from ._runner import ProtocolError, RngSeed, decode_result, encode_args, pack_frame, parse_frame
 
-__all__ = ["Limits", "Child", "CallOutcome", "RngSeed", "isolation_report", "describe_isolation"]
+__all__ = ["Limits", "Sandbox", "Worker", "CallOutcome", "ChildFailed", "RngSeed", "isolation_report",
+           "describe_isolation", "protection_level"]
 
 RUNNER = str(Path(_runner.__file__).resolve())
 _PKG_DIR = Path(__file__).resolve().parent
@@ -61,7 +65,7 @@ _counter_lock = threading.Lock()
 
 @dataclass(frozen=True)
 class Limits:
-    """Resource limits of one child process.
+    """Resource limits and time budgets of one submission's sandbox.
 
     Attributes
     ----------
@@ -69,20 +73,30 @@ class Limits:
         Upper bound (seconds) on every call's wall time; a test's own timeout
         applies when smaller. ``None`` keeps the tests' timeouts.
     import_timeout : float
-        Wall time allowed to load the submission (execute its top level).
+        Wall time allowed to load the submission (all its top-level code).
+    statement_timeout : float
+        Wall time allowed to one top-level statement (a notebook cell's loop); a
+        statement over it is skipped and the submission loaded again without it.
+    test_budget : float or None
+        Wall time of one test (all its calls); ``None`` takes the exercise's.
+    submission_budget : float or None
+        Wall time of the whole grading; ``None`` takes the exercise's.
     memory : int
         ``RLIMIT_AS`` in bytes.
     output : int
-        Bytes of stdout+stderr a child may write before it is killed.
+        Bytes of stdout+stderr a worker (or the loading) may write before it is killed.
     file_size : int
         ``RLIMIT_FSIZE`` in bytes.
+    tmp_size : str
+        Size of the private ``/tmp`` (tmpfs), which caps what a submission can write.
     cpu : int
-        ``RLIMIT_CPU`` in seconds for the whole child (a backstop: calls are
-        bounded by their wall-clock deadlines).
+        ``RLIMIT_CPU`` in seconds (a backstop: calls have wall-clock deadlines).
     network : bool
-        Put the child in a new network namespace when possible.
+        Put the sandbox in a new network namespace when possible.
+    filesystem : bool
+        Build the minimal root (mount namespace) when possible.
     audit : bool
-        Install the audit hook (imports, files, processes, sockets).
+        Install the audit hook.
     block_processes : bool
         Let the audit hook refuse new processes (tests switch it off to check
         that the OS limits alone contain a fork).
@@ -90,11 +104,16 @@ class Limits:
 
     call_timeout: float | None = None
     import_timeout: float = 30.0
+    statement_timeout: float = 10.0
+    test_budget: float | None = None
+    submission_budget: float | None = None
     memory: int = 2 << 30
     output: int = 1 << 20
     file_size: int = 16 << 20
+    tmp_size: str = "64m"
     cpu: int = 600
     network: bool = True
+    filesystem: bool = True
     audit: bool = True
     block_processes: bool = True
 
@@ -117,32 +136,42 @@ class CallOutcome:
     blocked: list = field(default_factory=list)
     output: str = ""
     elapsed: float = 0.0
+    budget: str | None = None  # "test" or "submission" when a time budget, not the call's limit, ran out
 
 
 class ChildFailed(Exception):
-    """The child could not be started or loaded (carries a CallOutcome)."""
+    """The sandbox could not be started or the submission not loaded (carries a CallOutcome)."""
 
     def __init__(self, outcome):
         super().__init__(outcome.error)
         self.outcome = outcome
 
 
-def _site_paths():
-    paths = []
-    for mod in ("numpy", "scipy"):
-        try:
-            m = __import__(mod)
-            paths.append(str(Path(m.__file__).resolve().parents[1]))
-        except ImportError:
-            pass
+# --------------------------------------------------------------------------- what the sandbox may see
+def _real(p):
+    return os.path.realpath(p)
+
+
+def _package_dirs(name):
     try:
-        paths.extend(site.getsitepackages())
-    except AttributeError:
-        pass
+        m = __import__(name)
+    except ImportError:
+        return []
+    d = Path(m.__file__).resolve().parent
+    out = [str(d)]
+    libs = d.parent / f"{name}.libs"
+    if libs.is_dir():
+        out.append(str(libs.resolve()))
+    return out
+
+
+def _site_paths():
     out = []
-    for p in paths:
-        if p not in out and os.path.isdir(p):
-            out.append(p)
+    for mod in ("numpy", "scipy"):
+        for d in _package_dirs(mod)[:1]:
+            p = str(Path(d).parent)
+            if p not in out:
+                out.append(p)
     return out
 
 
@@ -157,24 +186,85 @@ def _blocked_paths():
     return paths
 
 
+def fs_spec(limits):
+    """What the minimal root holds: system trees, the stdlib, NumPy/SciPy; what it hides."""
+    stdlib = _real(os.path.dirname(os.__file__))
+    python = [stdlib]
+    for key in ("stdlib", "platstdlib"):
+        p = sysconfig.get_paths().get(key)
+        if p and os.path.isdir(p):
+            python.append(_real(p))
+    for p in sys.path:
+        if p and (p.endswith(".zip") or p.endswith("lib-dynload")) and os.path.exists(p):
+            python.append(_real(p))
+    try:  # a shared libpython outside the system trees (a Python built under /opt or /root)
+        with open("/proc/self/maps") as fh:
+            for line in fh:
+                path = line.split()[-1] if len(line.split()) >= 6 else ""
+                if "libpython" in path and os.path.exists(path):
+                    python.append(_real(path))
+    except OSError:
+        pass
+    hide = set()
+    try:
+        hide.update(site.getsitepackages())
+    except AttributeError:
+        pass
+    try:
+        hide.add(site.getusersitepackages())
+    except AttributeError:
+        pass
+    hide.update(p for p in sys.path if p and os.path.isdir(p))
+    for base in (sys.prefix, sys.base_prefix, sys.exec_prefix):
+        for sub in ("site-packages", "dist-packages"):
+            hide.add(os.path.join(stdlib, sub))
+            hide.add(os.path.join(base, "lib", os.path.basename(stdlib), sub))
+    hide.add("/usr/lib/python3/dist-packages")
+    for p in _blocked_paths():
+        hide.add(p)
+        hide.add(str(Path(p).parent))
+    keep = set(python)
+    hide = sorted({_real(h) for h in hide if h and os.path.isdir(h)} - keep - {"/"})
+    # a hidden folder that contains the stdlib would hide Python itself
+    hide = [h for h in hide if not any(k == h or k.startswith(h + "/") for k in keep)]
+    allow = _package_dirs("numpy") + _package_dirs("scipy")
+    return {
+        "system": ["/usr", "/lib", "/lib64", "/lib32", "/libx32", "/bin", "/sbin", "/etc/ld.so.cache"],
+        "python": list(dict.fromkeys(python)),
+        "allow": allow,
+        "hide": hide,
+        "tmp_size": limits.tmp_size,
+        "shm_size": "16m",
+        "root_size": "8m",
+    }
+
+
 SITE_PATHS = _site_paths()
 BLOCKED_MODULES = ("slamlib", "autograder")
 BLOCKED_PATHS = _blocked_paths()
+_FS_CACHE = {}
+
+
+def _fs(limits):
+    key = limits.tmp_size
+    if key not in _FS_CACHE:
+        _FS_CACHE[key] = fs_spec(limits)
+    return _FS_CACHE[key]
 
 
 def _child_ids():
-    """A uid/gid no other running child uses (pid-derived, per-process counter)."""
+    """A uid/gid no other running sandbox uses (pid-derived, per-process counter)."""
     with _counter_lock:
         k = next(_counter) % 1000
     uid = 100000 + (os.getpid() % 4_000_000) * 1000 + k
     return uid, uid
 
 
-def _env(scratch):
+def _env():
     return {
         "PATH": "/usr/bin:/bin",
-        "HOME": scratch,
-        "TMPDIR": scratch,
+        "HOME": "/tmp",
+        "TMPDIR": "/tmp",
         "LANG": "C.UTF-8",
         "LC_ALL": "C.UTF-8",
         "MPLBACKEND": "Agg",
@@ -186,15 +276,27 @@ def _env(scratch):
     }
 
 
-class Child:
-    """A child process serving calls of one function of a submission.
+def _exit_text(code):
+    if code is None:
+        return "no exit status"
+    if code < 0:
+        try:
+            return f"killed by signal {signal.Signals(-code).name}"
+        except ValueError:
+            return f"killed by signal {-code}"
+    return f"exit status {code}"
+
+
+# --------------------------------------------------------------------------- the sandbox (zygote)
+class Sandbox:
+    """One submission, loaded once in an isolated process that forks a worker per function.
 
     Parameters
     ----------
     units : list of dict
         The submission's code: ``{"source", "filename", "label"}`` per cell or file.
     functions : list of str
-        Names the child may call.
+        Names the workers may call.
     limits : Limits
         Resource limits.
     display_name : str
@@ -208,19 +310,55 @@ class Child:
         self.display_name = display_name
         self.proc = None
         self.ready = None
-        self.scratch = None
-        self._out = bytearray()
-        self._res = bytearray()
-        self._out_total = 0
+        self.skip = []
+        self.skip_notes = []
+        self.loads = 0
+        self._ctl = None
+        self._out_r = None
+        self._lock = threading.Lock()
+        self._ids = itertools.count(1)
+
+    def _labels(self, unit, stmt, line):
+        u = self.units[unit] if 0 <= unit < len(self.units) else {"label": "?"}
+        return f"{u.get('label', '?')}, line {line}"
 
     # ------------------------------------------------------------------ lifecycle
     def start(self):
-        """Spawn the child and wait until it has loaded the submission."""
-        self.close()
-        self.scratch = tempfile.mkdtemp(prefix="slam-ag-")
+        """Spawn the sandbox and load the submission; return the ready message.
+
+        A top-level statement that runs longer than ``limits.statement_timeout`` is
+        skipped (the submission is loaded again without it), as an interrupted cell
+        of a notebook would be; the whole loading may take ``limits.import_timeout``.
+        """
+        lim = self.limits
+        deadline = time.monotonic() + lim.import_timeout
+        while True:
+            outcome = self._start_once(deadline)
+            if outcome is None:
+                return self.ready
+            status, where = outcome
+            if status == "statement" and len(self.skip) < 20 and time.monotonic() < deadline:
+                unit, stmt, line = where
+                self.skip.append((unit, stmt))
+                self.skip_notes.append(f"{self._labels(unit, stmt, line)}: did not finish within "
+                                       f"{lim.statement_timeout:g} s (statement skipped, as an interrupted cell)")
+                continue
+            out = self._zout_text
+            self.kill()
+            what = {
+                "timeout": f"loading the submission took longer than {lim.import_timeout:g} s (is there slow code at "
+                           "the top level? put experiments under `if __name__ == \"__main__\":`)",
+                "statement": f"loading the submission took longer than {lim.import_timeout:g} s",
+                "output": f"the submission printed more than {lim.output} bytes while loading",
+            }.get(status, f"the process loading the submission ended unexpectedly ({where or status})")
+            raise ChildFailed(CallOutcome(status if status in ("timeout", "output") else "crashed", error=what,
+                                          output=out))
+
+    def _start_once(self, deadline):
+        self.kill()
+        lim = self.limits
         root = os.geteuid() == 0
         uid, gid = _child_ids() if root else (None, None)
-        lim = self.limits
         job = {
             "units": self.units,
             "functions": self.functions,
@@ -229,72 +367,214 @@ class Child:
             "blocked_modules": list(BLOCKED_MODULES),
             "blocked_paths": BLOCKED_PATHS,
             "netns": lim.network,
+            "fs": _fs(lim) if lim.filesystem else None,
             "uid": uid,
             "gid": gid,
             "audit": lim.audit,
             "block_processes": lim.block_processes,
+            "skip": [list(s) for s in self.skip],
+            "max_workers": 8,
             "limits": {"cpu": lim.cpu, "as": lim.memory, "fsize": lim.file_size, "nproc": 0, "nofile": 256},
         }
-        job_path = os.path.join(self.scratch, ".job.json")
-        fd = os.open(job_path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            json.dump(job, fh)
-        if root:
-            os.chown(self.scratch, uid, gid)
-        os.chmod(self.scratch, 0o700)
-        req_r, req_w = os.pipe()
-        res_r, res_w = os.pipe()
+        parent_ctl, child_ctl = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
         out_r, out_w = os.pipe()
         try:
             self.proc = subprocess.Popen(
-                [sys.executable, "-I", "-S", RUNNER, job_path, str(req_r), str(res_w)],
-                stdin=subprocess.DEVNULL, stdout=out_w, stderr=out_w, cwd=self.scratch, env=_env(self.scratch),
-                start_new_session=True, pass_fds=(req_r, res_w), close_fds=True)
+                [sys.executable, "-I", "-S", RUNNER, str(child_ctl.fileno())],
+                stdin=subprocess.PIPE, stdout=out_w, stderr=out_w, cwd="/", env=_env(),
+                start_new_session=True, pass_fds=(child_ctl.fileno(),), close_fds=True)
         finally:
-            for f in (req_r, res_w, out_w):
-                os.close(f)
-        self._req_w, self._res_r, self._out_r = req_w, res_r, out_r
-        for f in (req_w, res_r, out_r):
-            os.set_blocking(f, False)
-        self._out = bytearray()
-        self._res = bytearray()
-        self._out_total = 0
-        header, _, status, err = self._exchange(b"", time.monotonic() + lim.import_timeout)
-        if header is None or header.get("status") != "ready":
-            out = self._output_text()
-            self.kill()
-            what = {
-                "timeout": f"loading the submission took longer than {lim.import_timeout:g} s (is there slow code at "
-                           "the top level? put experiments under `if __name__ == \"__main__\":`)",
-                "output": f"the submission printed more than {lim.output} bytes while loading",
-            }.get(status, f"the process loading the submission ended unexpectedly ({err or status})")
-            raise ChildFailed(CallOutcome("crashed" if status not in ("timeout", "output") else status,
-                                          error=what, output=out))
-        self.ready = header
-        return header
+            os.close(out_w)
+            child_ctl.close()
+        self.loads += 1
+        self._ctl = parent_ctl
+        self._out_r = out_r
+        self._zout = bytearray()
+        self._zout_total = 0
+        try:
+            self.proc.stdin.write(pack_frame(job))
+            self.proc.stdin.close()
+        except (BrokenPipeError, OSError):
+            pass
+        os.set_blocking(out_r, False)
+        parent_ctl.setblocking(False)
+        current = None  # (unit, stmt, line, started)
+        sel = selectors.DefaultSelector()
+        sel.register(parent_ctl, selectors.EVENT_READ, "ctl")
+        sel.register(out_r, selectors.EVENT_READ, "out")
+        try:
+            while True:
+                now = time.monotonic()
+                if now >= deadline:
+                    return ("timeout", None)
+                limit = deadline
+                if current is not None:
+                    limit = min(limit, current[3] + lim.statement_timeout)
+                    if now >= current[3] + lim.statement_timeout:
+                        return ("statement", current[:3])
+                for key, _ in sel.select(timeout=max(0.01, min(limit - now, 1.0))):
+                    if key.data == "out":
+                        try:
+                            chunk = os.read(out_r, 1 << 16)
+                        except BlockingIOError:
+                            continue
+                        if not chunk:
+                            sel.unregister(out_r)
+                            continue
+                        self._zout_total += len(chunk)
+                        self._zout.extend(chunk)
+                        if len(self._zout) > 8000:
+                            del self._zout[:-4000]
+                        if self._zout_total > lim.output:
+                            return ("output", None)
+                        continue
+                    try:
+                        data = parent_ctl.recv(1 << 20)
+                    except BlockingIOError:
+                        continue
+                    except OSError:
+                        data = b""
+                    if not data:
+                        code = None
+                        try:
+                            code = self.proc.wait(timeout=2)
+                        except subprocess.TimeoutExpired:
+                            pass
+                        return ("eof", _exit_text(code))
+                    try:
+                        msg = json.loads(data.decode("utf-8"))
+                    except (UnicodeDecodeError, ValueError):
+                        continue
+                    if not isinstance(msg, dict):
+                        continue
+                    if msg.get("ev") == "stmt":
+                        try:
+                            current = (int(msg["unit"]), int(msg["stmt"]), int(msg.get("line", 0)), time.monotonic())
+                        except (KeyError, TypeError, ValueError):
+                            current = None
+                    elif msg.get("ev") == "ready":
+                        msg["notes"] = list(self.skip_notes) + [str(n)[:300] for n in (msg.get("notes") or [])][:200]
+                        self.ready = msg
+                        return None
+        finally:
+            sel.close()
+
+    @property
+    def _zout_text(self):
+        return bytes(getattr(self, "_zout", b"")[-4000:]).decode("utf-8", "replace")
+
+    @property
+    def alive(self):
+        return self.proc is not None and self.proc.poll() is None
 
     def kill(self):
+        """Kill the sandbox and everything in it."""
         proc = self.proc
-        if proc is None:
-            return
-        if proc.poll() is None:
+        if proc is not None:
+            if proc.poll() is None:
+                try:
+                    os.killpg(proc.pid, signal.SIGKILL)
+                except (ProcessLookupError, PermissionError):
+                    pass
+                try:
+                    proc.kill()
+                except ProcessLookupError:
+                    pass
+            try:
+                proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                pass
             try:
                 os.killpg(proc.pid, signal.SIGKILL)
             except (ProcessLookupError, PermissionError):
                 pass
+            if proc.stdin:
+                try:
+                    proc.stdin.close()
+                except OSError:
+                    pass
+        if self._ctl is not None:
+            self._ctl.close()
+            self._ctl = None
+        if self._out_r is not None:
             try:
-                proc.kill()
-            except ProcessLookupError:
+                os.close(self._out_r)
+            except OSError:
                 pass
-        try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            pass
-        # anything left in the group (it cannot fork, but be thorough)
-        try:
-            os.killpg(proc.pid, signal.SIGKILL)
-        except (ProcessLookupError, PermissionError):
-            pass
+            self._out_r = None
+        self.proc = None
+
+    def close(self):
+        """Stop the sandbox (politely first) and every worker."""
+        if self.alive and self._ctl is not None:
+            try:
+                self._ctl.setblocking(True)
+                self._ctl.send(b'{"op":"exit"}')
+                self.proc.wait(timeout=0.5)
+            except (OSError, subprocess.TimeoutExpired):
+                pass
+        self.kill()
+
+    # ------------------------------------------------------------------ workers
+    def fork_worker(self):
+        """A fresh worker process forked from the loaded submission (a :class:`Worker`).
+
+        Raises ChildFailed if the sandbox is gone (the caller may start it again).
+        """
+        with self._lock:
+            if not self.alive or self._ctl is None:
+                raise ChildFailed(CallOutcome("crashed", error="the sandbox process is not running"))
+            req_r, req_w = os.pipe()
+            res_r, res_w = os.pipe()
+            out_r, out_w = os.pipe()
+            wid = next(self._ids)
+            try:
+                self._ctl.setblocking(True)
+                socket.send_fds(self._ctl, [json.dumps({"op": "fork", "id": wid}).encode()], [req_r, res_w, out_w])
+            except OSError as exc:
+                for f in (req_r, req_w, res_r, res_w, out_r, out_w):
+                    os.close(f)
+                raise ChildFailed(CallOutcome("crashed", error=f"the sandbox process is not running ({exc})")) from None
+            finally:
+                if self._ctl is not None:
+                    self._ctl.setblocking(False)
+            for f in (req_r, res_w, out_w):
+                os.close(f)
+            return Worker(self, wid, req_w, res_r, out_r)
+
+    def kill_worker(self, wid):
+        with self._lock:
+            if self._ctl is None:
+                return
+            try:
+                self._ctl.setblocking(True)
+                self._ctl.send(json.dumps({"op": "kill", "id": wid}).encode())
+            except OSError:
+                pass
+            finally:
+                if self._ctl is not None:
+                    self._ctl.setblocking(False)
+
+
+class Worker:
+    """One worker process: calls of the submission's functions on its own pipes."""
+
+    def __init__(self, sandbox, wid, req_w, res_r, out_r):
+        self.sandbox = sandbox
+        self.limits = sandbox.limits
+        self.id = wid
+        self._req_w, self._res_r, self._out_r = req_w, res_r, out_r
+        for f in (req_w, res_r, out_r):
+            os.set_blocking(f, False)
+        self._res = bytearray()
+        self._out = bytearray()
+        self._out_total = 0
+        self.dead = False
+
+    def close(self, kill=True):
+        if kill and not self.dead:
+            self.sandbox.kill_worker(self.id)
+        self.dead = True
         for f in ("_req_w", "_res_r", "_out_r"):
             fd = getattr(self, f, None)
             if fd is not None:
@@ -303,40 +583,22 @@ class Child:
                 except OSError:
                     pass
                 setattr(self, f, None)
-        self.proc = None
 
-    def close(self):
-        """Stop the child (politely if it is idle) and remove its scratch directory."""
-        if self.proc is not None and self.proc.poll() is None and self._req_w is not None:
-            try:
-                os.set_blocking(self._req_w, True)
-                os.write(self._req_w, pack_frame({"op": "exit"}))
-            except OSError:
-                pass
-            try:
-                self.proc.wait(timeout=0.5)
-            except subprocess.TimeoutExpired:
-                pass
-        self.kill()
-        if self.scratch:
-            _rmtree(self.scratch)
-            self.scratch = None
-
-    # ------------------------------------------------------------------ calls
     def call(self, fn, args, kwargs=None, *, timeout, names=(), global_seed=None):
-        """Call ``fn(*args, **kwargs)`` in the child; return a :class:`CallOutcome`."""
+        """Call ``fn(*args, **kwargs)`` in the worker; return a :class:`CallOutcome`."""
         kwargs = kwargs or {}
-        if self.proc is None or self.proc.poll() is not None:
-            self.start()
+        if self.dead:
+            return CallOutcome("crashed", error="the worker process is gone")
         header, payload = encode_args(args, kwargs, np)
         header.update({"op": "call", "fn": fn, "names": list(names)})
         if global_seed is not None:
             header["global_seed"] = int(global_seed)
         self._out = bytearray()
+        self._out_total = 0
         reply, rpayload, status, err = self._exchange(pack_frame(header, payload), time.monotonic() + timeout)
         out = self._output_text()
         if reply is None:
-            self.kill()
+            self.close()
             if status == "timeout":
                 return CallOutcome("timeout", error=f"the call did not finish within {timeout:g} s", output=out)
             if status == "output":
@@ -361,11 +623,10 @@ class Child:
                                    mutated=mutated, blocked=blocked, output=out, elapsed=elapsed)
             returned = decode_result(reply.get("result"), rpayload, np)
         except (ProtocolError, TypeError, ValueError, AttributeError) as exc:
-            self.kill()
+            self.close()
             return CallOutcome("protocol", error=f"the grader could not read the function's result ({exc})", output=out)
         return CallOutcome("ok", returned=returned, mutated=mutated, blocked=blocked, output=out, elapsed=elapsed)
 
-    # ------------------------------------------------------------------ plumbing
     def _output_text(self):
         return bytes(self._out[-4000:]).decode("utf-8", "replace")
 
@@ -373,8 +634,9 @@ class Child:
         """Write ``request``; read until one result frame arrives.
 
         Returns ``(header, payload, status, error)``; ``header`` is None when no
-        frame arrived, and ``status`` says why: ``timeout``, ``output``,
-        ``eof`` or ``protocol``.
+        frame arrived, and ``status`` says why: ``timeout``, ``output``, ``eof``
+        (the worker died: its exit status comes from nowhere, so ``error`` says
+        only that) or ``protocol``.
         """
         pending = memoryview(request)
         sel = selectors.DefaultSelector()
@@ -392,15 +654,13 @@ class Child:
                 if got is not None:
                     header, payload, used = got
                     del self._res[:used]
+                    if header.get("status") == "exited":  # written by the zygote when the worker ended
+                        self._drain_output()
+                        return None, None, "eof", str(header.get("exit"))[:100]
                     return header, payload, "ok", None
                 if not res_open:
-                    code = self.proc.poll() if self.proc else None
-                    if code is None:
-                        try:
-                            code = self.proc.wait(timeout=1)
-                        except subprocess.TimeoutExpired:
-                            code = None
-                    return None, None, "eof", _exit_text(code)
+                    self._drain_output()
+                    return None, None, "eof", "the process ended"
                 left = deadline - time.monotonic()
                 if left <= 0:
                     return None, None, "timeout", None
@@ -430,38 +690,34 @@ class Child:
                             if len(self._res) > _runner.MAX_PAYLOAD + _runner.MAX_HEADER + 64:
                                 return None, None, "protocol", "result too large"
                     else:
-                        try:
-                            chunk = os.read(self._out_r, 1 << 16)
-                        except BlockingIOError:
-                            continue
-                        if not chunk:
+                        if self._read_output() is False:
                             sel.unregister(self._out_r)
-                        else:
-                            self._out_total += len(chunk)
-                            self._out.extend(chunk)
-                            if len(self._out) > 8000:
-                                del self._out[:-4000]
-                            if self._out_total > self.limits.output:
-                                return None, None, "output", None
+                        if self._out_total > self.limits.output:
+                            return None, None, "output", None
         finally:
             sel.close()
 
-
-def _exit_text(code):
-    if code is None:
-        return "no exit status"
-    if code < 0:
+    def _read_output(self):
+        """Read what the worker printed; False at end of file, None when nothing is waiting."""
         try:
-            return f"killed by signal {signal.Signals(-code).name}"
-        except ValueError:
-            return f"killed by signal {-code}"
-    return f"exit status {code}"
+            chunk = os.read(self._out_r, 1 << 16)
+        except BlockingIOError:
+            return None
+        except OSError:
+            return False
+        if not chunk:
+            return False
+        self._out_total += len(chunk)
+        self._out.extend(chunk)
+        if len(self._out) > 8000:
+            del self._out[:-4000]
+        return True
 
-
-def _rmtree(path):
-    import shutil
-
-    shutil.rmtree(path, ignore_errors=True)
+    def _drain_output(self):
+        """What a dead worker printed last (its stderr names a fatal signal, for instance)."""
+        for _ in range(64):
+            if not self._read_output():
+                return
 
 
 # --------------------------------------------------------------------------- isolation report
@@ -470,34 +726,65 @@ _ISO_LOCK = threading.Lock()
 
 
 def isolation_report(limits=None):
-    """Start one child on an empty submission and return what isolation held.
+    """Start one sandbox on an empty submission and return what isolation held.
 
     The answer is cached per process (it depends on the machine, not on the
     submission).
     """
     limits = limits or Limits()
-    key = (limits.network, limits.audit)
+    key = (limits.network, limits.audit, limits.filesystem)
     with _ISO_LOCK:
         if key not in _ISO_CACHE:
-            child = Child([{"source": "", "filename": "<probe>", "label": "probe"}], [], limits)
+            box = Sandbox([{"source": "", "filename": "<probe>", "label": "probe"}], [], limits)
             try:
-                ready = child.start()
+                ready = box.start()
                 _ISO_CACHE[key] = dict(ready.get("isolation") or {})
             except ChildFailed as exc:
                 _ISO_CACHE[key] = {"error": str(exc)}
             finally:
-                child.close()
+                box.close()
         return dict(_ISO_CACHE[key])
 
 
+def protection_level(iso):
+    """One word for the protection of the reference and the tests that was in force.
+
+    ``"namespaces"`` (a minimal root without them), ``"separate-user"`` (another
+    uid that cannot read them), or ``"audit-hook-only"`` (nothing but the hook: the
+    files are readable by the submission's process).
+    """
+    if not iso or "error" in iso:
+        return "unknown"
+    if iso.get("fs"):
+        return "namespaces"
+    if not iso.get("reference_readable") and (iso.get("uid") not in (None, 0) or iso.get("root")):
+        return "separate-user"
+    return "audit-hook-only"
+
+
 def describe_isolation(iso):
-    """One line per isolation mechanism, from a child's ``isolation`` report."""
+    """One line per isolation mechanism, from a sandbox's ``isolation`` report."""
     if not iso:
-        return ["isolation: unknown (no child started)"]
+        return ["isolation: unknown (no sandbox started)"]
     if "error" in iso:
-        return [f"isolation: the probe child failed: {iso['error']}"]
-    lines = ["separate process per function (own session, scratch directory, scrubbed environment, stdin closed, "
-             "wall-clock deadline per call, output cap)"]
+        return [f"isolation: the probe sandbox failed: {iso['error']}"]
+    level = protection_level(iso)
+    lines = [{"namespaces": "protection of the reference and tests: namespaces (a minimal root holding only Python, "
+                            "NumPy, SciPy and the submission)",
+              "separate-user": "protection of the reference and tests: a separate unprivileged user that cannot read "
+                               "them (no mount namespace: " + str(iso.get("fs_error") or iso.get("mountns_error")
+                                                                  or "unavailable") + ")",
+              "audit-hook-only": "protection of the reference and tests: the audit hook ONLY (their files are readable "
+                                 "by the submission's process: " + ", ".join(iso.get("reference_readable") or []) + ")",
+              }[level]]
+    lines.append("one sandbox per submission, loaded once; a fresh worker process per function (own pipes, wall-clock "
+                 "deadline per call, output cap)")
+    if iso.get("fs"):
+        lines.append("files: private /tmp and /dev/shm (tmpfs, size-capped), fresh /proc, read-only system and Python "
+                     "folders; nothing written reaches the host")
+    else:
+        lines.append("files: NOT isolated (" + str(iso.get("fs_error") or iso.get("mountns_error") or "no mount "
+                                                                                                    "namespace") + ")")
     if iso.get("pidns"):
         lines.append("processes: new PID namespace (the submission cannot see or signal processes outside it; "
                      "everything in it dies with it)")
@@ -511,12 +798,13 @@ def describe_isolation(iso):
         if "uid_error" in iso:
             lines.append(f"privileges: root, and dropping them FAILED ({iso['uid_error']}): RLIMIT_NPROC does not apply")
         else:
-            lines.append("privileges: dropped from root to a fresh unprivileged uid/gid per child (RLIMIT_NPROC applies; "
-                         "children cannot signal each other or the grader)")
+            lines.append("privileges: dropped from root to a fresh unprivileged uid/gid per submission (RLIMIT_NPROC "
+                         "applies; submissions cannot signal each other or the grader)")
     else:
-        lines.append("privileges: runs as the grader's own (unprivileged) user" + (", in a new user namespace" if iso.get("userns") else ""))
+        lines.append("privileges: runs as the grader's own (unprivileged) user"
+                     + (", in a new user namespace without capabilities" if iso.get("userns") else ""))
     rl = iso.get("rlimits") or {}
     lines.append("rlimits: " + ", ".join(f"{k[7:]}={v}" for k, v in rl.items()))
-    lines.append("audit hook: " + ("imports of slamlib/autograder, their files, processes, sockets, ctypes lookups refused"
-                                   if iso.get("audit_hook") else "off"))
+    lines.append("audit hook (second line): " + ("imports of slamlib/autograder, their files, processes, sockets, "
+                                                 "ctypes lookups refused" if iso.get("audit_hook") else "off"))
     return lines

@@ -61,7 +61,7 @@ import inspect
 from dataclasses import dataclass, field
 from typing import Callable
 
-__all__ = ["TestCase", "Exercise", "parse_signature", "VISIBILITY"]
+__all__ = ["TestCase", "Exercise", "parse_signature", "VISIBILITY", "TEST_BUDGET", "SUBMISSION_BUDGET"]
 
 #: Gradescope visibility of public and hidden tests.
 VISIBILITY = {"public": "visible", "hidden": "after_due_date"}
@@ -95,6 +95,10 @@ class TestCase:
         Wall-clock limit of each call of the student's function (seconds).
     hint : str
         The message a student sees when the test fails.
+    budget : float or None
+        Wall time (seconds) of the whole test, all its calls together; ``None``
+        takes the exercise's ``test_budget``. A test over its budget scores 0 with
+        a message and the other tests still run.
     """
 
     function: str
@@ -104,15 +108,28 @@ class TestCase:
     visibility: str = "public"
     timeout: float = 10.0
     hint: str = ""
+    budget: float | None = None
 
     @property
     def name(self):
         return f"{self.function}: {self.title}"
 
 
+#: Default wall-time budgets (seconds): one test, all its calls; one submission, all its tests.
+#: A correct submission needs well under a second per test.
+TEST_BUDGET = 30.0
+SUBMISSION_BUDGET = 240.0
+
+
 @dataclass
 class Exercise:
-    """An exercise: its contract functions (in grading order) and test cases."""
+    """An exercise: its contract functions (in grading order) and test cases.
+
+    ``seed`` is the base seed of the public self-check (graded submissions draw
+    theirs from the deployment's secret and their own content, see
+    :mod:`autograder.seeds`); ``test_budget`` and ``submission_budget`` bound the
+    wall time of one test and of one whole grading.
+    """
 
     name: str
     title: str
@@ -120,8 +137,10 @@ class Exercise:
     functions: dict
     seed: int = 20240
     tests: list = field(default_factory=list)
+    test_budget: float = TEST_BUDGET
+    submission_budget: float = SUBMISSION_BUDGET
 
-    def test(self, function, title, *, weight, visibility="public", timeout=10.0, hint=""):
+    def test(self, function, title, *, weight, visibility="public", timeout=10.0, hint="", budget=None):
         """Decorator registering ``run(ctx)`` as a test of ``function``."""
         if function not in self.functions:
             raise ValueError(f"{function!r} is not a function of exercise {self.name!r}")
@@ -129,7 +148,8 @@ class Exercise:
             raise ValueError(f"visibility must be one of {sorted(VISIBILITY)}")
 
         def deco(run):
-            case = TestCase(function, title, float(weight), run, visibility, float(timeout), hint)
+            case = TestCase(function, title, float(weight), run, visibility, float(timeout), hint,
+                            None if budget is None else float(budget))
             if any(t.name == case.name for t in self.tests):
                 raise ValueError(f"duplicate test name {case.name!r}")
             self.tests.append(case)

@@ -21,7 +21,7 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
-__all__ = ["Submission", "SubmissionError", "load_submission", "forbidden_usage", "SKIP_TAG"]
+__all__ = ["Submission", "SubmissionError", "load_submission", "forbidden_usage", "decode_python_source", "SKIP_TAG"]
 
 SKIP_TAG = "skip-grading"
 FORBIDDEN = ("slamlib", "autograder")
@@ -58,6 +58,7 @@ class Submission:
     exercise: str | None = None
     notes: list = field(default_factory=list)
     syntax_errors: dict = field(default_factory=dict)
+    sha256: str = ""
 
     @property
     def display_name(self):
@@ -103,15 +104,15 @@ def load_submission(path):
     if len(raw) > 50 << 20:
         raise SubmissionError(f"{path.name}: the file is larger than 50 MB")
     if suffix == ".py":
-        try:
-            text = raw.decode("utf-8")
-        except UnicodeDecodeError:
-            raise SubmissionError(f"{path.name}: not a UTF-8 text file") from None
+        text = decode_python_source(raw, path.name)
         sub = Submission(path, "python", [{"source": text, "filename": path.name, "label": path.name}])
     elif suffix == ".ipynb":
         sub = _load_notebook(path, raw)
     else:
         raise SubmissionError(f"{path.name}: unsupported file type (submit the exercise notebook .ipynb or a .py file)")
+    from .seeds import content_hash
+
+    sub.sha256 = content_hash(raw)
     for unit in sub.units:
         try:
             ast.parse(unit["source"], filename=unit["filename"])
@@ -125,14 +126,37 @@ def load_submission(path):
     return sub
 
 
+def decode_python_source(raw, name="submission.py"):
+    """Text of a Python file as Python reads it: a UTF-8 byte-order mark or a PEP 263
+    coding cookie (``# -*- coding: latin-1 -*-``) decide the encoding; CRLF and CR line
+    ends become LF.
+
+    Raises
+    ------
+    SubmissionError
+        If the bytes are not valid in the declared (or default UTF-8) encoding.
+    """
+    import io
+    import tokenize
+
+    try:
+        encoding, _ = tokenize.detect_encoding(io.BytesIO(raw).readline)
+        text = raw.decode(encoding)
+    except (SyntaxError, LookupError, UnicodeDecodeError) as exc:
+        raise SubmissionError(f"{name}: not a readable Python text file ({exc}); save it as UTF-8") from None
+    if text.startswith("\ufeff"):
+        text = text[1:]
+    return text.replace("\r\n", "\n").replace("\r", "\n")
+
+
 def _load_notebook(path, raw):
     import nbformat
 
     try:
-        data = json.loads(raw.decode("utf-8"))
+        data = json.loads(raw.decode("utf-8-sig"))
     except (UnicodeDecodeError, ValueError) as exc:
         raise SubmissionError(f"{path.name}: not a Jupyter notebook (invalid JSON: {exc})") from None
-    if not isinstance(data, dict) or "cells" not in data:
+    if not isinstance(data, dict) or not ("cells" in data or "worksheets" in data):
         raise SubmissionError(f"{path.name}: not a Jupyter notebook (no cells)")
     try:
         nb = nbformat.reads(json.dumps(data), as_version=4)
@@ -154,7 +178,7 @@ def _load_notebook(path, raw):
             source = "".join(source)
         if not isinstance(source, str):
             continue
-        source = _strip_magics(source, label, notes)
+        source = _strip_magics(source.replace("\r\n", "\n").replace("\r", "\n"), label, notes)
         if not source.strip():
             continue
         units.append({"source": source, "filename": f"{path.name}, {label}", "label": label})

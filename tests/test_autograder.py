@@ -28,6 +28,12 @@ PY = sys.executable
 EXERCISES_DIR = ROOT / "exercises"
 
 
+@pytest.fixture(autouse=True)
+def _secret(tmp_path_factory, monkeypatch):
+    """Grading secrets of the test run live in a temporary folder, not in the user's config."""
+    monkeypatch.setenv("AUTOGRADER_SECRET_FILE", str(tmp_path_factory.getbasetemp() / "grading_secret"))
+
+
 @lru_cache(maxsize=None)
 def _graded_solution(exercise):
     return grade(solution(exercise), exercise)
@@ -92,6 +98,8 @@ def test_results_are_deterministic():
     second = grade(solution("particle_filter"), "particle_filter").to_gradescope()
     first.pop("execution_time")
     second.pop("execution_time")
+    # the sandbox's uid differs between gradings; the scenarios (seed) and every result do not
+    assert first.pop("extra_data")["seed"] == second.pop("extra_data")["seed"]
     assert first == second
 
 
@@ -251,7 +259,11 @@ def test_gradescope_bundle_runs(tmp_path):
     assert p.returncode == 0, p.stderr
     with zipfile.ZipFile(zpath) as zf:
         names = zf.namelist()
-        assert {"setup.sh", "run_autograder", "requirements.txt"} <= set(names)
+        assert {"setup.sh", "run_autograder", "requirements.txt", "grading_secret"} <= set(names)
+        reqs = zf.read("requirements.txt").decode().split()
+        assert all("==" in r for r in reqs) and not any(r.startswith(("matplotlib", "ipywidgets")) for r in reqs)
+        assert "--only-binary=:all:" in zf.read("setup.sh").decode()
+        assert len(zf.read("grading_secret").strip()) == 64
         wheel = [n for n in names if n.startswith("wheels/") and n.endswith(".whl")]
         assert len(wheel) == 1
         assert (zf.getinfo("run_autograder").external_attr >> 16) & 0o111

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import json
+import os
 import struct
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -210,7 +212,7 @@ def test_isolation_report_lists_every_mechanism():
     iso = isolation_report(Limits())
     text = "\n".join(describe_isolation(iso))
     assert "rlimits: CPU=" in text and "NPROC=0" in text and "AS=2147483648" in text
-    assert "audit hook: imports of slamlib" in text
+    assert "audit hook (second line): imports of slamlib" in text
     if iso.get("root"):
         assert iso.get("uid", 0) != 0 and "dropped from root" in text
 
@@ -223,3 +225,62 @@ def test_results_json_written_atomically(tmp_path):
         write_json_atomic(path, {"score": float("nan")})
     assert json.loads(path.read_text())["score"] == 1.0  # the old file is intact
     assert [p.name for p in path.parent.iterdir()] == ["results.json"]
+
+
+# --------------------------------------------------------------------------- seeds, inputs, bundle requirements, protection
+def test_seeds_follow_secret_exercise_and_content(tmp_path):
+    from autograder.seeds import content_hash, derive_seed, load_secret
+
+    path = tmp_path / "cfg" / "secret"
+    secret = load_secret(path)
+    assert path.stat().st_mode & 0o777 == 0o600 and load_secret(path) == secret
+    h1, h2 = content_hash(b"def f(): pass\n"), content_hash(b"def f(): pass \n")
+    s = derive_seed(secret, "particle_filter", h1)
+    assert s == derive_seed(secret, "particle_filter", h1) and 0 <= s < 2**63
+    assert len({s, derive_seed(secret, "particle_filter", h2), derive_seed(secret, "fastslam", h1),
+                derive_seed(b"another secret of enough length", "particle_filter", h1)}) == 4
+
+
+def test_python_sources_are_read_as_python_reads_them():
+    from autograder.submission import SubmissionError, decode_python_source
+
+    text = "x = 'caf\u00e9'\r\ny = 1\r\n"
+    assert decode_python_source(b"\xef\xbb\xbf" + text.encode()) == "x = 'caf\u00e9'\ny = 1\n"
+    latin = ("# -*- coding: latin-1 -*-\n" + text).encode("latin-1")
+    assert "caf\u00e9" in decode_python_source(latin)
+    with pytest.raises(SubmissionError, match="not a readable Python text file"):
+        decode_python_source(text.encode("latin-1"))
+
+
+def test_bundle_requirements_are_pinned_and_minimal():
+    from autograder.bundle import pinned_requirements
+
+    reqs = pinned_requirements()
+    names = {r.split("==")[0].lower() for r in reqs}
+    assert all("==" in r for r in reqs)
+    assert {"numpy", "scipy", "nbformat"} <= names
+    assert not names & {"matplotlib", "ipywidgets", "tqdm", "jupyter-book", "pytest"}
+
+
+def test_protection_level_says_which_line_held():
+    from autograder.sandbox import protection_level
+
+    assert protection_level({"fs": True, "root": True, "uid": 123}) == "namespaces"
+    assert protection_level({"fs": False, "root": True, "uid": 123, "reference_readable": []}) == "separate-user"
+    iso = {"fs": False, "root": False, "uid": 1000, "reference_readable": ["/x/slamlib"], "rlimits": {}}
+    assert protection_level(iso) == "audit-hook-only"
+    assert "audit hook ONLY" in describe_isolation(iso)[0] and "/x/slamlib" in describe_isolation(iso)[0]
+
+
+def test_without_a_mount_namespace_the_report_says_what_protects_the_reference():
+    from autograder.sandbox import BLOCKED_PATHS, protection_level
+
+    iso = isolation_report(Limits(filesystem=False))
+    assert iso.get("fs") is False
+    level = protection_level(iso)
+    text = "\n".join(describe_isolation(iso))
+    readable = [p for p in BLOCKED_PATHS if all(os.stat(q).st_mode & 0o005 for q in [p, *map(str, Path(p).parents)])]
+    if iso.get("root") and "uid_error" not in iso and not readable:
+        assert level == "separate-user" and "separate unprivileged user" in text
+    elif iso.get("reference_readable"):
+        assert level == "audit-hook-only" and "audit hook ONLY" in text

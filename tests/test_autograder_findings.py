@@ -1,0 +1,467 @@
+"""Attacks and awkward inputs that used to earn unearned points or lose earned ones.
+
+One test (or more) per way a submission could beat or break the grader: switching
+off the audit hook from inside, reading the reference through a directory
+descriptor, running a classmate's file in a batch, harvesting scenarios across
+gradings, writing outside the scratch space, unbounded time, orphaned batch
+workers, valid Python that was not read, a wrong signature, a hanging notebook
+cell. Each is written as a submission and graded for real; each fails on a grader
+without the sandbox root, the derived seeds, the budgets, the zygote and the
+batch clean-up.
+
+The protections that need namespaces (a minimal root) are skipped with a reason
+where the machine does not allow them.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+import uuid
+from pathlib import Path
+
+import nbformat
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent / "autograder_fixtures"))
+
+from agtest import gradescope_json_ok, replace_function, solution_text  # noqa: E402
+
+import autograder  # noqa: E402
+import slamlib  # noqa: E402
+from autograder.engine import grade  # noqa: E402
+from autograder.sandbox import Limits, isolation_report  # noqa: E402
+
+TARGET = "normalize_log_weights"
+OTHER = "effective_sample_size"
+SLAMLIB_DIR = str(Path(slamlib.__file__).resolve().parent)
+PROJECT_DIR = str(Path(slamlib.__file__).resolve().parents[1])
+AG_ROOT = Path(autograder.__file__).resolve().parents[1]  # the checkout whose grader is under test
+
+
+@pytest.fixture(autouse=True)
+def _secret(tmp_path_factory, monkeypatch):
+    """Grading secrets of the test run live in a temporary folder, not in the user's config."""
+    monkeypatch.setenv("AUTOGRADER_SECRET_FILE", str(tmp_path_factory.getbasetemp() / "grading_secret"))
+
+
+def limits(**kw):
+    """Short limits for the tests (fields a grader does not know are left out)."""
+    base = {"call_timeout": 2.5, "import_timeout": 20.0}
+    base.update(kw)
+    names = {f.name for f in dataclasses.fields(Limits)}
+    return Limits(**{k: v for k, v in base.items() if k in names})
+
+
+def _grade_variant(tmp_path, body=None, *, top="", name="sub.py", function=TARGET, lim=None, **kw):
+    text = solution_text("particle_filter")
+    if body is not None:
+        text = replace_function(text, function, body)
+    path = tmp_path / name
+    path.write_text("import os\nimport sys\nimport numpy as np\n" + top + "\n" + text)
+    result = grade(path, "particle_filter", limits=lim or limits(), functions=[TARGET, OTHER], **kw)
+    gradescope_json_ok(result.to_gradescope())
+    outputs = "\n".join(t.output for t in result.tests if t.function == function)
+    return result.by_function(), outputs, result
+
+
+def _needs_sandbox_root():
+    iso = isolation_report(Limits())
+    if iso.get("fs") is False or "error" in iso:
+        pytest.skip("no mount namespace on this machine (the minimal root needs namespaces: "
+                    f"{iso.get('fs_error') or iso.get('mountns_error') or iso.get('error')})")
+    return iso
+
+
+# --------------------------------------------------------------------------- 1. the audit hook undone from inside
+GC_WALK = f"""
+def normalize_log_weights(log_w):
+    import gc, importlib
+    for obj in gc.get_objects():
+        if type(obj).__name__ == "function" and obj.__name__ == "hook" and obj.__closure__:
+            for cell in obj.__closure__:
+                try:
+                    value = cell.cell_contents
+                except ValueError:
+                    continue
+                if isinstance(value, list) and value == [False]:
+                    value[0] = True
+    sys.meta_path[:] = [f for f in sys.meta_path if "Blocked" not in getattr(f, "__name__", "")]
+    sys.path.insert(0, {PROJECT_DIR!r})
+    ref = importlib.import_module("slam" + "lib")
+    return ref.normalize_log_weights(log_w)
+"""
+
+
+def test_gc_walk_that_disables_the_audit_hook_finds_no_reference(tmp_path):
+    _needs_sandbox_root()
+    scores, out, _ = _grade_variant(tmp_path, GC_WALK)
+    assert scores[TARGET][0] == 0, out
+    assert "No module named" in out
+    assert scores[OTHER] == (15.0, 15.0)
+
+
+# --------------------------------------------------------------------------- 2. the reference read through a directory descriptor
+DIR_FD = f"""
+def normalize_log_weights(log_w):
+    import ast
+    from scipy.special import logsumexp
+    top = os.open({str(Path(SLAMLIB_DIR).parent)!r}, os.O_RDONLY)
+    d = os.open({Path(SLAMLIB_DIR).name[:4]!r} + {Path(SLAMLIB_DIR).name[4:]!r}, os.O_RDONLY, dir_fd=top)
+    fd = os.open("particle.py", os.O_RDONLY, dir_fd=d)
+    src = os.read(fd, 10**7).decode()
+    tree = ast.parse(src)
+    core = [n for n in tree.body if isinstance(n, ast.FunctionDef) and n.name == "_normalized"]
+    ns = {{"np": np, "logsumexp": logsumexp}}
+    exec(compile(ast.Module(body=core, type_ignores=[]), "ref", "exec"), ns)
+    return np.exp(ns["_normalized"](np.asarray(log_w, float)))
+"""
+
+
+def test_reference_and_tests_are_not_in_the_sandbox(tmp_path):
+    _needs_sandbox_root()
+    scores, out, _ = _grade_variant(tmp_path, DIR_FD)
+    assert scores[TARGET][0] == 0, out
+    assert "No such file or directory" in out
+    # nothing of the project, the tests or site-packages is visible; the private /tmp is empty
+    probe = f"""
+def effective_sample_size(w):
+    seen = [p for p in ({SLAMLIB_DIR!r}, {PROJECT_DIR!r} + "/autograder", {PROJECT_DIR!r} + "/tests",
+                        "/autograder") if os.path.exists(p)]
+    for top, dirs, files in os.walk("/"):
+        if top == "/":
+            dirs[:] = [d for d in dirs if d not in ("proc", "sys", "dev")]
+        seen += [os.path.join(top, n) for n in dirs + files if n.startswith(("slam" + "lib", "auto" + "grader"))]
+    seen += os.listdir("/tmp")
+    if seen:
+        raise RuntimeError("visible: " + ", ".join(seen))
+    w = np.asarray(w, float)
+    return float(w.sum() ** 2 / (w ** 2).sum())
+"""
+    scores, out, _ = _grade_variant(tmp_path, probe, function=OTHER, lim=limits(call_timeout=30.0))
+    assert scores[OTHER] == (15.0, 15.0), out
+
+
+# --------------------------------------------------------------------------- 3. a classmate's file in a batch
+THIEF = """
+import os
+for _d in os.listdir("/proc"):
+    try:
+        _args = open(f"/proc/{_d}/cmdline", "rb").read().split(b"\\0")
+    except Exception:
+        continue
+    for _a in _args:
+        _a = _a.decode(errors="replace")
+        if _a.startswith("/") and os.path.isdir(_a) and "thief" not in _a:
+            for _name in sorted(os.listdir(_a)):
+                _f = os.path.join(_a, _name)
+                try:
+                    if _name.endswith(".py") and "thief" not in _name and "def normalize_log_weights" in open(_f).read():
+                        exec(open(_f).read(), globals())
+                except Exception:
+                    pass
+"""
+
+
+def _run_batch(subs, out, *extra, **kw):
+    env = {**os.environ, "PYTHONPATH": str(AG_ROOT)}
+    return subprocess.run([sys.executable, "-m", "autograder", "batch", str(subs), "--exercise", "particle_filter",
+                           "--out", str(out), "--quiet", *extra], capture_output=True, text=True, cwd=str(AG_ROOT),
+                          env=env, **kw)
+
+
+@pytest.mark.slow
+def test_batch_submission_cannot_run_a_classmates_file(tmp_path):
+    _needs_sandbox_root()
+    import shutil
+    import tempfile
+
+    # a folder anyone may read, as a TA's grading folder usually is
+    work = Path(tempfile.mkdtemp(prefix="ag-batch-"))
+    try:
+        os.chmod(work, 0o755)
+        subs = work / "subs"
+        subs.mkdir(mode=0o755)
+        (subs / "alice.py").write_text(solution_text("particle_filter"))
+        (subs / "zz_thief.py").write_text(THIEF)
+        for f in subs.iterdir():
+            os.chmod(f, 0o644)
+        out = tmp_path / "grades.csv"
+        p = _run_batch(subs, out, "--jobs", "2", timeout=300)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    assert p.returncode == 0, p.stderr
+    rows = {r["submission"]: r for r in csv.DictReader(out.open())}
+    assert float(rows["alice"]["score"]) == 100
+    assert float(rows["zz_thief"]["score"]) == 0
+
+
+# --------------------------------------------------------------------------- 4. harvested scenarios
+def test_answers_harvested_in_one_grading_do_not_fit_the_next(tmp_path):
+    tag = uuid.uuid4().hex
+    store = f"/tmp/harvest_{tag}.json"
+    logger = f"""
+def normalize_log_weights(log_w):
+    import json
+    x = np.asarray(log_w, float)
+    w = np.exp(x - x.max())
+    w = w / w.sum()
+    try:
+        table = json.load(open({store!r}))
+    except (OSError, ValueError):
+        table = []
+    table.append([x.tolist(), w.tolist()])
+    fd = os.open({store!r}, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o666)
+    os.write(fd, json.dumps(table).encode())
+    os.close(fd)
+    return w
+"""
+    lookup = f"""
+def normalize_log_weights(log_w):
+    import json
+    x = np.asarray(log_w, float)
+    try:
+        table = json.load(open({store!r}))
+    except (OSError, ValueError):
+        table = []
+    for inp, out in table:
+        if len(inp) == len(x) and np.array_equal(np.array(inp), x):
+            return np.array(out)
+    return np.zeros(len(x))
+"""
+    try:
+        honest, _, first = _grade_variant(tmp_path, logger, name="honest.py")
+        assert honest[TARGET] == (20.0, 20.0)
+        copied, out, second = _grade_variant(tmp_path, lookup, name="copier.py")
+        assert copied[TARGET][0] == 0, out
+        # the scenarios follow the submission's content; the seed is recorded and reproduces the grade
+        assert first.seed is not None and second.seed is not None and first.seed != second.seed
+        again = grade(tmp_path / "copier.py", "particle_filter", limits=limits(), functions=[TARGET, OTHER],
+                      seed=second.seed)
+        assert [t.output for t in again.tests] == [t.output for t in second.tests]
+        assert again.to_gradescope()["extra_data"]["seed"] == second.seed
+    finally:
+        if os.path.exists(store):
+            os.remove(store)
+
+
+# --------------------------------------------------------------------------- 5. writes outside the scratch space
+def test_writes_stay_in_the_sandbox_and_are_capped(tmp_path):
+    _needs_sandbox_root()
+    tag = uuid.uuid4().hex
+    marks = [f"/tmp/ag_mark_{tag}", f"/dev/shm/ag_mark_{tag}", os.path.join(os.getcwd(), f"ag_mark_{tag}")]
+    body = f"""
+def normalize_log_weights(log_w):
+    for p in {marks!r}:
+        try:
+            with open(p, "w") as fh:
+                fh.write("x")
+        except OSError:
+            pass
+    capped = False
+    chunk = b"\\0" * (4 << 20)
+    for k in range(12):
+        try:
+            with open(f"/tmp/ag_fill_{tag}_{{k}}", "wb") as fh:
+                fh.write(chunk)
+        except OSError:
+            capped = True
+            break
+    x = np.asarray(log_w, float)
+    w = np.exp(x - x.max())
+    return w / w.sum() if capped else np.zeros(len(x))
+"""
+    try:
+        scores, out, _ = _grade_variant(tmp_path, body, lim=limits(tmp_size="16m"))
+        left = [p for p in marks if os.path.exists(p)] + [str(p) for p in Path("/tmp").glob(f"ag_fill_{tag}_*")]
+        assert left == []
+        assert scores[TARGET] == (20.0, 20.0), out  # the private /tmp filled up at 16 MB
+    finally:
+        for p in marks + [str(p) for p in Path("/tmp").glob(f"ag_fill_{tag}_*")]:
+            if os.path.exists(p):
+                os.remove(p)
+
+
+# --------------------------------------------------------------------------- 6. time budgets, and loading once
+def test_slow_function_is_bounded_by_its_budgets(tmp_path):
+    body = """
+def normalize_log_weights(log_w):
+    import time
+    time.sleep(0.4)
+    x = np.asarray(log_w, float)
+    w = np.exp(x - x.max())
+    return w / w.sum()
+"""
+    t0 = time.monotonic()
+    scores, out, result = _grade_variant(tmp_path, body, lim=limits(test_budget=1.0, submission_budget=20.0))
+    elapsed = time.monotonic() - t0
+    assert scores[TARGET][0] == 0 and "time budget of 1 s was used up" in out, out
+    assert scores[OTHER] == (15.0, 15.0)
+    assert elapsed < 15, elapsed
+    # the whole submission's budget: the remaining tests score 0 with a message
+    _, out, _ = _grade_variant(tmp_path, body, lim=limits(test_budget=5.0, submission_budget=1.5))
+    assert "the submission's time budget of 1.5 s was used up" in out, out
+
+
+def test_slow_top_level_code_runs_once(tmp_path):
+    top = "import time\ntime.sleep(1.5)\n"
+    t0 = time.monotonic()
+    text = "import os\nimport sys\nimport numpy as np\n" + top + solution_text("particle_filter")
+    path = tmp_path / "slow_top.py"
+    path.write_text(text)
+    result = grade(path, "particle_filter", limits=limits(), workers=1)
+    elapsed = time.monotonic() - t0
+    assert result.score == 100
+    assert getattr(result, "loads", None) == 1
+    assert elapsed < 4 * 1.5, elapsed
+
+
+# --------------------------------------------------------------------------- 7. killing batch ends every worker and child
+def _descendants(pid):
+    children = {}
+    for d in Path("/proc").iterdir():
+        if not d.name.isdigit():
+            continue
+        try:
+            stat = (d / "stat").read_text()
+        except OSError:
+            continue
+        ppid = int(stat.rsplit(")", 1)[1].split()[1])
+        children.setdefault(ppid, []).append(int(d.name))
+    out, todo = [], [pid]
+    while todo:
+        p = todo.pop()
+        for c in children.get(p, []):
+            out.append(c)
+            todo.append(c)
+    return out
+
+
+def _alive(pid):
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT, signal.SIGKILL])
+def test_killing_batch_leaves_no_process_behind(tmp_path, sig):
+    subs = tmp_path / "subs"
+    subs.mkdir()
+    slow = replace_function(solution_text("particle_filter"), TARGET, """
+def normalize_log_weights(log_w):
+    import time
+    time.sleep(0.3)
+    x = np.asarray(log_w, float)
+    w = np.exp(x - x.max())
+    return w / w.sum()
+""")
+    for i in range(4):
+        (subs / f"s{i}.py").write_text(f"# {i}\n" + slow)
+    out = tmp_path / "grades.csv"
+    env = {**os.environ, "PYTHONPATH": str(AG_ROOT)}
+    proc = subprocess.Popen([sys.executable, "-m", "autograder", "batch", str(subs), "--exercise", "particle_filter",
+                             "--out", str(out), "--quiet", "--jobs", "2"], cwd=str(AG_ROOT), env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    seen = set()
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            desc = _descendants(proc.pid)
+            seen.update(desc)
+            runners = [p for p in desc if b"_runner.py" in Path(f"/proc/{p}/cmdline").read_bytes()] if desc else []
+            if len(runners) >= 2:
+                break
+            time.sleep(0.2)
+        else:
+            pytest.fail("the batch never started its sandboxes")
+        time.sleep(1.0)
+        seen.update(_descendants(proc.pid))
+        os.kill(proc.pid, sig)
+        proc.wait(timeout=30)
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and any(_alive(p) for p in seen):
+            time.sleep(0.2)
+        survivors = [p for p in seen if _alive(p)]
+        assert survivors == [], [Path(f"/proc/{p}/cmdline").read_bytes()[:200] for p in survivors]
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        for p in seen:
+            if _alive(p):
+                try:
+                    os.kill(p, signal.SIGKILL)
+                except OSError:
+                    pass
+    assert not any(p.name.endswith(".tmp") for p in tmp_path.rglob("*"))
+    # a rerun finishes the job: every submission graded, the CSV complete
+    p = _run_batch(subs, out, "--jobs", "2", timeout=300)
+    assert p.returncode == 0, p.stderr
+    rows = list(csv.DictReader(out.open()))
+    assert sorted(r["submission"] for r in rows) == [f"s{i}" for i in range(4)]
+    assert all(float(r["effective_sample_size"]) == 15 for r in rows)
+
+
+# --------------------------------------------------------------------------- 8. inputs a student really submits
+def _latin1_source():
+    return ("# -*- coding: latin-1 -*-\n# Auteur : Ren\u00e9e Caf\u00e9\n" + solution_text("particle_filter")
+            ).encode("latin-1")
+
+
+@pytest.mark.parametrize("kind", ["bom", "latin1-cookie", "crlf", "nbformat3"])
+def test_real_world_encodings_and_formats_grade_normally(tmp_path, kind):
+    sol = solution_text("particle_filter")
+    if kind == "bom":
+        path = tmp_path / "bom.py"
+        path.write_bytes(b"\xef\xbb\xbf" + sol.encode("utf-8"))
+    elif kind == "latin1-cookie":
+        path = tmp_path / "latin.py"
+        path.write_bytes(_latin1_source())
+    elif kind == "crlf":
+        path = tmp_path / "crlf.py"
+        path.write_bytes(sol.replace("\n", "\r\n").encode("utf-8"))
+    else:
+        v3 = nbformat.v3
+        nb = v3.new_notebook(worksheets=[v3.new_worksheet(cells=[v3.new_code_cell(input=sol)])])
+        path = tmp_path / "old.ipynb"
+        path.write_text(v3.writes_json(nb))
+        assert json.loads(path.read_text())["nbformat"] == 3
+    result = grade(path, "particle_filter", limits=limits(), functions=[TARGET, OTHER])
+    assert result.score == 35, result.text_report()
+
+
+# --------------------------------------------------------------------------- 9. a wrong signature
+def test_wrong_signature_reports_the_students_type_error(tmp_path):
+    scores, out, _ = _grade_variant(tmp_path, "def normalize_log_weights():\n    return np.ones(3) / 3\n")
+    assert scores[TARGET][0] == 0
+    assert "TypeError" in out and "takes 0 positional arguments but 1 was given" in out, out
+    assert "IndexError" not in out
+
+
+# --------------------------------------------------------------------------- 10. a hanging notebook cell
+def test_hanging_cell_is_skipped_and_the_other_cells_count(tmp_path):
+    sol = solution_text("particle_filter")
+    head, _, tail = sol.partition("def effective_sample_size")
+    nb = nbformat.v4.new_notebook(cells=[
+        nbformat.v4.new_code_cell(head),
+        nbformat.v4.new_code_cell("import time\nwhile True:\n    time.sleep(0.01)"),
+        nbformat.v4.new_code_cell("def effective_sample_size" + tail),
+        nbformat.v4.new_code_cell("while True:\n    pass"),
+    ])
+    path = tmp_path / "hang.ipynb"
+    nbformat.write(nb, path)
+    t0 = time.monotonic()
+    result = grade(path, "particle_filter", limits=limits(statement_timeout=1.5), functions=[TARGET, OTHER])
+    assert result.score == 35, result.text_report()
+    notes = "\n".join(result.notes)
+    assert "code cell 2, line 2: did not finish within 1.5 s" in notes
+    assert "code cell 4, line 1: did not finish within 1.5 s" in notes
+    assert time.monotonic() - t0 < 15
