@@ -419,7 +419,8 @@ def _check(libc, ret, what):
 NEWNS, NEWUTS, NEWIPC, NEWUSER, NEWPID, NEWNET = 0x20000, 0x04000000, 0x08000000, 0x10000000, 0x20000000, 0x40000000
 MS_RDONLY, MS_NOSUID, MS_NODEV, MS_NOEXEC, MS_REMOUNT, MS_BIND, MS_REC, MS_PRIVATE = 1, 2, 4, 8, 32, 4096, 16384, 1 << 18
 MS_NOATIME, MS_NODIRATIME, MS_RELATIME = 1024, 2048, 1 << 21
-SYS_PIVOT_ROOT = 155  # x86_64; aarch64 uses 41
+# pivot_root's system call number: x86_64 155, aarch64 (and other asm-generic ABIs) 41
+SYS_PIVOT_ROOT = 155 if os.uname().machine in ("x86_64", "amd64") else 41
 MNT_DETACH = 2
 
 

@@ -121,7 +121,15 @@ def batch(exercise, n, jobs):
 
 
 def main():
-    os.environ.setdefault("AUTOGRADER_SECRET_FILE", os.path.join(tempfile.mkdtemp(prefix="bench-ag-secret-"), "secret"))
+    secret_dir = tempfile.mkdtemp(prefix="bench-ag-secret-")
+    os.environ.setdefault("AUTOGRADER_SECRET_FILE", os.path.join(secret_dir, "secret"))
+    try:
+        _main()
+    finally:
+        shutil.rmtree(secret_dir, ignore_errors=True)
+
+
+def _main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--exercise", default="ekf_localization")
     ap.add_argument("--n", type=int, default=50)
