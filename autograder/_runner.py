@@ -206,6 +206,8 @@ def _encode_item(obj, parts, size, np):
         info["int_like"] = bool(isinstance(obj, (int, np.integer)) and not isinstance(obj, (bool, np.bool_)))
         info["subclass"] = (_short(type(obj).__name__, 60)
                             if isinstance(obj, np.ndarray) and type(obj) is not np.ndarray else None)
+        if str(getattr(type(obj), "__module__", "")).startswith("scipy.sparse") and hasattr(obj, "toarray"):
+            obj = obj.toarray()  # a scipy.sparse matrix (build_linear_system may return one) is judged densely
         a = np.asarray(obj)
         if type(a) is not np.ndarray:
             a = a.view(np.ndarray)

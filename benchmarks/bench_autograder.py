@@ -39,6 +39,7 @@ NOTEBOOKS = {
     "particle_filter": "03_particle_filter.ipynb",
     "ekf_slam": "04_ekf_slam.ipynb",
     "fastslam": "05_fastslam.ipynb",
+    "graph_slam": "06_graph_slam.ipynb",
 }
 # one textual bug per exercise, in one function (as in tests/test_autograder_buggy.py)
 BUGS = {
@@ -47,6 +48,7 @@ BUGS = {
     "particle_filter": ("U = r + m / M", "U = r + (m + 1) / M"),
     "ekf_slam": ("K = Sigma_bar @ H.T @ np.linalg.inv(S)", "K = Sigma_bar @ H.T @ np.linalg.inv(Q)"),
     "fastslam": ("Hi = np.linalg.inv(H)", "Hi = H"),
+    "graph_slam": ("H[si, sj] += A.T @ W @ B", "H[si, sj] = A.T @ W @ B"),
 }
 
 

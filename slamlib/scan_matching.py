@@ -313,7 +313,7 @@ def _line_jacobian(tgt, moved, j, t):
     return r, J
 
 
-def _icp(src, tgt, init, method, max_iter, max_dist, trim, tol_t, tol_r, min_matches):
+def _icp(src, tgt, init, method, max_iter, max_dist, trim, tol_t, tol_r, min_matches, align=None):
     """Unchecked ICP core: `src` (N, 2) onto prepared target `tgt`, from pose `init` (3,)."""
     pose = init.copy()
     history = [pose.copy()]
@@ -336,7 +336,7 @@ def _icp(src, tgt, init, method, max_iter, max_dist, trim, tol_t, tol_r, min_mat
             new = pose + delta  # the heading is wrapped once, at the end
         else:
             # closed-form step on the matched pairs  (Besl & McKay 1992, Sec. III.C)
-            R, t = _rigid_fit(src[keep], tgt.points[j[keep]])
+            R, t = (align or _rigid_fit)(src[keep], tgt.points[j[keep]])
             new = np.array([t[0], t[1], np.arctan2(R[1, 0], R[0, 0])])
         step_t = math.hypot(new[0] - pose[0], new[1] - pose[1])
         step_r = abs(math.remainder(new[2] - pose[2], _TWO_PI))  # |wrapped difference|, scalar
@@ -391,7 +391,7 @@ def _assess(tgt, src, pose, max_dist, trim, min_matches, degeneracy):
 
 
 def icp(source, target, init=None, *, method="point_to_line", max_iter=30, max_dist=0.3, trim=0.8, tol=1e-4,
-        min_matches=10, normal_k=5, degeneracy=0.02):
+        min_matches=10, normal_k=5, degeneracy=0.02, align=None):
     """Iterative closest point: align a 2-D point set (a scan) to another.
 
     Each round moves the source points by the current pose, pairs each with
@@ -443,6 +443,10 @@ def icp(source, target, init=None, *, method="point_to_line", max_iter=30, max_d
         information (see :class:`ICPResult`): below it the result is flagged
         `degenerate`. 0.02 means: fewer than about 2 % of the matched points
         constrain the weakest direction.
+    align : callable, optional, keyword-only
+        ``align(P, Q) -> (R, t)`` used in place of :func:`icp_align` by
+        ``"point_to_point"`` (for instance a student's alignment, as the
+        autograder plugs it in); ignored by ``"point_to_line"``.
 
     Returns
     -------
@@ -480,13 +484,17 @@ def icp(source, target, init=None, *, method="point_to_line", max_iter=30, max_d
     min_matches = as_index(min_matches, "min_matches", lower=3)
     normal_k = as_index(normal_k, "normal_k", lower=3)
     degeneracy = as_scalar(degeneracy, "degeneracy", nonnegative=True)
+    if align is not None and not callable(align):
+        raise TypeError(f"align must be callable align(P, Q) -> (R, t), got {type(align).__name__}")
     target_prep = _prepare_target(tgt, k=normal_k)
-    return _icp_result(src, target_prep, init, method, max_iter, max_dist, trim, tol, min_matches, degeneracy)
+    return _icp_result(src, target_prep, init, method, max_iter, max_dist, trim, tol, min_matches, degeneracy,
+                       align=align)
 
 
-def _icp_result(src, tgt, init, method, max_iter, max_dist, trim, tol, min_matches, degeneracy):
+def _icp_result(src, tgt, init, method, max_iter, max_dist, trim, tol, min_matches, degeneracy, align=None):
     """Run the core and assess its result (unchecked; shared by :func:`icp` and the SLAM pipeline)."""
-    pose, it, converged, history = _icp(src, tgt, init, method, max_iter, max_dist, trim, tol, tol, min_matches)
+    pose, it, converged, history = _icp(src, tgt, init, method, max_iter, max_dist, trim, tol, tol, min_matches,
+                                        align=align)
     n_matched, rmse, cov, info, degenerate, reason, lam, weak = _assess(tgt, src, pose, max_dist, trim, min_matches,
                                                                         degeneracy)
     if not converged and not reason and n_matched < min_matches:

@@ -46,8 +46,6 @@ import re
 import signal
 import sys
 import textwrap
-
-import numpy
 import time
 import types
 import warnings
@@ -79,6 +77,8 @@ FROZEN = {
     "_check_log_weights", "_last_axis", "_broadcast", "_beam_params", "_beam_inputs", "_check_state",
     "_check_index", "_as_state", "_as_particles", "_as_landmarks", "_check_fs", "_as_meas",
     "_z_arg", "_poses_arg", "wrap_angle", "angle_diff", "circular_mean", "_T", "_mv", "_sym",
+    # the checks' own helpers (slamlib/_checks.py) and the pose graph's connectivity check (an input check)
+    "_all_finite", "_convert", "_ref", "_require_connected", "_components",
 }
 
 
@@ -138,6 +138,14 @@ class _Unit:
     kind: str  # "def", "class" or "const"
 
 
+def _literal(val):
+    """Whether ``repr(val)`` rebuilds ``val`` as a Python literal (a dict or list of plain constants)."""
+    try:
+        return ast.literal_eval(repr(val)) == val
+    except (ValueError, SyntaxError, TypeError):
+        return False
+
+
 def _collect(fn):
     """Definitions (in dependency order of discovery) and imports a submission of ``fn`` needs."""
     units = {}
@@ -175,10 +183,12 @@ def _collect(fn):
                     imports.append(stmt)
             elif isinstance(val, (int, float, str, tuple, bool, frozenset)) or val is None:
                 units[ref] = _Unit(ref, f"{ref} = {val!r}", "const")
-            elif isinstance(val, numpy.dtype):
-                units[ref] = _Unit(ref, f"{ref} = numpy.dtype({str(val)!r})", "const")
-                if "import numpy" not in imports:
-                    imports.append("import numpy")
+            elif isinstance(val, (dict, list)) and _literal(val):  # e.g. graph_slam.SPLU_OPTIONS
+                units[ref] = _Unit(ref, f"{ref} = {val!r}", "const")
+            elif isinstance(val, np.dtype) and hasattr(np, val.name):  # e.g. _checks._F64 = np.dtype(np.float64)
+                units[ref] = _Unit(ref, f"{ref} = np.dtype(np.{val.name})", "const")
+                if "import numpy as np" not in imports:
+                    imports.append("import numpy as np")
             else:
                 raise RuntimeError(f"cannot copy {module.__name__}.{ref} ({type(val).__name__})")
     return units, imports

@@ -20,6 +20,21 @@ bearing innovation wraps; correlated ``Q`` in the FastSLAM update; a pointer of
 low-variance resampling equal to a cumulative weight.
 """
 
+ROT_COMMUTE = ("2-D rotations commute, and d R(theta)^T / d theta = R(-theta - pi/2) is a rotation too: "
+               "R_z^T R_i^T = R_i^T R_z^T exactly (up to rounding)")
+DEAD_ORDER = ("dead code for build_linear_system: it assembles H with _Layout(order=False), which never calls "
+              "_fill_reducing_order (the copied class reaches it for gauss_newton_step's solve)")
+ORDER_VALUES = ("changes the values (not the pattern) of the matrix used only to compute a fill-reducing order, or "
+                "the pivot threshold of that factorisation: the minimum-degree column order depends on the pattern "
+                "alone, and any order of the free variables gives the same dx up to rounding")
+CONNECTED = ("the connectivity check anchored at pose 1 instead of 0: on the connected graphs the contract "
+             "requires (otherwise H[3:, 3:] is singular) both anchors pass")
+RESHAPE_NEG = "reshape(-2, 3) == reshape(-1, 3): NumPy (2.x) treats any negative size as the unknown one"
+CENTRED = ("sum_k (q_k + mu_q)(p_k - mu_p)^T = C + 2 mu_q sum_k (p_k - mu_p)^T = C: the other factor is centred, "
+           "so the cross-covariance is unchanged")
+DET_PM1 = "det(U) and det(V) are +-1: their product is never 0 and has the sign of their quotient"
+SVD_U = ("NumPy's LAPACK returns the U of a 2 x 2 SVD as a reflection (det U = -1 on 2000 random matrices), and a "
+         "2 x 2 reflection is symmetric: U^T = U")
 SYM = ("drops the symmetrisation (A + A^T) / 2 of a matrix that is already symmetric up to rounding: "
        "the values agree to 1e-15 and the grader's symmetry check allows 1e-9")
 STRAIGHT = ("abs(omega) < 1e-6 vs <= 1e-6: differs only at omega = 1e-6 exactly, where the straight-line limit "
@@ -184,6 +199,32 @@ EQUIVALENT = {
     "fastslam_update_landmark": {
         "_update_core: [log_w = _log_gauss_2(nu0, nu1, Q[0, 0], *": WEIGHT_COV,
         **_INNOV_WRAP, **_DEAD_HX,
+    },
+    # ------------------------------------------------------------------ exercise 6
+    "edge_error": {
+        "edge_error: [A[:2, :2] = -Rz.T @ Ri.T] -Rz.T @ Ri.T -> Ri.T @ -Rz.T": ROT_COMMUTE,
+        "edge_error: [A[:2, 2] = Rz.T @ dRi_T @ d] Rz.T @ dRi_T -> dRi_T @ Rz.T": ROT_COMMUTE,
+        "edge_error: [B[:2, :2] = Rz.T @ Ri.T] Rz.T @ Ri.T -> Ri.T @ Rz.T": ROT_COMMUTE,
+    },
+    "build_linear_system": {
+        "_fill_reducing_order: *": DEAD_ORDER,
+    },
+    "gauss_newton_step": {
+        "gauss_newton_step: [_require_connected(X.shape[0], edges, (0,))] 0 -> 1": CONNECTED,
+        "_update_poses: [out = X + dx.reshape(-1, 3)] 1 -> 2": RESHAPE_NEG,
+        "_fill_reducing_order: [val = np.concatenate(*": ORDER_VALUES,
+        "_fill_reducing_order: [rank = splu(G, permc_spec='MMD_AT_PLUS_A', diag_pivot_thresh=0.0, *] 0.0 -> 1.0":
+            ORDER_VALUES,
+    },
+    "icp_align": {
+        "_rigid_fit: [C = (Q - mq).T @ (P - mp)] Q - mq -> Q + mq": CENTRED,
+        "_rigid_fit: [C = (Q - mq).T @ (P - mp)] P - mp -> P + mp": CENTRED,
+        "_rigid_fit: [d = 1.0 if np.linalg.det(U) * np.linalg.det(Vt) >= 0 else -1.0] "
+        "np.linalg.det(U) * np.linalg.det(Vt) >= 0 -> np.linalg.det(U) * np.linalg.det(Vt) > 0": DET_PM1,
+        "_rigid_fit: [d = 1.0 if np.linalg.det(U) * np.linalg.det(Vt) >= 0 else -1.0] "
+        "np.linalg.det(U) * np.linalg.det(Vt) -> np.linalg.det(U) / np.linalg.det(Vt)": DET_PM1,
+        "_rigid_fit: [R = U @ np.diag([1.0, d]) @ Vt] U @ np.diag([1.0, d]) -> "
+        "np.swapaxes(U, -1, -2) @ np.diag([1.0, d])": SVD_U,
     },
 }
 

@@ -87,6 +87,21 @@ VARIANTS = [
      [("Hi = np.linalg.inv(H)", "Hi = H")]),
     ("fastslam", "fastslam_init_landmark", "missing transpose: H^-1 Q H^-1",
      [("Sigma[k] = Hi @ Q @ Hi.T", "Sigma[k] = Hi @ Q @ Hi")]),
+    # ---------------------------------------------------------------- exercise 6
+    ("graph_slam", "edge_error", "heading error not wrapped",
+     [("e[2] = wrap(xj[2] - xi[2] - z[2])", "e[2] = xj[2] - xi[2] - z[2]")]),
+    ("graph_slam", "edge_error", "A's rotation column without R_z^T",
+     [("A[:2, 2] = Rz.T @ dRiT @ d", "A[:2, 2] = dRiT @ d")]),
+    ("graph_slam", "build_linear_system", "an off-diagonal block assigned instead of added (repeated edges lost)",
+     [("H[si, sj] += A.T @ W @ B", "H[si, sj] = A.T @ W @ B")]),
+    ("graph_slam", "gauss_newton_step", "sign error: H dx = b",
+     [("step = np.linalg.solve(H[3:, 3:], -g[3:])", "step = np.linalg.solve(H[3:, 3:], g[3:])")]),
+    ("graph_slam", "gauss_newton_step", "headings not wrapped",
+     [("    out[1:, 2] = np.arctan2(np.sin(out[1:, 2]), np.cos(out[1:, 2]))\n", "")]),
+    ("graph_slam", "icp_align", "reflection case not corrected",
+     [("D = np.diag([1.0, np.sign(np.linalg.det(U @ Vt))])", "D = np.eye(2)")]),
+    ("graph_slam", "icp_align", "translation from the centroids the wrong way round",
+     [("return R, mq - R @ mp", "return R, mp - R @ mq")]),
 ]
 
 
@@ -99,7 +114,8 @@ def test_at_least_four_variants_per_exercise():
     counts = {}
     for ex, *_ in VARIANTS:
         counts[ex] = counts.get(ex, 0) + 1
-    assert set(counts) == {"motion_sensor_models", "ekf_localization", "particle_filter", "ekf_slam", "fastslam"}
+    assert set(counts) == {"motion_sensor_models", "ekf_localization", "particle_filter", "ekf_slam", "fastslam",
+                           "graph_slam"}
     assert min(counts.values()) >= 4
 
 

@@ -42,6 +42,8 @@ def _garble(value, args, kind, rng):
     """A value of the same form as ``value`` (the right answer) filled with garbage."""
     if isinstance(value, tuple):
         return tuple(_garble(v, args, kind, rng) for v in value)
+    if hasattr(value, "toarray"):  # a scipy.sparse matrix (build_linear_system's H): garbage of its dense form
+        value = value.toarray()
     if isinstance(value, (int, np.integer)) and not isinstance(value, bool):
         if kind == "zeros":
             return 0

@@ -18,6 +18,7 @@ EXERCISES = {
     "particle_filter": "particle_filter",
     "ekf_slam": "ekf_slam",
     "fastslam": "fastslam",
+    "graph_slam": "graph_slam",
 }
 
 
