@@ -23,8 +23,13 @@ Two implementations of the same mathematics live here.
   landmark does not copy the covariance.
 
 :func:`run_ekf_slam` runs either version over a simulated
-:class:`~slamlib.sim.LandmarkRun`, with known or unknown correspondences and an
-optional provisional landmark list that keeps clutter out of the map.
+:class:`~slamlib.sim.LandmarkRun` or a real log, with known or unknown
+correspondences, an optional provisional landmark list that keeps clutter out
+of the map, a chi-square validation gate on the innovation that rejects gross
+outliers (on by default for real logs, which carry a ``gate``), and either
+Algorithm 2's nearest neighbour or Joint Compatibility Branch and Bound
+(:func:`jcbb_associate`) for the association. The JCBB search works on any
+EKF SLAM state ``(mu, Sigma)`` of this layout.
 
 A landmark not seen yet has the course's ``Sigma_0`` entry "infinity"; here it
 gets the large finite variance ``prior_var`` on the diagonal and no
@@ -36,18 +41,24 @@ Course text, SLAM chapter: Algorithm 1 (EKF SLAM, known correspondences),
 Algorithm 2 (unknown correspondences), Eqs. 17.2, 17.3 (range-bearing example,
 ``H = h F_{x,j}``). Thrun, Burgard & Fox, *Probabilistic Robotics* (2005),
 Table 10.1 (known correspondences), Table 10.2 (unknown correspondences),
-Sec. 10.3.3 (provisional landmark list).
+Sec. 10.3.3 (provisional landmark list). Line numbers in this module are those
+of Thrun's tables (the course text's Algorithms 1 and 2 print the same steps
+with their own numbering): Table 10.1 lines 2-5 predict, 9-11 initialise a
+landmark, 12-19 correct; Table 10.2 line 16 ``Psi_k``, line 17 ``pi_k``,
+lines 19-20 ``pi_{N+1} = alpha`` and the arg-min. J. Neira and J. D. Tardos,
+"Data association in stochastic mapping using the joint compatibility test",
+IEEE Trans. Robotics and Automation 17(6):890-897, 2001 (JCBB).
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from typing import NamedTuple
 
 import numpy as np
+from scipy import stats
 
-from ._checks import as_array, as_covariance, as_index, as_scalar, check_rng
+from ._checks import as_array, as_covariance, as_index, as_scalar
 from .angles import _wrap1, wrap_angle
 from .motion import STRAIGHT_LINE_OMEGA, _arc1, velocity_motion
 from .sensors import _range_bearing1, landmark_from_measurement, landmark_measurement
@@ -58,11 +69,15 @@ __all__ = [
     "ekf_slam_init_landmark",
     "ekf_slam_update",
     "ekf_slam_associate",
+    "jcbb_associate",
+    "joint_mahalanobis",
+    "JCBB_NEW",
+    "JCBB_UNPAIRED",
     "EKFSLAM",
     "EKFSLAMResult",
     "run_ekf_slam",
-    "add_clutter",
     "DEFAULT_ALPHA",
+    "JCBB_ALPHA",
     "DEFAULT_PRIOR_VAR",
 ]
 
@@ -71,6 +86,10 @@ __all__ = [
 #: ``-2 ln(1e-5)`` (about 23.0). A run makes thousands of measurements, so a
 #: 99 % or 99.9 % gate would split landmarks in two now and then.
 DEFAULT_ALPHA = float(-2.0 * np.log(1e-5))
+#: Default compatibility threshold of JCBB in :func:`run_ekf_slam`: the 99 % quantile of the
+#: chi-square distribution with 2 degrees of freedom, ``-2 ln(0.01)`` (about 9.21), as Neira and
+#: Tardos use.
+JCBB_ALPHA = float(-2.0 * np.log(0.01))
 #: Default prior variance (m^2) of a landmark before its first sighting (the
 #: finite stand-in for the infinite ``Sigma_0`` entries of Algorithm 1).
 DEFAULT_PRIOR_VAR = 1e4
@@ -88,10 +107,9 @@ def _check_mu(mu, name="mu"):
 def _check_state(mu, Sigma, mu_name="mu", sigma_name="Sigma"):
     mu = _check_mu(mu, mu_name)
     n = mu.shape[0]
-    # symmetry is checked in O(n^2); a full eigen-decomposition would cost as much as the update itself
-    Sigma = as_covariance(Sigma, sigma_name, n, psd=False)
-    if np.any(np.diag(Sigma) < 0):
-        raise ValueError(f"{sigma_name} must have a non-negative diagonal (it is a covariance)")
+    # symmetric and positive semi-definite, as ekf_predict requires of its Sigma: the eigenvalues cost
+    # O(n^3), no more than the teaching version's dense products (the fast filter checks once, in from_state)
+    Sigma = as_covariance(Sigma, sigma_name, n)
     return mu, Sigma
 
 
@@ -115,6 +133,11 @@ def _check_alpha(alpha):
     return alpha
 
 
+def _check_gate(gate):
+    """``None`` (no gate) becomes ``inf``; otherwise a non-negative threshold."""
+    return math.inf if gate is None else as_scalar(gate, "gate", nonnegative=True, finite=False)
+
+
 def _innovation(z, z_hat):
     """``nu = z - z_hat`` with the bearing wrapped, for ``(..., 2)`` arrays."""
     nu = z - z_hat
@@ -122,16 +145,259 @@ def _innovation(z, z_hat):
     return nu
 
 
+def _predicted(mu, Sxx, Sxm, Smm, Q):
+    """Expected measurement and innovation covariance of every landmark in `mu`.
+
+    ``Sxx (3, 3)``, ``Sxm (N, 3, 2)``, ``Smm (N, 2, 2)`` are the robot block, the
+    robot-landmark blocks and the landmark blocks of ``Sigma``. Returns
+    ``z_hat (N, 2)`` and ``S (N, 2, 2)``, ``S_k = H_k Sigma H_k^T + Q`` on the
+    five non-zero columns of ``H_k``.
+    """
+    N = Smm.shape[0]
+    lm = mu[3:3 + 2 * N].reshape(N, 2)
+    z_hat, Hx, Hm = landmark_measurement(mu[:3], lm)  # (Eq. 17.2, 17.3) for every landmark
+    cross = Hx @ Sxm @ Hm.transpose(0, 2, 1)
+    # S_k = H_k Sigma H_k^T + Q on the 5 non-zero columns  (Table 10.2 line 16: Psi_k)
+    Sk = Hx @ Sxx @ Hx.transpose(0, 2, 1) + cross + cross.transpose(0, 2, 1) + Hm @ Smm @ Hm.transpose(0, 2, 1) + Q
+    return z_hat, Sk
+
+
+def _nis(Z, z_hat, Sk):
+    """``d[i, k] = nu_ik^T S_k^-1 nu_ik`` for measurements ``Z (K, 2)`` and landmarks ``z_hat (N, 2)``, ``S (N, 2, 2)``."""
+    nu = _innovation(Z[:, None, :], z_hat[None, :, :])
+    det = Sk[:, 0, 0] * Sk[:, 1, 1] - Sk[:, 0, 1] * Sk[:, 1, 0]
+    # d_k = nu^T S_k^-1 nu with the 2 x 2 inverse written out  (Table 10.2 line 17: pi_k)
+    return (Sk[:, 1, 1] * nu[..., 0] ** 2 - (Sk[:, 0, 1] + Sk[:, 1, 0]) * nu[..., 0] * nu[..., 1]
+            + Sk[:, 0, 0] * nu[..., 1] ** 2) / det
+
+
+def _dense_blocks(Sigma, N):
+    """The blocks :func:`_predicted` needs, read from a dense covariance (first `N` landmarks)."""
+    n = 3 + 2 * N
+    Sxm = Sigma[:3, 3:n].reshape(3, N, 2).transpose(1, 0, 2)
+    r = np.arange(3, n, 2)
+    Smm = np.empty((N, 2, 2))
+    Smm[:, 0, 0] = Sigma[r, r]
+    Smm[:, 0, 1] = Smm[:, 1, 0] = Sigma[r, r + 1]
+    Smm[:, 1, 1] = Sigma[r + 1, r + 1]
+    return Sigma[:3, :3], Sxm, Smm
+
+
+# --------------------------------------------------------------------------- joint compatibility
+#: Pairing codes of :func:`jcbb_associate` for a measurement left out of the best hypothesis.
+JCBB_NEW = -1  #: individually compatible with no landmark: a new-landmark candidate
+JCBB_UNPAIRED = -2  #: individually compatible with some landmark, but not jointly with the others: rejected
+
+
+def _joint_threshold(alpha, k, _cache={}):
+    """Chi-square quantile with ``2k`` degrees of freedom at the level of `alpha` (2 degrees of freedom)."""
+    key = (alpha, k)
+    if key not in _cache:
+        if not math.isfinite(alpha) or k == 1:
+            _cache[key] = alpha  # one pairing: the individual test itself
+        else:
+            # alpha = chi2.isf(q, 2) with tail q = exp(-alpha / 2); the joint test keeps the same tail
+            _cache[key] = float(stats.chi2.isf(math.exp(-0.5 * alpha), 2 * k))
+    return _cache[key]
+
+
+def _jcbb(mu, sub_sigma, Z, d, Q, alpha):
+    """Joint Compatibility Branch and Bound over precomputed individual distances.
+
+    `mu` is the state mean, ``sub_sigma(cols)`` returns ``Sigma[cols][:, cols]``,
+    ``Z (K, 2)`` the measurements and ``d (K, N)`` their squared Mahalanobis
+    distances to the ``N`` landmarks. Returns the pairing ``(K,)`` (a landmark
+    index, :data:`JCBB_NEW` or :data:`JCBB_UNPAIRED`) and the joint squared
+    Mahalanobis distance of the pairs it makes.
+    """
+    K = Z.shape[0]
+    compat = d <= alpha  # individual compatibility  (Neira & Tardos 2001)
+    pairing = np.where(compat.any(axis=1), JCBB_UNPAIRED, JCBB_NEW)
+    pi, pj = np.nonzero(compat)  # candidate pairs (measurement, landmark)
+    if pi.size == 0:
+        return pairing, 0.0
+    if np.all(pi == pi[0]):
+        # one measurement with candidates: the joint test is the individual one, the best hypothesis the nearest neighbour
+        i = int(pi[0])
+        pairing[i] = int(np.argmin(np.where(compat[i], d[i], np.inf)))
+        return pairing, float(d[i, pairing[i]])
+    # sub-state: the robot and the candidate landmarks; H of every pair on it, stacked
+    cand = np.unique(pj)
+    pos = np.searchsorted(cand, pj)
+    cols = np.concatenate([[0, 1, 2], (3 + 2 * cand[:, None] + np.arange(2)).ravel()])
+    Sig = sub_sigma(cols)
+    P = pi.size
+    z_hat, Hx, Hm = landmark_measurement(mu[:3], mu[3 + 2 * pj[:, None] + np.arange(2)])  # (Eqs. 17.2, 17.3)
+    H = np.zeros((P, 2, cols.size))
+    H[:, :, :3] = Hx
+    H[np.arange(P)[:, None, None], np.arange(2)[None, :, None], (3 + 2 * pos)[:, None, None] + np.arange(2)] = Hm
+    H = H.reshape(2 * P, cols.size)
+    C = H @ Sig @ H.T  # covariance of the stacked predictions, H Sigma H^T  (joint innovation covariance minus Q)
+    nu = _innovation(Z[pi], z_hat).ravel()
+    by_i = [np.flatnonzero(pi == i) for i in range(K)]
+    best_pairs, best_d2 = [], math.inf
+
+    def joint(sel):
+        rows = (2 * np.asarray(sel)[:, None] + np.arange(2)).ravel()
+        S = C[np.ix_(rows, rows)]
+        for b in range(len(sel)):  # + blockdiag(Q, ..., Q)
+            S[2 * b:2 * b + 2, 2 * b:2 * b + 2] += Q
+        v = nu[rows]
+        # D^2 = nu_H^T S_H^-1 nu_H, the joint Mahalanobis distance  (Neira & Tardos 2001)
+        return float(v @ np.linalg.solve(S, v))
+
+    def search(i, sel, used, d2):
+        nonlocal best_pairs, best_d2
+        if i == K:
+            if len(sel) > len(best_pairs) or (len(sel) == len(best_pairs) and d2 < best_d2):
+                best_pairs, best_d2 = list(sel), d2
+            return
+        for p in by_i[i]:  # pair measurement i with each individually compatible landmark
+            if pj[p] in used:
+                continue
+            sel.append(p)
+            d2p = joint(sel)
+            if d2p <= _joint_threshold(alpha, len(sel)):  # joint compatibility
+                search(i + 1, sel, used | {int(pj[p])}, d2p)
+            sel.pop()
+        if len(sel) + K - i - 1 > len(best_pairs):  # bound: leaving i unpaired can still beat the best
+            search(i + 1, sel, used, d2)
+
+    search(0, [], frozenset(), 0.0)
+    for p in best_pairs:
+        pairing[pi[p]] = pj[p]
+    return pairing, best_d2
+
+
+def jcbb_associate(mu_bar, Sigma_bar, z, n_seen, Q, alpha):
+    """Joint Compatibility Branch and Bound data association for EKF SLAM.
+
+    Parameters
+    ----------
+    mu_bar : ndarray, shape (3+2N,)
+        Predicted mean; the robot pose and the first `n_seen` landmarks are
+        read.
+    Sigma_bar : ndarray, shape (3+2N, 3+2N)
+        Predicted covariance.
+    z : ndarray, shape (K, 2)
+        The step's measurements ``[r, phi]``.
+    n_seen : int
+        Landmarks in the map, ``0 <= n_seen <= N``.
+    Q : ndarray, shape (2, 2)
+        Measurement-noise covariance.
+    alpha : float
+        Individual compatibility threshold on the squared Mahalanobis
+        distance (2 degrees of freedom), as in :func:`ekf_slam_associate`;
+        the joint test of ``k`` pairings uses the chi-square quantile with
+        ``2k`` degrees of freedom at the same tail probability
+        ``exp(-alpha / 2)``.
+
+    Returns
+    -------
+    ndarray of int, shape (K,)
+        The pairing of the best hypothesis: a landmark index in
+        ``[0, n_seen)``, :data:`JCBB_NEW` (``-1``) for a measurement
+        individually compatible with no landmark (a new-landmark candidate),
+        or :data:`JCBB_UNPAIRED` (``-2``) for one that is compatible with some
+        landmark but left out of the best jointly compatible hypothesis.
+
+    Notes
+    -----
+    A hypothesis pairs measurements with distinct landmarks. It is jointly
+    compatible when the joint Mahalanobis distance of its stacked innovation
+    ``nu_H`` (bearings wrapped) with the joint covariance
+    ``S_H = H_H Sigma_bar H_H^T + blockdiag(Q)`` is within the chi-square
+    bound. Branch and bound over the individually compatible pairs (taken
+    in measurement order, a measurement may also stay unpaired) returns the
+    jointly compatible hypothesis with the most pairings, ties going to the
+    smallest joint distance. Unlike the nearest neighbour, which takes each
+    measurement on its own, a pairing is accepted only if it is consistent
+    with the others: the correlations in ``Sigma_bar`` (a common robot pose
+    error shifts every prediction the same way) are used. One measurement
+    gives the nearest neighbour's answer.
+
+    References
+    ----------
+    J. Neira and J. D. Tardos, "Data association in stochastic mapping using
+    the joint compatibility test", IEEE Trans. Robotics and Automation
+    17(6):890-897, 2001; Thrun, Burgard & Fox (2005), Sec. 10.3 (Table 10.2
+    lines 16-17 for the individual test).
+    """
+    mu_bar, Sigma_bar = _check_state(mu_bar, Sigma_bar, "mu_bar", "Sigma_bar")
+    z = as_array(z, "z", (None, 2))
+    n_seen = as_index(n_seen, "n_seen", (mu_bar.shape[0] - 3) // 2 + 1)
+    Q = as_covariance(Q, "Q", 2)
+    alpha = _check_alpha(alpha)
+    return _dense_jcbb(mu_bar, Sigma_bar, z, n_seen, Q, alpha)
+
+
+def _dense_jcbb(mu, Sigma, Z, N, Q, alpha):
+    if N == 0:
+        return np.full(Z.shape[0], JCBB_NEW)
+    z_hat, Sk = _predicted(mu, *_dense_blocks(Sigma, N), Q)
+    d = _nis(Z, z_hat, Sk)
+    return _jcbb(mu, lambda cols: Sigma[np.ix_(cols, cols)], Z, d, Q, alpha)[0]
+
+
+def joint_mahalanobis(mu_bar, Sigma_bar, z, j, Q):
+    """Joint squared Mahalanobis distance of a hypothesis pairing measurements with landmarks.
+
+    Parameters
+    ----------
+    mu_bar : ndarray, shape (3+2N,)
+        Predicted mean.
+    Sigma_bar : ndarray, shape (3+2N, 3+2N)
+        Predicted covariance.
+    z : ndarray, shape (K, 2)
+        Measurements.
+    j : ndarray of int, shape (K,)
+        Landmark paired with each measurement (distinct, in ``[0, N)``).
+    Q : ndarray, shape (2, 2)
+        Measurement-noise covariance.
+
+    Returns
+    -------
+    float
+        ``D^2 = nu^T S^-1 nu`` with the stacked innovation ``nu (2K,)``
+        (bearings wrapped) and ``S = H Sigma_bar H^T + blockdiag(Q, ..., Q)``,
+        ``H (2K, 3+2N)`` the stacked measurement Jacobians ``h_t^j F_{x,j}``.
+
+    References
+    ----------
+    Neira & Tardos (2001) (joint compatibility); course text,
+    Eqs. 17.2, 17.3.
+    """
+    mu_bar, Sigma_bar = _check_state(mu_bar, Sigma_bar, "mu_bar", "Sigma_bar")
+    z = as_array(z, "z", (None, 2))
+    j = np.asarray(j)
+    N = (mu_bar.shape[0] - 3) // 2
+    if j.shape != (z.shape[0],) or (j.size and j.dtype.kind not in "iu"):
+        raise ValueError(f"j must be an integer array of shape ({z.shape[0]},), got {j.dtype} {j.shape}")
+    if j.size and (j.min() < 0 or j.max() >= N or np.unique(j).size != j.size):
+        raise ValueError(f"j must hold distinct landmark indices in [0, {N}), got {j.tolist()}")
+    Q = as_covariance(Q, "Q", 2)
+    Hs, nus = [], []
+    for zi, ji in zip(z, j.tolist()):
+        z_hat, H = _measurement(mu_bar, ji)  # (Eqs. 17.2, 17.3) with the dense F_{x,j}
+        Hs.append(H)
+        nus.append(_innovation(zi, z_hat))
+    if not Hs:
+        return 0.0
+    H, nu = np.vstack(Hs), np.concatenate(nus)
+    S = H @ Sigma_bar @ H.T + np.kron(np.eye(len(Hs)), Q)  # S_H = H Sigma H^T + blockdiag(Q)
+    return float(nu @ np.linalg.solve(S, nu))
+
+
 # --------------------------------------------------------------------------- teaching version
 def _F_x(n):
-    """``F_x = [I_3  0]``, shape ``(3, n)`` (Algorithm 1 line 2)."""
+    """``F_x = [I_3  0]``, shape ``(3, n)`` (Table 10.1 line 2)."""
     F = np.zeros((3, n))
     F[:, :3] = np.eye(3)
     return F
 
 
 def _F_xj(n, j):
-    """``F_{x,j}``, shape ``(5, n)``: picks the robot pose and landmark ``j`` (Algorithm 1 line 15)."""
+    """``F_{x,j}``, shape ``(5, n)``: picks the robot pose and landmark ``j`` (Table 10.1 line 15)."""
     F = np.zeros((5, n))
     F[:3, :3] = np.eye(3)
     F[3, 3 + 2 * j] = 1.0
@@ -170,9 +436,15 @@ def ekf_slam_predict(mu, Sigma, u, dt, M):
     Teaching version: builds the ``(3+2N, 3+2N)`` matrix ``G`` and multiplies
     densely, ``O(N^3)``. :meth:`EKFSLAM.predict` computes the same in ``O(N)``.
 
+    Raises
+    ------
+    ValueError
+        If ``Sigma`` is not a symmetric positive semi-definite ``(3+2N, 3+2N)``
+        matrix (the message names it), or another argument is malformed.
+
     References
     ----------
-    Course text, Algorithm 1 lines 2-5; Thrun, Burgard & Fox (2005),
+    Course text, Algorithm 1; Thrun, Burgard & Fox (2005),
     Table 10.1 lines 2-5 and Table 7.2 lines 2-5 (``G``, ``V``, ``M``).
     """
     mu, Sigma = _check_state(mu, Sigma)
@@ -180,25 +452,25 @@ def ekf_slam_predict(mu, Sigma, u, dt, M):
     dt = as_scalar(dt, "dt", nonnegative=True)
     M = as_covariance(M, "M", 2)
     n = mu.shape[0]
-    F = _F_x(n)  # F_x = [I 0]  (Algorithm 1 line 2)
+    F = _F_x(n)  # F_x = [I 0]  (Table 10.1 line 2)
     x_next, G_x, V = velocity_motion(mu[:3], u, dt)
     delta = x_next - mu[:3]
     delta[2] = wrap_angle(delta[2])
-    mu_bar = mu + F.T @ delta  # mu_bar = mu + F_x^T g(u, mu)  (Algorithm 1 line 3)
+    mu_bar = mu + F.T @ delta  # mu_bar = mu + F_x^T g(u, mu)  (Table 10.1 line 3)
     mu_bar[2] = wrap_angle(mu_bar[2])
-    G = np.eye(n) + F.T @ (G_x - np.eye(3)) @ F  # G = I + F_x^T g_x F_x  (Algorithm 1 line 4)
+    G = np.eye(n) + F.T @ (G_x - np.eye(3)) @ F  # G = I + F_x^T g_x F_x  (Table 10.1 line 4)
     R = V @ M @ V.T  # R = V M V^T  (Table 7.2 line 5, mapped into state space)
-    Sigma_bar = G @ Sigma @ G.T + F.T @ R @ F  # Sigma_bar = G Sigma G^T + F_x^T R F_x  (Algorithm 1 line 5)
+    Sigma_bar = G @ Sigma @ G.T + F.T @ R @ F  # Sigma_bar = G Sigma G^T + F_x^T R F_x  (Table 10.1 line 5)
     return mu_bar, 0.5 * (Sigma_bar + Sigma_bar.T)
 
 
 def _measurement(mu, j):
     n = mu.shape[0]
     a = 3 + 2 * j
-    # z_hat = [sqrt(q), atan2(dy, dx) - theta]  (Eq. 17.2; Algorithm 1 lines 12-14)
+    # z_hat = [sqrt(q), atan2(dy, dx) - theta]  (Eq. 17.2; Table 10.1 lines 12-14)
     z_hat, Hx, Hm = landmark_measurement(mu[:3], mu[a:a + 2])
     h = np.hstack([Hx, Hm])  # low-dimensional Jacobian h_t^j, shape (2, 5)
-    H = h @ _F_xj(n, j)  # H = h_t^j F_{x,j}  (Eq. 17.3; Algorithm 1 line 16)
+    H = h @ _F_xj(n, j)  # H = h_t^j F_{x,j}  (Eq. 17.3; Table 10.1 line 16)
     return z_hat, H
 
 
@@ -229,7 +501,7 @@ def ekf_slam_measurement(mu, j):
 
     References
     ----------
-    Course text, Eqs. 17.2 and 17.3, Algorithm 1 lines 12-16; Thrun, Burgard &
+    Course text, Eqs. 17.2 and 17.3, Algorithm 1; Thrun, Burgard &
     Fox (2005), Table 10.1 lines 12-16.
     """
     mu = _check_mu(mu)
@@ -257,14 +529,14 @@ def ekf_slam_init_landmark(mu, z, j):
 
     References
     ----------
-    Course text, Algorithm 1 lines 9-11; Thrun, Burgard & Fox (2005),
+    Course text, Algorithm 1; Thrun, Burgard & Fox (2005),
     Table 10.1 line 10.
     """
     mu = _check_mu(mu)
     z = _check_z(z)
     j = as_index(j, "j", (mu.shape[0] - 3) // 2)
     out = mu.copy()
-    # mu_j = (x + r cos(phi + theta), y + r sin(phi + theta))  (Algorithm 1 line 10)
+    # mu_j = (x + r cos(phi + theta), y + r sin(phi + theta))  (Table 10.1 line 10)
     out[3 + 2 * j:5 + 2 * j] = landmark_from_measurement(mu[:3], z)
     return out
 
@@ -298,9 +570,15 @@ def ekf_slam_update(mu_bar, Sigma_bar, z, j, Q):
     Teaching version: dense ``(I - K H) Sigma_bar``, ``O(N^3)``.
     :meth:`EKFSLAM.update` computes the same in ``O(N^2)``.
 
+    Raises
+    ------
+    ValueError
+        If ``Sigma_bar`` is not a symmetric positive semi-definite ``(3+2N, 3+2N)``
+        matrix (the message names it), or another argument is malformed.
+
     References
     ----------
-    Course text, Algorithm 1 lines 12-19, Eqs. 17.2, 17.3; Thrun, Burgard &
+    Course text, Algorithm 1, Eqs. 17.2, 17.3; Thrun, Burgard &
     Fox (2005), Table 10.1 lines 12-19.
     """
     mu_bar, Sigma_bar = _check_state(mu_bar, Sigma_bar, "mu_bar", "Sigma_bar")
@@ -308,13 +586,13 @@ def ekf_slam_update(mu_bar, Sigma_bar, z, j, Q):
     j = as_index(j, "j", (mu_bar.shape[0] - 3) // 2)
     Q = as_covariance(Q, "Q", 2)
     n = mu_bar.shape[0]
-    z_hat, H = _measurement(mu_bar, j)  # (Algorithm 1 lines 12-16)
-    S = H @ Sigma_bar @ H.T + Q  # S = H Sigma_bar H^T + Q  (Algorithm 1 line 17)
-    K = np.linalg.solve(S, H @ Sigma_bar).T  # K = Sigma_bar H^T S^-1  (Algorithm 1 line 17)
+    z_hat, H = _measurement(mu_bar, j)  # (Table 10.1 lines 12-16)
+    S = H @ Sigma_bar @ H.T + Q  # S = H Sigma_bar H^T + Q  (Table 10.1 line 17)
+    K = np.linalg.solve(S, H @ Sigma_bar).T  # K = Sigma_bar H^T S^-1  (Table 10.1 line 17)
     nu = _innovation(z, z_hat)
-    mu = mu_bar + K @ nu  # mu = mu_bar + K (z - z_hat)  (Algorithm 1 line 18)
+    mu = mu_bar + K @ nu  # mu = mu_bar + K (z - z_hat)  (Table 10.1 line 18)
     mu[2] = wrap_angle(mu[2])
-    Sigma = (np.eye(n) - K @ H) @ Sigma_bar  # Sigma = (I - K H) Sigma_bar  (Algorithm 1 line 19)
+    Sigma = (np.eye(n) - K @ H) @ Sigma_bar  # Sigma = (I - K H) Sigma_bar  (Table 10.1 line 19)
     return mu, 0.5 * (Sigma + Sigma.T)
 
 
@@ -353,10 +631,16 @@ def ekf_slam_associate(mu_bar, Sigma_bar, z, n_seen, Q, alpha):
     Setting the distance of the hypothesised new landmark ``N+1`` to
     ``alpha`` and taking the arg-min, as Algorithm 2 does, is the same rule.
 
+    Raises
+    ------
+    ValueError
+        If ``Sigma_bar`` is not a symmetric positive semi-definite ``(3+2N, 3+2N)``
+        matrix (the message names it), or another argument is malformed.
+
     References
     ----------
     Course text, Algorithm 2; Thrun, Burgard & Fox (2005), Table 10.2
-    lines 9-18.
+    lines 16-20.
     """
     mu_bar, Sigma_bar = _check_state(mu_bar, Sigma_bar, "mu_bar", "Sigma_bar")
     z = _check_z(z)
@@ -364,14 +648,14 @@ def ekf_slam_associate(mu_bar, Sigma_bar, z, n_seen, Q, alpha):
     Q = as_covariance(Q, "Q", 2)
     alpha = _check_alpha(alpha)
     best, best_d = n_seen, np.inf
-    for k in range(n_seen):  # for k = 0, ..., N_t - 1  (Algorithm 2 line 4)
+    for k in range(n_seen):  # for k = 0, ..., N_t - 1  (Table 10.2)
         z_hat, H = _measurement(mu_bar, k)  # z_hat_k, H_k  (Eqs. 17.2, 17.3)
-        S = H @ Sigma_bar @ H.T + Q  # S_k = H_k Sigma_bar H_k^T + Q  (Table 10.2 line 15)
+        S = H @ Sigma_bar @ H.T + Q  # S_k = H_k Sigma_bar H_k^T + Q  (Table 10.2 line 16: Psi_k)
         nu = _innovation(z, z_hat)
-        d = float(nu @ np.linalg.solve(S, nu))  # d_k = nu^T S_k^-1 nu  (Table 10.2 line 16)
+        d = float(nu @ np.linalg.solve(S, nu))  # d_k = nu^T S_k^-1 nu  (Table 10.2 line 17: pi_k)
         if d < best_d:  # strict: ties keep the smallest index
             best, best_d = k, d
-    # d_{N_t} = alpha; j = argmin_k d_k  (Algorithm 2 lines 5-6); a distance equal to alpha is a match
+    # d_{N_t} = alpha; j = argmin_k d_k  (Table 10.2 lines 19-20); a distance equal to alpha is a match
     return best if best_d <= alpha else n_seen
 
 
@@ -412,11 +696,20 @@ class _PlainEKFSLAM:
         self.mu, self.Sigma = ekf_slam_init_landmark(mu, z, j), Sigma
         return j
 
-    def update(self, z, j, Q):
+    def update(self, z, j, Q, gate=math.inf):
+        if gate < math.inf:
+            z_hat, H = _measurement(self.mu, j)  # (Eqs. 17.2, 17.3)
+            nu = _innovation(z, z_hat)
+            if nu @ np.linalg.solve(H @ self.Sigma @ H.T + Q, nu) > gate:  # validation gate on nu^T S^-1 nu
+                return False
         self.mu, self.Sigma = ekf_slam_update(self.mu, self.Sigma, z, j, Q)
+        return True
 
     def associate(self, z, Q, alpha):
         return ekf_slam_associate(self.mu, self.Sigma, z, self.n_landmarks, Q, alpha)
+
+    def jcbb(self, z, Q, alpha):
+        return jcbb_associate(self.mu, self.Sigma, z, self.n_landmarks, Q, alpha)
 
     def landmark_variances(self):
         d = np.diag(self.Sigma)[3:]
@@ -554,7 +847,7 @@ class EKFSLAM:
         n, k, S = self._n, self._k, self._S
         if k:
             Pt = self._Pt[:k, :n]
-            # Sigma -= sum_i K_i S_i K_i^T = P P^T  (Algorithm 1 line 19, symmetric form)
+            # Sigma -= sum_i K_i S_i K_i^T = P P^T  (Table 10.1 line 19, symmetric form)
             S[:n, :n] -= Pt.T @ Pt
             self._k = 0
 
@@ -627,7 +920,7 @@ class EKFSLAM:
 
         References
         ----------
-        Course text, Algorithm 1 lines 2-5; Thrun, Burgard & Fox (2005),
+        Course text, Algorithm 1; Thrun, Burgard & Fox (2005),
         Table 10.1 lines 2-5.
         """
         u = as_array(u, "u", (2,))
@@ -639,12 +932,12 @@ class EKFSLAM:
     def _predict(self, u, dt, M):
         n, k, S = self._n, self._k, self._S
         x_next, G, V = _arc1(self._mu[:3], u, dt)
-        self._mu[:3] = x_next  # mu_bar = mu + F_x^T g(u, mu)  (Algorithm 1 line 3)
+        self._mu[:3] = x_next  # mu_bar = mu + F_x^T g(u, mu)  (Table 10.1 line 3)
         R = V @ M @ V.T  # R = V M V^T  (Table 7.2 line 5)
-        Sxx = G @ S[:3, :3] @ G.T + R  # robot block of G Sigma G^T + F_x^T R F_x  (Algorithm 1 line 5)
+        Sxx = G @ S[:3, :3] @ G.T + R  # robot block of G Sigma G^T + F_x^T R F_x  (Table 10.1 line 5)
         S[:3, :3] = 0.5 * (Sxx + Sxx.T)
         if n > 3:
-            Sxm = G @ S[:3, 3:n]  # robot-landmark block G_x Sigma_xm  (Algorithm 1 line 5)
+            Sxm = G @ S[:3, 3:n]  # robot-landmark block G_x Sigma_xm  (Table 10.1 line 5)
             S[:3, 3:n] = Sxm
             S[3:n, :3] = Sxm.T
         if k:
@@ -665,14 +958,14 @@ class EKFSLAM:
 
         Notes
         -----
-        The mean is the inverse measurement (Algorithm 1 line 10); the
+        The mean is the inverse measurement (Table 10.1 line 10); the
         covariance of the new landmark is ``prior_var I`` with no correlation,
         as a landmark not yet seen has in ``Sigma_0``. Follow with
         :meth:`update` to fuse `z`. Amortised cost ``O(N)``.
 
         References
         ----------
-        Course text, Algorithm 1 lines 9-11; Thrun, Burgard & Fox (2005),
+        Course text, Algorithm 1; Thrun, Burgard & Fox (2005),
         Table 10.1 line 10.
         """
         return self._add_landmark(_check_z(z))
@@ -681,14 +974,14 @@ class EKFSLAM:
         if self.n_landmarks == self._cap:
             self._grow()
         j, a = self.n_landmarks, self._n
-        # mu_j = (x + r cos(phi + theta), y + r sin(phi + theta))  (Algorithm 1 line 10)
+        # mu_j = (x + r cos(phi + theta), y + r sin(phi + theta))  (Table 10.1 line 10)
         self._mu[a:a + 2] = landmark_from_measurement(self._mu[:3], z)
         self._S[a, a] = self._S[a + 1, a + 1] = self.prior_var
         self._Pt[:, a:a + 2] = 0.0
         self._n += 2
         return j
 
-    def update(self, z, j, Q):
+    def update(self, z, j, Q, *, gate=None):
         """Correction with one measurement of landmark `j`, ``O(N)`` plus the amortised ``O(N^2)`` flush.
 
         Parameters
@@ -699,49 +992,58 @@ class EKFSLAM:
             Landmark index, ``0 <= j < N``.
         Q : ndarray, shape (2, 2)
             Measurement-noise covariance.
+        gate : float, optional, keyword-only
+            Validation gate on the normalised innovation squared
+            ``nu^T S^-1 nu`` (``S = H Sigma H^T + Q``): a measurement beyond
+            it is rejected and the filter is left unchanged. Default: no gate.
 
         Returns
         -------
         EKFSLAM
-            The filter itself (updated in place).
+            The filter itself (updated in place, or unchanged if gated).
 
         References
         ----------
-        Course text, Algorithm 1 lines 12-19, Eqs. 17.2, 17.3; Thrun, Burgard
+        Course text, Algorithm 1, Eqs. 17.2, 17.3; Thrun, Burgard
         & Fox (2005), Table 10.1 lines 12-19.
         """
         z = _check_z(z)
         j = as_index(j, "j", self.n_landmarks)
         Q = _as_cov2(Q, "Q")
-        self._update(z, j, Q)
+        gate = _check_gate(gate)
+        self._update(z, j, Q, gate)
         return self
 
-    def _update(self, z, j, Q):
+    def _update(self, z, j, Q, gate=math.inf):
         if self._k + 2 > _PENDING_COLS:
             self._flush()
         n, k, mu = self._n, self._k, self._mu
         a = 3 + 2 * j
         idx = np.array([0, 1, 2, a, a + 1])
-        r_hat, phi_hat, h = _range_bearing1(mu, a)  # z_hat, h_t^j  (Eqs. 17.2, 17.3; Algorithm 1 lines 12-16)
+        r_hat, phi_hat, h = _range_bearing1(mu, a)  # z_hat, h_t^j  (Eqs. 17.2, 17.3; Table 10.1 lines 12-16)
         R = self._S[idx, :n]  # Sigma[idx, :] = (Sigma F_{x,j}^T)^T, the 5 rows H touches
         if k:
             Pt = self._Pt[:k]
             R -= Pt[:, idx].T @ Pt[:, :n]  # minus the pending terms
         HP = h @ R  # (Sigma H^T)^T, shape (2, n)  (Eq. 17.3: H = h F_{x,j})
         B = HP[:, idx] @ h.T
-        # S = H Sigma_bar H^T + Q  (Algorithm 1 line 17), factored S = L L^T by hand
+        # S = H Sigma_bar H^T + Q  (Table 10.1 line 17), factored S = L L^T by hand
         s00, s01, s11 = B[0, 0] + Q[0, 0], 0.5 * (B[0, 1] + B[1, 0]) + Q[0, 1], B[1, 1] + Q[1, 1]
         l00 = math.sqrt(s00) if s00 > 0 else _not_pd()
         l10 = s01 / l00
         rest = s11 - l10 * l10
         l11 = math.sqrt(rest) if rest > 0 else _not_pd()
         i00, i11, i10 = 1.0 / l00, 1.0 / l11, -l10 / (l00 * l11)  # L^-1
-        Wt = np.array([[i00, 0.0], [i10, i11]]) @ HP  # W^T = L^-1 (Sigma H^T)^T: W W^T = K S K^T
         nu0, nu1 = z[0] - r_hat, _wrap1(z[1] - phi_hat)  # nu = z - z_hat, bearing wrapped
-        mu[:n] += np.array([i00 * nu0, i10 * nu0 + i11 * nu1]) @ Wt  # mu += K nu, K = W L^-1  (Algorithm 1 line 18)
+        e0, e1 = i00 * nu0, i10 * nu0 + i11 * nu1  # L^-1 nu
+        if e0 * e0 + e1 * e1 > gate:  # validation gate: nu^T S^-1 nu = |L^-1 nu|^2 > gate
+            return False
+        Wt = np.array([[i00, 0.0], [i10, i11]]) @ HP  # W^T = L^-1 (Sigma H^T)^T: W W^T = K S K^T
+        mu[:n] += np.array([e0, e1]) @ Wt  # mu += K nu, K = W L^-1  (Table 10.1 line 18)
         mu[2] = _wrap1(mu[2])
-        self._Pt[k:k + 2, :n] = Wt  # Sigma -= W W^T, applied in _flush  (Algorithm 1 line 19)
+        self._Pt[k:k + 2, :n] = Wt  # Sigma -= W W^T, applied in _flush  (Table 10.1 line 19)
         self._k = k + 2
+        return True
 
     def step(self, u, dt, M, z, j, Q):
         """One full step with known correspondences: :meth:`predict`, then :meth:`update` for each measurement.
@@ -804,20 +1106,19 @@ class EKFSLAM:
         References
         ----------
         Course text, Algorithm 2; Thrun, Burgard & Fox (2005), Table 10.2
-        lines 15-16.
+        lines 16-17.
         """
         return self._mahalanobis(_check_z(z), _as_cov2(Q, "Q"))
 
     def _mahalanobis(self, z, Q):
+        return self._distances(z[None], Q)[0]
+
+    def _blocks(self):
+        """Robot block ``(3, 3)``, robot-landmark blocks ``(N, 3, 2)`` and landmark blocks ``(N, 2, 2)`` of ``Sigma``."""
         N, n, k = self.n_landmarks, self._n, self._k
-        if N == 0:
-            return np.empty(0)
-        mu, S, Pt = self._mu, self._S, self._Pt[:k, :n]
-        lm = mu[3:n].reshape(N, 2)
-        z_hat, Hx, Hm = landmark_measurement(mu[:3], lm)  # (Eq. 17.2, 17.3) for every landmark
+        S, Pt = self._S, self._Pt[:k, :n]
         Sxx = S[:3, :3] - Pt[:, :3].T @ Pt[:, :3]  # robot block
         Sxm = S[:3, 3:n] - Pt[:, :3].T @ Pt[:, 3:]  # robot-landmark blocks, (3, 2N)
-        Sxm = Sxm.reshape(3, N, 2).transpose(1, 0, 2)
         r = np.arange(3, n, 2)
         Smm = np.empty((N, 2, 2))  # landmark diagonal blocks
         Smm[:, 0, 0] = S[r, r]
@@ -826,14 +1127,49 @@ class EKFSLAM:
         if k:
             Pl = Pt[:, 3:].reshape(k, N, 2)
             Smm -= np.einsum("kni,knj->nij", Pl, Pl)
-        cross = Hx @ Sxm @ Hm.transpose(0, 2, 1)
-        # S_k = H_k Sigma H_k^T + Q on the 5 non-zero columns  (Table 10.2 line 15)
-        Sk = Hx @ Sxx @ Hx.transpose(0, 2, 1) + cross + cross.transpose(0, 2, 1) + Hm @ Smm @ Hm.transpose(0, 2, 1) + Q
-        nu = _innovation(z, z_hat)
-        det = Sk[:, 0, 0] * Sk[:, 1, 1] - Sk[:, 0, 1] * Sk[:, 1, 0]
-        # d_k = nu^T S_k^-1 nu with the 2 x 2 inverse written out  (Table 10.2 line 16)
-        return (Sk[:, 1, 1] * nu[:, 0] ** 2 - (Sk[:, 0, 1] + Sk[:, 1, 0]) * nu[:, 0] * nu[:, 1]
-                + Sk[:, 0, 0] * nu[:, 1] ** 2) / det
+        return Sxx, Sxm.reshape(3, N, 2).transpose(1, 0, 2), Smm
+
+    def _sub_sigma(self, cols):
+        """``Sigma[cols][:, cols]`` with the pending terms subtracted."""
+        P = self._Pt[:self._k, cols]
+        return self._S[np.ix_(cols, cols)] - P.T @ P
+
+    def _distances(self, Z, Q):
+        """Squared Mahalanobis distances of measurements ``Z (K, 2)`` to every landmark, shape ``(K, N)``."""
+        N = self.n_landmarks
+        if N == 0:
+            return np.empty((Z.shape[0], 0))
+        z_hat, Sk = _predicted(self._mu[:self._n], *self._blocks(), Q)
+        return _nis(Z, z_hat, Sk)
+
+    def jcbb(self, z, Q, alpha):
+        """Joint Compatibility Branch and Bound association of a step's measurements.
+
+        Parameters
+        ----------
+        z : ndarray, shape (K, 2)
+            The step's measurements ``[r, phi]``.
+        Q : ndarray, shape (2, 2)
+            Measurement-noise covariance.
+        alpha : float
+            Individual compatibility threshold (squared Mahalanobis distance).
+
+        Returns
+        -------
+        ndarray of int, shape (K,)
+            Same as :func:`jcbb_associate` with ``n_seen = N``.
+
+        References
+        ----------
+        Neira & Tardos (2001); Thrun, Burgard & Fox (2005), Table 10.2
+        lines 16-17 (individual test).
+        """
+        return self._jcbb(as_array(z, "z", (None, 2)), _as_cov2(Q, "Q"), _check_alpha(alpha))
+
+    def _jcbb(self, Z, Q, alpha):
+        if self.n_landmarks == 0:
+            return np.full(Z.shape[0], JCBB_NEW)
+        return _jcbb(self._mu[:self._n], self._sub_sigma, Z, self._distances(Z, Q), Q, alpha)[0]
 
     def associate(self, z, Q, alpha):
         """Data association of Algorithm 2, vectorised over landmarks.
@@ -857,7 +1193,7 @@ class EKFSLAM:
         References
         ----------
         Course text, Algorithm 2; Thrun, Burgard & Fox (2005), Table 10.2
-        lines 9-18.
+        lines 16-20.
         """
         return self._associate(_check_z(z), _as_cov2(Q, "Q"), _check_alpha(alpha))
 
@@ -866,7 +1202,7 @@ class EKFSLAM:
         if d.size == 0:
             return 0
         best = int(np.argmin(d))  # argmin returns the first (smallest) index among ties
-        return best if d[best] <= alpha else self.n_landmarks  # (Table 10.2 lines 17-18)
+        return best if d[best] <= alpha else self.n_landmarks  # (Table 10.2 lines 19-20)
 
 
 def _not_pd():
@@ -965,6 +1301,16 @@ class EKFSLAMResult(NamedTuple):
         ``{t: (mu, Sigma, landmark_ids)}`` copies at the requested steps.
     n_rejected : int
         Measurements the provisional list kept out of the filter.
+    n_gated : int
+        Measurements the validation gate rejected (normalised innovation
+        squared above `gate`), plus, with JCBB, measurements individually
+        compatible with a landmark but left out of the best jointly
+        compatible hypothesis.
+    associations : tuple of T int ndarrays, shape (K_t,)
+        The map slot each measurement of step ``t`` updated, ``-1`` when it
+        updated nothing (gated, held in the provisional list, or clutter
+        skipped with known correspondences). With ``landmark_ids`` this
+        scores the association against the truth.
     """
 
     x: np.ndarray
@@ -978,17 +1324,20 @@ class EKFSLAMResult(NamedTuple):
     Sigma: np.ndarray
     snapshots: dict
     n_rejected: int
+    n_gated: int = 0
+    associations: tuple = ()
 
 
 def run_ekf_slam(run, *, known=True, fast=True, alpha=DEFAULT_ALPHA, confirm=1, window=10, M=None, Q=None,
-                 Sigma0=None, prior_var=DEFAULT_PRIOR_VAR, capacity=16, snapshots=()):
+                 Sigma0=None, prior_var=DEFAULT_PRIOR_VAR, capacity=16, snapshots=(), association="nn", gate=None,
+                 Q_association=None, jcbb_alpha=None):
     """Run EKF SLAM over a simulated landmark run.
 
     Parameters
     ----------
     run : LandmarkRun
         From :func:`~slamlib.sim.simulate_landmark_run` (optionally with
-        :func:`add_clutter`); uses ``x0``, ``u``, ``dt``, ``z``, ``ids`` and,
+        :func:`~slamlib.sim.add_clutter`); uses ``x0``, ``u``, ``dt``, ``z``, ``ids`` and,
         by default, ``M`` and ``Q``.
     known : bool, keyword-only
         Known correspondences (Algorithm 1: ``run.ids`` say which landmark
@@ -1014,6 +1363,47 @@ def run_ekf_slam(run, *, known=True, fast=True, alpha=DEFAULT_ALPHA, confirm=1, 
         Initial landmark capacity of the fast filter.
     snapshots : iterable of int, keyword-only
         Steps ``t`` in ``[0, T]`` at which to keep a copy of the full state.
+    association : {"nn", "jcbb"}, keyword-only
+        Unknown correspondences only: ``"nn"`` is Algorithm 2, each
+        measurement on its own against the current belief (nearest
+        neighbour in Mahalanobis distance); ``"jcbb"`` pairs all measurements
+        of a step jointly with :func:`jcbb_associate` against the predicted
+        belief, then applies the pairings in order. A JCBB measurement
+        compatible with no landmark goes through Algorithm 2's test against
+        the current belief (so a landmark created earlier in the same step
+        can take it), and then, if still new, through the provisional list.
+    gate : float, optional, keyword-only
+        Validation gate: a measurement whose normalised innovation squared
+        ``nu^T S^-1 nu`` (``S = H Sigma_bar H^T + Q``) against the landmark
+        it is assigned to exceeds `gate` is rejected as an outlier and
+        counted in ``n_gated``. ``None`` (default) takes ``run.gate`` if the
+        run has that attribute (the real-data loaders set it, e.g.
+        :func:`~slamlib.datasets.mrclam.load_mrclam`) and no gate otherwise
+        (the simulator's runs, whose noise is exactly Gaussian); ``numpy.inf``
+        turns it off. With unknown correspondences a measurement beyond
+        `alpha` from every landmark is a new-landmark candidate, so the gate
+        only acts when it is below `alpha`: distances between `gate` and
+        `alpha` are then neither a match nor a new landmark, and rejected.
+
+    Q_association : ndarray, shape (2, 2), optional, keyword-only
+        Unknown correspondences only: the measurement noise used in the
+        association distances (``S = H Sigma_bar H^T + Q_association``, for
+        Algorithm 2, JCBB and the provisional list); default `Q`. A `Q`
+        inflated for errors that are correlated in time (so that repeated
+        sightings are not over-counted in the update) widens the
+        association gates far beyond the spread of one sighting; pass the
+        spread of one sighting here to keep them tight.
+
+    jcbb_alpha : float, optional, keyword-only
+        Individual compatibility threshold of JCBB (squared Mahalanobis
+        distance, 2 degrees of freedom; the joint test uses the same tail
+        probability with ``2k`` degrees of freedom). Default
+        :data:`JCBB_ALPHA`, the 99 % quantile. JCBB prefers the hypothesis
+        with the most pairings, so a loose threshold (such as `alpha`, which
+        only guards against splitting a landmark in two) lets it pair a
+        sighting with a neighbour several standard deviations away rather
+        than leave it unpaired; a measurement compatible with nothing at
+        this level goes through Algorithm 2's test with `alpha`.
 
     Returns
     -------
@@ -1024,12 +1414,17 @@ def run_ekf_slam(run, *, known=True, fast=True, alpha=DEFAULT_ALPHA, confirm=1, 
     -----
     Each step predicts with ``u[t]`` and then processes the measurements
     ``z[t]`` one by one in their stored order (sequential updates, each
-    re-linearised at the current mean).
+    re-linearised at the current mean). Gating a measurement is a hard
+    decision: a filter whose covariance is over-confident rejects good
+    measurements and may never recover, so the gate should be loose (a
+    tail probability of ``1e-4`` or less) and the noise consistent.
 
     References
     ----------
     Course text, Algorithms 1 and 2; Thrun, Burgard & Fox (2005), Tables 10.1,
-    10.2 and Sec. 10.3.3 (provisional landmark list).
+    10.2 and Sec. 10.3.3 (provisional landmark list); Bar-Shalom, Li &
+    Kirubarajan (2001) (validation gate); Neira & Tardos (2001)
+    (JCBB).
     """
     for attr in ("x0", "u", "dt", "z", "ids", "M", "Q"):
         if not hasattr(run, attr):
@@ -1050,6 +1445,11 @@ def run_ekf_slam(run, *, known=True, fast=True, alpha=DEFAULT_ALPHA, confirm=1, 
     prior_var = as_scalar(prior_var, "prior_var", positive=True)
     capacity = as_index(capacity, "capacity", lower=1)
     keep = {as_index(t, "snapshots", T + 1) for t in snapshots}
+    if association not in ("nn", "jcbb"):
+        raise ValueError(f"association must be 'nn' or 'jcbb', got {association!r}")
+    gate = _check_gate(getattr(run, "gate", None) if gate is None else gate)
+    Qa = Q if Q_association is None else as_covariance(Q_association, "Q_association", 2)
+    alpha_j = JCBB_ALPHA if jcbb_alpha is None else as_scalar(jcbb_alpha, "jcbb_alpha", nonnegative=True, finite=False)
     zs = [as_array(z, f"run.z[{t}]", (None, 2)) for t, z in enumerate(run.z)]
     ids = [np.asarray(i, dtype=int) for i in run.ids]
     for t, (z, i) in enumerate(zip(zs, ids)):
@@ -1058,10 +1458,10 @@ def run_ekf_slam(run, *, known=True, fast=True, alpha=DEFAULT_ALPHA, confirm=1, 
 
     if fast:
         filt = EKFSLAM(x0, Sigma0, capacity=capacity, prior_var=prior_var)
-        predict, update, add, associate = filt._predict, filt._update, filt._add_landmark, filt._associate
+        predict, update, add, associate, jcbb = filt._predict, filt._update, filt._add_landmark, filt._associate, filt._jcbb
     else:
         filt = _PlainEKFSLAM(x0, Sigma0, prior_var)
-        predict, update, add, associate = filt.predict, filt.update, filt.add_landmark, filt.associate
+        predict, update, add, associate, jcbb = filt.predict, filt.update, filt.add_landmark, filt.associate, filt.jcbb
     provisional = _ProvisionalList(confirm, window)
     slot_of, landmark_ids = {}, []
     xs = np.empty((T + 1, 3))
@@ -1069,7 +1469,8 @@ def run_ekf_slam(run, *, known=True, fast=True, alpha=DEFAULT_ALPHA, confirm=1, 
     n_lm = np.empty(T + 1, dtype=int)
     variances = []
     kept = {}
-    n_rejected = 0
+    n_rejected = n_gated = 0
+    used = []
 
     def record(t):
         xs[t] = filt.x
@@ -1081,24 +1482,38 @@ def run_ekf_slam(run, *, known=True, fast=True, alpha=DEFAULT_ALPHA, confirm=1, 
 
     record(0)
     for t in range(T):
-        predict(u[t], dt, M)  # (Algorithm 1 lines 2-5)
-        for z, i in zip(zs[t], ids[t]):  # for all observed features  (Algorithm 1 line 7)
+        predict(u[t], dt, M)  # (Table 10.1 lines 2-5)
+        slots = np.full(len(ids[t]), -1)
+        if not known and association == "jcbb" and len(ids[t]) > 1:
+            pairing = jcbb(zs[t], Qa, alpha_j)  # all measurements of the step, jointly  (Neira & Tardos 2001)
+        else:
+            pairing = None
+        for m, (z, i) in enumerate(zip(zs[t], ids[t])):  # for all observed features  (Table 10.1 line 7)
             if known:
                 if i < 0:
                     continue  # known to be clutter
                 j = slot_of.get(int(i))
-                if j is None:  # never seen before: initialise  (Algorithm 1 lines 9-11)
+                if j is None:  # never seen before: initialise  (Table 10.1 lines 9-11)
                     j = slot_of[int(i)] = add(z)
                     landmark_ids.append(int(i))
             else:
-                j = associate(z, Q, alpha)  # (Algorithm 2)
+                j = JCBB_NEW if pairing is None else int(pairing[m])
+                if j == JCBB_UNPAIRED:  # compatible alone, not with the rest of the step
+                    n_gated += 1
+                    continue
+                if j == JCBB_NEW:
+                    j = associate(z, Qa, alpha)  # (Algorithm 2; Table 10.2 lines 16-20)
                 if j == filt.n_landmarks:  # new landmark hypothesis wins
-                    if not provisional.observe(filt.x, z, Q, alpha, t):
+                    if not provisional.observe(filt.x, z, Qa, alpha, t):
                         n_rejected += 1
                         continue
                     j = add(z)
                     landmark_ids.append(int(i))
-            update(z, j, Q)  # (Algorithm 1 lines 12-19)
+            if update(z, j, Q, gate):  # (Table 10.1 lines 12-19)
+                slots[m] = j
+            else:
+                n_gated += 1  # validation gate: an outlier
+        used.append(slots)
         record(t + 1)
 
     L = filt.n_landmarks
@@ -1114,64 +1529,6 @@ def run_ekf_slam(run, *, known=True, fast=True, alpha=DEFAULT_ALPHA, confirm=1, 
     lcov[:, 1, 1] = Sigma[r + 1, r + 1]
     return EKFSLAMResult(x=xs, Sigma_x=Sxs, landmarks=mu[3:].reshape(L, 2), landmark_cov=lcov,
                          landmark_ids=np.array(landmark_ids, dtype=int), landmark_var=var, n_landmarks=n_lm,
-                         mu=mu, Sigma=Sigma, snapshots=kept, n_rejected=n_rejected)
+                         mu=mu, Sigma=Sigma, snapshots=kept, n_rejected=n_rejected, n_gated=n_gated,
+                         associations=tuple(used))
 
-
-def add_clutter(run, rate, *, rng, max_range=None, min_range=0.5):
-    """Add spurious measurements (clutter) to a simulated run.
-
-    Parameters
-    ----------
-    run : LandmarkRun
-        A simulated run.
-    rate : float
-        Mean number of spurious measurements per step (Poisson), non-negative.
-    rng : numpy.random.Generator, keyword-only
-        Draws, per step: ``poisson(rate)`` for the count ``c``, then
-        ``uniform(min_range, max_range, c)`` ranges,
-        ``uniform(-fov/2, fov/2, c)`` bearings and one ``permutation`` that
-        mixes them among the true measurements.
-    max_range : float, keyword-only
-        Largest clutter range (default ``run.max_range``; required when that
-        is infinite).
-    min_range : float, keyword-only
-        Smallest clutter range, positive.
-
-    Returns
-    -------
-    LandmarkRun
-        A copy of `run` whose measurements include the clutter, marked with
-        id ``-1`` in ``ids``.
-
-    References
-    ----------
-    Thrun, Burgard & Fox (2005), Sec. 10.3.3 (spurious measurements and the
-    provisional landmark list).
-    """
-    for attr in ("z", "ids", "fov", "max_range"):
-        if not hasattr(run, attr):
-            raise TypeError(f"run must be a LandmarkRun (simulate_landmark_run), it has no attribute {attr!r}")
-    rate = as_scalar(rate, "rate", nonnegative=True)
-    check_rng(rng)
-    min_range = as_scalar(min_range, "min_range", positive=True)
-    if max_range is None:
-        if not np.isfinite(run.max_range):
-            raise ValueError("max_range must be given when run.max_range is infinite")
-        max_range = run.max_range
-    max_range = as_scalar(max_range, "max_range", positive=True)
-    if max_range <= min_range:
-        raise ValueError(f"max_range must exceed min_range ({min_range}), got {max_range}")
-    zs, ids = [], []
-    for z, i in zip(run.z, run.ids):
-        c = int(rng.poisson(rate))
-        fake = np.column_stack([rng.uniform(min_range, max_range, c), rng.uniform(-run.fov / 2, run.fov / 2, c)])
-        fake[:, 1] = wrap_angle(fake[:, 1]) if c else fake[:, 1]
-        allz = np.vstack([np.asarray(z, dtype=float).reshape(-1, 2), fake])
-        alli = np.concatenate([np.asarray(i, dtype=int), np.full(c, -1)])
-        order = rng.permutation(allz.shape[0])
-        zz, ii = allz[order], alli[order]
-        zz.setflags(write=False)
-        ii.setflags(write=False)
-        zs.append(zz)
-        ids.append(ii)
-    return dataclasses.replace(run, z=tuple(zs), ids=tuple(ids))

@@ -615,15 +615,32 @@ class EKFRunResult(NamedTuple):
         Posterior covariances.
     ids : tuple of ndarray of int, shape (K_t,)
         Correspondences used at each step (``-1`` marks a gated measurement);
-        the given ones when correspondences are known.
+        the given ones when correspondences are known, except those the
+        validation gate rejected.
+    n_gated : int
+        Measurements rejected by the gate (``-1`` in `ids`).
     """
 
     mu: np.ndarray
     Sigma: np.ndarray
     ids: tuple
+    n_gated: int = 0
 
 
-def ekf_localization_run(run, *, known=True, mu0=None, Sigma0=None, M=None, Q=None, gate=DEFAULT_GATE):
+def _gated_known_step(mu, Sigma, u, z, ids, landmarks, dt, M, Q, gate):
+    """:func:`_known_step` with a validation gate; returns the belief and the ids used (``-1``: gated)."""
+    mu, Sigma = _ekf_predict(mu, Sigma, u, dt, M)
+    used = ids.copy()
+    for k, (zi, j) in enumerate(zip(z, ids)):  # for all observed features  (Table 7.2 line 9)
+        # validation gate on nu^T S^-1 nu, S = H Sigma_bar H^T + Q  (Table 7.2 lines 11-14)
+        if _mahalanobis(mu, Sigma, zi, landmarks[j:j + 1], Q)[0] > gate:
+            used[k] = -1
+            continue
+        mu, Sigma = _ekf_update(mu, Sigma, zi, landmarks[j], Q)
+    return Gaussian(mu, Sigma), used
+
+
+def ekf_localization_run(run, *, known=True, mu0=None, Sigma0=None, M=None, Q=None, gate=None):
     """Run EKF localization over a whole simulated run.
 
     Parameters
@@ -641,17 +658,26 @@ def ekf_localization_run(run, *, known=True, mu0=None, Sigma0=None, M=None, Q=No
         Initial covariance; defaults to ``diag(0.01, 0.01, 0.001)``.
     M, Q : ndarray, shape (2, 2), keyword-only, optional
         Noise covariances assumed by the filter; default to the run's.
-    gate : float, keyword-only
-        Association gate (unknown correspondences only).
+    gate : float, optional, keyword-only
+        Gate on the squared Mahalanobis distance (normalised innovation
+        squared) ``nu^T S^-1 nu``. With unknown correspondences it is the
+        association gate of :func:`associate_ml`; with known ones a
+        validation gate: a measurement beyond it from its landmark is
+        rejected as an outlier. ``None`` (default) takes ``run.gate`` if the
+        run has that attribute (real-data loaders set it, e.g.
+        :func:`~slamlib.datasets.mrclam.load_mrclam`), else no gate with
+        known correspondences and :data:`DEFAULT_GATE` with unknown ones;
+        ``numpy.inf`` turns it off.
 
     Returns
     -------
     EKFRunResult
-        ``(mu (T+1, 3), Sigma (T+1, 3, 3), ids)``.
+        ``(mu (T+1, 3), Sigma (T+1, 3, 3), ids, n_gated)``.
 
     References
     ----------
-    Thrun, Burgard & Fox (2005), Tables 7.2 and 7.3.
+    Thrun, Burgard & Fox (2005), Tables 7.2 and 7.3; Bar-Shalom, Li &
+    Kirubarajan (2001) (validation gate).
     """
     for attr in ("landmarks", "dt", "x0", "u", "z", "ids", "M", "Q"):
         if not hasattr(run, attr):
@@ -663,6 +689,8 @@ def ekf_localization_run(run, *, known=True, mu0=None, Sigma0=None, M=None, Q=No
     Sigma = _as_cov(np.diag([0.01, 0.01, 0.001]) if Sigma0 is None else Sigma0, "Sigma0", 3)
     M = _as_cov(run.M if M is None else M, "M", 2)
     Q = _as_cov(run.Q if Q is None else Q, "Q", 2, definite=True)
+    if gate is None:
+        gate = getattr(run, "gate", np.inf if known else DEFAULT_GATE)
     gate = as_scalar(gate, "gate", nonnegative=True, finite=False)
     T = u.shape[0]
     if len(run.z) != T or len(run.ids) != T:
@@ -671,16 +699,21 @@ def ekf_localization_run(run, *, known=True, mu0=None, Sigma0=None, M=None, Q=No
     Sigmas = np.empty((T + 1, 3, 3))
     mus[0], Sigmas[0] = mu, Sigma
     used = []
+    n_gated = 0
     for t in range(T):
         z = _as_measurements(run.z[t], f"run.z[{t}]")
         if known:
             ids = _as_ids(run.ids[t], z.shape[0], landmarks.shape[0])
-            mu, Sigma = _known_step(mu, Sigma, u[t], z, ids, landmarks, dt, M, Q)
+            if gate < np.inf:
+                (mu, Sigma), ids = _gated_known_step(mu, Sigma, u[t], z, ids, landmarks, dt, M, Q, gate)
+            else:
+                mu, Sigma = _known_step(mu, Sigma, u[t], z, ids, landmarks, dt, M, Q)
         else:
             (mu, Sigma), ids = _unknown_step(mu, Sigma, u[t], z, landmarks, dt, M, Q, gate)
+        n_gated += int(np.sum(ids < 0))
         mus[t + 1], Sigmas[t + 1] = mu, Sigma
         used.append(ids)
-    return EKFRunResult(mus, Sigmas, tuple(used))
+    return EKFRunResult(mus, Sigmas, tuple(used), n_gated)
 
 
 def ekf_localization_batch(runs, *, mu0=None, Sigma0=None, M=None, Q=None):

@@ -54,6 +54,10 @@ __all__ = [
     "score_landmarks",
     "RunScore",
     "score_run",
+    "NoiseCalibration",
+    "calibrate_noise",
+    "sighting_correlation",
+    "association_errors",
     "format_score_table",
     "measurement_residuals",
     "control_residuals",
@@ -503,8 +507,8 @@ def measurement_residuals(x_true, z, ids, landmarks):
 
     References
     ----------
-    Thrun, Burgard & Fox (2005), Eq. 6.40 (``h``), Sec. 6.7 (learning
-    measurement-model parameters from data with ground truth).
+    Thrun, Burgard & Fox (2005), Eq. 6.40 (``h``), Sec. 6.3 with Table 6.2
+    (learning measurement-model parameters from data).
     """
     x_true = _run_arrays(x_true, z, ids)
     landmarks = as_array(landmarks, "landmarks", (None, 2))
@@ -570,3 +574,209 @@ def control_residuals(x_true, u, dt, *, window=1):
     res = u - np.column_stack([v, w])
     n = (res.shape[0] // int(window)) * int(window)
     return res[:n].reshape(-1, int(window), 2).mean(axis=1)
+
+
+def sighting_correlation(residuals, ids, *, max_gap=10):
+    """Correlation of the errors of consecutive sightings of the same landmark.
+
+    Parameters
+    ----------
+    residuals : ndarray, shape (S, 2)
+        Measurement residuals in step order (:func:`measurement_residuals`).
+    ids : sequence of T int ndarrays, shape (K_k,)
+        Landmark index of each sighting, per step (``sum K_k = S``).
+    max_gap : int, keyword-only
+        Pair a sighting with the previous sighting of the same landmark only
+        if it is at most this many steps older (positive).
+
+    Returns
+    -------
+    rho : ndarray, shape (2,)
+        Correlation coefficient of the range and of the bearing residuals
+        over those pairs. Near 0 for white measurement noise; near 1 when a
+        landmark's error persists while the robot keeps seeing it.
+
+    References
+    ----------
+    Bar-Shalom, Li & Kirubarajan (2001) (whiteness of the measurement
+    noise); Thrun, Burgard & Fox (2005), Sec. 6.6 (the
+    independence assumption of the measurement model).
+    """
+    residuals = as_array(residuals, "residuals", (None, 2))
+    counts = [len(i) for i in ids]
+    if sum(counts) != residuals.shape[0]:
+        raise ValueError(f"ids must hold one index per residual ({residuals.shape[0]}), got {sum(counts)}")
+    if isinstance(max_gap, bool) or not isinstance(max_gap, (numbers.Integral, np.integer)) or max_gap < 1:
+        raise ValueError(f"max_gap must be a positive integer, got {max_gap!r}")
+    step = np.repeat(np.arange(len(counts)), counts)
+    lm = np.concatenate([np.asarray(i, dtype=np.int64).reshape(-1) for i in ids]) if counts else np.zeros(0, int)
+    order = np.lexsort((step, lm))  # by landmark, then time (stable)
+    same = (lm[order][1:] == lm[order][:-1]) & (np.diff(step[order]) <= max_gap)
+    a, b = order[:-1][same], order[1:][same]
+    if a.size < 3:
+        raise ValueError("fewer than 3 pairs of consecutive sightings: correlation undefined")
+    return np.array([np.corrcoef(residuals[a, c], residuals[b, c])[0, 1] for c in range(2)])
+
+
+class NoiseCalibration(NamedTuple):
+    """What :func:`calibrate_noise` measures on a log with ground truth.
+
+    Attributes
+    ----------
+    M : ndarray, shape (2, 2)
+        Control noise per step, ``diag(sigma_v^2, sigma_omega^2)``.
+    Q : ndarray, shape (2, 2)
+        Measurement noise, ``diag(sigma_r^2, sigma_phi^2)``, inflated for
+        the correlation of consecutive sightings.
+    control_std : ndarray, shape (n_windows, 2)
+        White-noise-equivalent per-step standard deviations
+        ``sqrt(n) std(mean of n residuals)`` for each window ``n``.
+    windows : ndarray of int, shape (n_windows,)
+        The windows, in steps.
+    residual_rms : ndarray, shape (2,)
+        Root-mean-square range and bearing residuals (gross outliers left out).
+    rho : ndarray, shape (2,)
+        Correlation of consecutive residuals of the same landmark
+        (:func:`sighting_correlation`).
+    n_outliers : int
+        Sightings left out as gross outliers.
+    """
+
+    M: np.ndarray
+    Q: np.ndarray
+    control_std: np.ndarray
+    windows: np.ndarray
+    residual_rms: np.ndarray
+    rho: np.ndarray
+    n_outliers: int
+
+
+def calibrate_noise(run, *, windows=(10, 50, 100, 300), max_gap=10, outlier=(1.5, 0.5)):
+    """Estimate ``M`` and ``Q`` for a log from its residuals against the ground truth.
+
+    Parameters
+    ----------
+    run : LandmarkRun or MRCLAMRun
+        A run with ``x_true``, ``u``, ``dt``, ``z``, ``ids`` and ``landmarks``.
+    windows : sequence of int, keyword-only
+        Averaging windows (steps) for the control residuals. The default
+        (1 s to 30 s at ``dt = 0.1``) leaves out single steps, whose
+        residuals are dominated by the noise of differencing the ground
+        truth.
+    max_gap : int, keyword-only
+        See :func:`sighting_correlation`.
+    outlier : (float, float), keyword-only
+        Sightings whose range residual exceeds ``outlier[0]`` metres or whose
+        bearing residual exceeds ``outlier[1]`` radians are gross outliers
+        (a validation gate's job), left out of the statistics.
+
+    Returns
+    -------
+    NoiseCalibration
+        ``M = diag(s^2)`` with ``s`` the largest white-noise-equivalent
+        standard deviation over the windows, per component; ``Q =
+        diag(q^2)`` with ``q = rms * sqrt((1 + rho) / (1 - rho))``.
+
+    Notes
+    -----
+    * Control errors that were white would give the same per-step standard
+      deviation ``sqrt(n) std(mean of n)`` for every window ``n``. Real
+      command errors are partly correlated (a slipping wheel, a wrong wheel
+      radius), which makes the value grow with ``n``; taking the largest
+      over windows up to the time between landmark sightings sizes ``M`` for
+      the drift the filter must absorb, not just the jitter of one step.
+    * A filter that treats ``n`` sightings as independent gains ``n`` times
+      the information of one. If consecutive errors have correlation
+      ``rho`` (an AR(1) process), the mean of ``n`` of them has the variance
+      of ``n (1 - rho) / (1 + rho)`` independent ones, so inflating the
+      variance by ``(1 + rho) / (1 - rho)`` makes the filter's information
+      gain honest.
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Sec. 6.3 and Table 6.2 (learning
+    measurement-model parameters), Sec. 5.3.3; Bar-Shalom, Li &
+    Kirubarajan (2001) (filter consistency, coloured noise).
+    """
+    for attr in ("x_true", "u", "dt", "z", "ids", "landmarks"):
+        if not hasattr(run, attr):
+            raise TypeError(f"run must have ground truth (attribute {attr!r} is missing)")
+    windows = np.array([int(w) for w in windows])
+    if windows.size == 0 or np.any(windows < 1):
+        raise ValueError(f"windows must be positive integers, got {windows.tolist()}")
+    lim = as_array(outlier, "outlier", (2,))
+    res = measurement_residuals(run.x_true, run.z, run.ids, run.landmarks)
+    bad = np.any(np.abs(res) > lim, axis=1)
+    counts = [len(i) for i in run.ids]
+    step_of = np.repeat(np.arange(len(counts)), counts)
+    # drop the outliers from the residuals and from the per-step id lists alike
+    keep_ids = [np.asarray(i)[~bad[step_of == k]] for k, i in enumerate(run.ids)]
+    good = res[~bad]
+    rms = np.sqrt(np.mean(good**2, axis=0))
+    rho = sighting_correlation(good, keep_ids, max_gap=max_gap)
+    q = rms * np.sqrt((1 + rho) / (1 - rho))  # variance inflated by (1 + rho) / (1 - rho)
+    std = np.array([control_residuals(run.x_true, run.u, run.dt, window=int(w)).std(axis=0) * np.sqrt(w)
+                    for w in windows])  # sigma = sqrt(n) sigma_n, white-noise equivalent per step
+    s = std.max(axis=0)
+    return NoiseCalibration(M=np.diag(s**2), Q=np.diag(q**2), control_std=std, windows=windows,
+                            residual_rms=rms, rho=rho, n_outliers=int(bad.sum()))
+
+
+def association_errors(associations, landmark_ids, ids):
+    """Count data-association errors of a SLAM run against the true landmark labels.
+
+    Parameters
+    ----------
+    associations : sequence of T int ndarrays, shape (K_t,)
+        Map slot each measurement updated, ``-1`` for none
+        (``EKFSLAMResult.associations``).
+    landmark_ids : ndarray of int, shape (L,)
+        Unused here except for its length ``L`` (the map size); kept so that
+        the call reads like the result it scores.
+    ids : sequence of T int ndarrays, shape (K_t,)
+        True landmark index of each measurement (the barcodes).
+
+    Returns
+    -------
+    n_wrong : int
+        Measurements that updated a map landmark whose majority label (the
+        true landmark most of its updates came from) is not theirs.
+    n_used : int
+        Measurements that updated a landmark at all.
+    n_split : int
+        Extra map landmarks: map landmarks whose majority label is also the
+        majority label of another, larger one (one true landmark mapped
+        twice).
+
+    Notes
+    -----
+    A map landmark that merges two true ones (two tubes 0.2 m apart) takes
+    the label of the one it saw most; every sighting of the other counts
+    as wrong.
+
+    References
+    ----------
+    Neira & Tardos (2001) (association errors counted against ground
+    truth).
+    """
+    L = len(landmark_ids)
+    slots = np.concatenate([np.asarray(a, dtype=np.int64).reshape(-1) for a in associations]) if len(associations) else np.zeros(0, int)
+    truth = np.concatenate([np.asarray(i, dtype=np.int64).reshape(-1) for i in ids]) if len(ids) else np.zeros(0, int)
+    if slots.shape != truth.shape:
+        raise ValueError(f"associations and ids must hold one entry per measurement, got {slots.size} and {truth.size}")
+    used = slots >= 0
+    if np.any(slots >= L):
+        raise ValueError(f"associations must index the map of {L} landmarks")
+    s, t = slots[used], truth[used]
+    if s.size == 0:
+        return 0, 0, 0
+    n_true = max(int(t.max()) + 1, 1)
+    table = np.zeros((L, n_true), dtype=np.int64)
+    np.add.at(table, (s, np.maximum(t, 0)), 1)
+    label = table.argmax(axis=1)
+    n_wrong = int(np.sum(label[s] != t))
+    size = table.sum(axis=1)
+    n_split = 0
+    for lab in np.unique(label[size > 0]):
+        n_split += int(np.sum((label == lab) & (size > 0))) - 1
+    return n_wrong, int(s.size), n_split

@@ -3,16 +3,18 @@
 :func:`simulate_landmark_run` produces the ground truth, the commanded controls
 a filter receives and the noisy range-bearing measurements, all from one seeded
 generator; :func:`loop_controls` and :func:`figure_eight_controls` make simple
-control sequences.
+control sequences; :func:`add_clutter` adds spurious measurements to a run.
 
 References
 ----------
 Thrun, Burgard & Fox, *Probabilistic Robotics* (2005), Sec. 5.3 (velocity
-motion model, Table 5.3) and Sec. 6.6 (range-bearing measurements, Eq. 6.40).
+motion model, Table 5.3), Sec. 6.6 (range-bearing measurements, Eq. 6.40) and
+Sec. 10.3.3 (spurious measurements).
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,7 +23,7 @@ from ._checks import as_array, as_covariance, as_index, as_scalar, check_rng
 from .angles import wrap_angle
 from .motion import _arc
 
-__all__ = ["LandmarkRun", "simulate_landmark_run", "loop_controls", "figure_eight_controls"]
+__all__ = ["LandmarkRun", "simulate_landmark_run", "loop_controls", "figure_eight_controls", "add_clutter"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -232,3 +234,63 @@ def figure_eight_controls(n_steps, *, v, omega):
     out[:, 1] = omega
     out[n_steps // 2:, 1] = -omega
     return out
+
+
+def add_clutter(run, rate, *, rng, max_range=None, min_range=0.5):
+    """Add spurious measurements (clutter) to a simulated run.
+
+    Parameters
+    ----------
+    run : LandmarkRun
+        A simulated run.
+    rate : float
+        Mean number of spurious measurements per step (Poisson), non-negative.
+    rng : numpy.random.Generator, keyword-only
+        Draws, per step: ``poisson(rate)`` for the count ``c``, then
+        ``uniform(min_range, max_range, c)`` ranges,
+        ``uniform(-fov/2, fov/2, c)`` bearings and one ``permutation`` that
+        mixes them among the true measurements.
+    max_range : float, keyword-only
+        Largest clutter range (default ``run.max_range``; required when that
+        is infinite).
+    min_range : float, keyword-only
+        Smallest clutter range, positive.
+
+    Returns
+    -------
+    LandmarkRun
+        A copy of `run` whose measurements include the clutter, marked with
+        id ``-1`` in ``ids``.
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Sec. 10.3.3 (spurious measurements and the
+    provisional landmark list).
+    """
+    for attr in ("z", "ids", "fov", "max_range"):
+        if not hasattr(run, attr):
+            raise TypeError(f"run must be a LandmarkRun (simulate_landmark_run), it has no attribute {attr!r}")
+    rate = as_scalar(rate, "rate", nonnegative=True)
+    check_rng(rng)
+    min_range = as_scalar(min_range, "min_range", positive=True)
+    if max_range is None:
+        if not np.isfinite(run.max_range):
+            raise ValueError("max_range must be given when run.max_range is infinite")
+        max_range = run.max_range
+    max_range = as_scalar(max_range, "max_range", positive=True)
+    if max_range <= min_range:
+        raise ValueError(f"max_range must exceed min_range ({min_range}), got {max_range}")
+    zs, ids = [], []
+    for z, i in zip(run.z, run.ids):
+        c = int(rng.poisson(rate))
+        fake = np.column_stack([rng.uniform(min_range, max_range, c), rng.uniform(-run.fov / 2, run.fov / 2, c)])
+        fake[:, 1] = wrap_angle(fake[:, 1]) if c else fake[:, 1]
+        allz = np.vstack([np.asarray(z, dtype=float).reshape(-1, 2), fake])
+        alli = np.concatenate([np.asarray(i, dtype=int), np.full(c, -1)])
+        order = rng.permutation(allz.shape[0])
+        zz, ii = allz[order], alli[order]
+        zz.setflags(write=False)
+        ii.setflags(write=False)
+        zs.append(zz)
+        ids.append(ii)
+    return dataclasses.replace(run, z=tuple(zs), ids=tuple(ids))

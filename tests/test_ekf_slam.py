@@ -547,3 +547,271 @@ def test_slam_plots_draw_and_return_their_axes(run):
             sl.viz.plot_step_times(np.array([10]), {"fast": [1e-4]}, guides={2: "slow"})
     finally:
         plt.close("all")
+
+
+# --------------------------------------------------------------------------- validation gate
+def test_contract_functions_reject_a_covariance_that_is_not_positive_semi_definite():
+    mu, Sigma = random_state(np.random.default_rng(30), 2)
+    bad = Sigma.copy()
+    bad[3:5, 3:5] = [[1.0, 2.0], [2.0, 1.0]]  # symmetric, positive diagonal, eigenvalue -1
+    with pytest.raises(ValueError, match="Sigma must be positive semi-definite"):
+        sl.ekf_slam_predict(mu, bad, [1.0, 0.0], DT, M)
+    with pytest.raises(ValueError, match="Sigma_bar must be positive semi-definite"):
+        sl.ekf_slam_update(mu, bad, [2.0, 0.1], 0, Q)
+    with pytest.raises(ValueError, match="Sigma_bar must be positive semi-definite"):
+        sl.ekf_slam_associate(mu, bad, [2.0, 0.1], 2, Q, 5.0)
+    with pytest.raises(ValueError, match="Sigma_bar must be positive semi-definite"):
+        sl.jcbb_associate(mu, bad, [[2.0, 0.1]], 2, Q, 5.0)
+
+
+def test_add_clutter_lives_in_sim():
+    assert sl.add_clutter is sl.sim.add_clutter
+    assert not hasattr(es, "add_clutter")
+
+
+def nis(mu, Sigma, z, j):
+    """Normalised innovation squared of z against landmark j, dense."""
+    z_hat, H = sl.ekf_slam_measurement(mu, j)
+    nu = z - z_hat
+    nu[1] = sl.wrap_angle(nu[1])
+    return float(nu @ np.linalg.solve(H @ Sigma @ H.T + Q, nu))
+
+
+@pytest.mark.parametrize("fast", [True, False])
+def test_gate_rejects_exactly_the_measurements_beyond_it(fast):
+    mu, Sigma = random_state(np.random.default_rng(31), 2)
+    z_hat, _ = sl.ekf_slam_measurement(mu, 0)
+    good, bad = z_hat + [0.05, 0.01], z_hat + [3.0, np.pi / 2]
+    d_good, d_bad = nis(mu, Sigma, good, 0), nis(mu, Sigma, bad, 0)
+    assert d_good < 5.0 < d_bad
+    if fast:
+        f = sl.EKFSLAM.from_state(mu, Sigma)
+        f.update(bad, 0, Q, gate=5.0)  # rejected: unchanged
+        np.testing.assert_array_equal(f.mu, mu)
+        np.testing.assert_array_equal(f.Sigma, Sigma)
+        f.update(good, 0, Q, gate=5.0)  # accepted: the ordinary update
+        mu_ref, Sigma_ref = sl.ekf_slam_update(mu, Sigma, good, 0, Q)
+        np.testing.assert_allclose(f.mu, mu_ref, **TOL)
+        np.testing.assert_allclose(f.Sigma, Sigma_ref, **TOL)
+    else:
+        f = es._PlainEKFSLAM(mu, Sigma, 1e4)
+        assert not f.update(bad, 0, Q, 5.0) and f.update(good, 0, Q, 5.0)
+    g = sl.EKFSLAM.from_state(mu, Sigma)
+    assert not g._update(bad, 0, Q, d_bad * (1 - 1e-9)) and g._update(bad, 0, Q, d_bad * (1 + 1e-9))
+
+
+def with_outliers(run, every, rng):
+    """Replace every `every`-th sighting by a gross outlier (bearing off by about pi, range off by 2-4 m).
+
+    First sightings stay intact: they initialise their landmark, which no gate can check.
+    """
+    zs, n, seen = [], 0, set()
+    for z, ids in zip(run.z, run.ids):
+        z = np.array(z)
+        for k in range(len(z)):
+            if int(ids[k]) not in seen:
+                seen.add(int(ids[k]))
+                continue
+            n += 1
+            if n % every == 0:
+                z[k] = [z[k, 0] + rng.uniform(2.0, 4.0), sl.wrap_angle(z[k, 1] + np.pi + rng.uniform(-0.2, 0.2))]
+        zs.append(z)
+    return dataclasses.replace(run, z=tuple(zs)), n // every
+
+
+def test_gate_makes_known_correspondences_robust_to_gross_outliers(run):
+    bad_run, n_bad = with_outliers(run, 37, np.random.default_rng(32))
+    clean = sl.run_ekf_slam(run)
+    broken = sl.run_ekf_slam(bad_run)
+    gated = sl.run_ekf_slam(bad_run, gate=es.DEFAULT_ALPHA)
+    err = {k: sl.ate_rmse(r.x, run.x_true) for k, r in (("clean", clean), ("broken", broken), ("gated", gated))}
+    assert broken.n_gated == 0 and clean.n_gated == 0
+    assert n_bad >= 5
+    assert n_bad <= gated.n_gated <= n_bad + 3  # the outliers and hardly anything else (tail 1e-5 per sighting)
+    assert err["broken"] > 2 * err["clean"]
+    assert err["gated"] < 1.2 * err["clean"]
+    plain = sl.run_ekf_slam(bad_run, gate=es.DEFAULT_ALPHA, fast=False)
+    assert plain.n_gated == gated.n_gated
+    np.testing.assert_allclose(plain.x, gated.x, rtol=1e-7, atol=1e-7)
+
+
+def test_gate_default_comes_from_the_run(run):
+    bad_run, _ = with_outliers(run, 37, np.random.default_rng(32))
+
+    @dataclasses.dataclass(frozen=True)
+    class GatedRun:
+        base: object
+        gate: float
+
+        def __getattr__(self, name):
+            return getattr(self.base, name)
+
+    by_run = sl.run_ekf_slam(GatedRun(bad_run, 9.0))
+    by_arg = sl.run_ekf_slam(bad_run, gate=9.0)
+    off = sl.run_ekf_slam(GatedRun(bad_run, 9.0), gate=np.inf)
+    assert by_run.n_gated == by_arg.n_gated > 0 and off.n_gated == 0
+    np.testing.assert_array_equal(by_run.x, by_arg.x)
+
+
+def test_associations_record_the_slot_each_measurement_updated(run):
+    res = sl.run_ekf_slam(run)
+    assert len(res.associations) == run.n_steps
+    for slots, ids in zip(res.associations, run.ids):
+        np.testing.assert_array_equal(res.landmark_ids[slots], ids)
+
+
+# --------------------------------------------------------------------------- JCBB
+def two_close_landmarks():
+    """Robot at the origin with an uncertain heading, two well-mapped landmarks 0.75 m apart, both at 5 m.
+
+    The robot is really turned by -0.15 rad, so both bearings read 0.15 rad too large: the sighting
+    of landmark 0 lands on landmark 1's prediction, and the sighting of landmark 1 beyond it.
+    """
+    mu = np.array([0.0, 0.0, 0.0, 5.0, 0.0, 5.0 * np.cos(0.15), 5.0 * np.sin(0.15)])
+    Sigma = np.diag([1e-4, 1e-4, 0.15**2, 1e-4, 1e-4, 1e-4, 1e-4])
+    Qs = np.diag([0.05**2, 0.01**2])
+    x_true = np.array([0.0, 0.0, -0.15])
+    z = np.array([sl.landmark_measurement(x_true, mu[3 + 2 * j:5 + 2 * j])[0] for j in range(2)])
+    return mu, Sigma, Qs, z
+
+
+def test_jcbb_pairs_close_landmarks_that_the_nearest_neighbour_confuses():
+    mu, Sigma, Qs, z = two_close_landmarks()
+    alpha = es.DEFAULT_ALPHA
+    nn = [sl.ekf_slam_associate(mu, Sigma, zi, 2, Qs, alpha) for zi in z]
+    assert nn[0] == 1  # the nearest neighbour takes landmark 0's sighting for landmark 1
+    np.testing.assert_array_equal(sl.jcbb_associate(mu, Sigma, z, 2, Qs, alpha), [0, 1])
+    f = sl.EKFSLAM.from_state(mu, Sigma)
+    np.testing.assert_array_equal(f.jcbb(z, Qs, alpha), [0, 1])
+    # the joint distance of the right pairing is small, of the NN-style swap large
+    assert sl.joint_mahalanobis(mu, Sigma, z, [0, 1], Qs) < es._joint_threshold(alpha, 2)
+    assert sl.joint_mahalanobis(mu, Sigma, z, [1, 0], Qs) > es._joint_threshold(alpha, 2)
+
+
+def test_jcbb_leaves_new_and_incompatible_measurements_unpaired():
+    mu, Sigma, Qs, z = two_close_landmarks()
+    far = np.array([[2.0, 2.0]])  # compatible with no landmark: a new one
+    out = sl.jcbb_associate(mu, Sigma, np.vstack([z, far]), 2, Qs, es.DEFAULT_ALPHA)
+    np.testing.assert_array_equal(out, [0, 1, sl.JCBB_NEW])
+    np.testing.assert_array_equal(sl.jcbb_associate(mu, Sigma, z, 0, Qs, 5.0), [sl.JCBB_NEW] * 2)
+    assert sl.jcbb_associate(mu, Sigma, np.empty((0, 2)), 2, Qs, 5.0).shape == (0,)
+    # two sightings that both fit landmark 0 alone: only one can have it, the other is unpaired
+    z0 = sl.landmark_measurement(mu[:3], mu[3:5])[0]
+    twice = np.array([z0, z0 + [0.01, 0.0]])
+    Sig = np.diag([1e-4, 1e-4, 1e-6, 1e-4, 1e-4, 1e-4, 1e-4])
+    out = sl.jcbb_associate(mu, Sig, twice, 2, Qs, es.DEFAULT_ALPHA)
+    np.testing.assert_array_equal(np.sort(out), [sl.JCBB_UNPAIRED, 0])
+
+
+def test_joint_mahalanobis_of_the_search_equals_the_dense_computation():
+    rng = np.random.default_rng(33)
+    for _ in range(5):
+        mu, Sigma = random_state(rng, 6)
+        j = rng.permutation(6)[:4]
+        z = np.array([sl.landmark_measurement(mu[:3], mu[3 + 2 * k:5 + 2 * k])[0] for k in j])
+        z = z + rng.normal(0.0, [0.1, 0.03], z.shape)
+        # dense: stacked H (2K, 3+2N), S = H Sigma H^T + blockdiag(Q), by explicit loops
+        H = np.vstack([sl.ekf_slam_measurement(mu, k)[1] for k in j])
+        nu = (z - np.array([sl.ekf_slam_measurement(mu, k)[0] for k in j]))
+        nu[:, 1] = sl.wrap_angle(nu[:, 1])
+        S = H @ Sigma @ H.T + np.kron(np.eye(len(j)), Q)
+        dense = float(nu.ravel() @ np.linalg.solve(S, nu.ravel()))
+        np.testing.assert_allclose(sl.joint_mahalanobis(mu, Sigma, z, j, Q), dense, rtol=1e-10)
+        # the search's sub-state computation, forced to the true pairing by an individual test
+        # that only the true landmark passes
+        d = np.full((len(j), 6), np.inf)
+        d[np.arange(len(j)), j] = 0.0
+        pairing, d2 = es._jcbb(mu, lambda c: Sigma[np.ix_(c, c)], z, d, Q, np.inf)
+        np.testing.assert_array_equal(pairing, j)
+        np.testing.assert_allclose(d2, dense, rtol=1e-10)
+        # one pairing: the joint distance is the individual one of Algorithm 2
+        np.testing.assert_allclose(sl.joint_mahalanobis(mu, Sigma, z[:1], j[:1], Q), nis(mu, Sigma, z[0], j[0]),
+                                   rtol=1e-10)
+
+
+def test_fast_jcbb_equals_the_dense_one_with_pending_updates(run):
+    f = sl.EKFSLAM(run.x0, capacity=4)
+    rng = np.random.default_rng(34)
+    for t in range(60):
+        f.predict(run.u[t], run.dt, M)
+        for z in run.z[t]:
+            j = f.associate(z, Q, es.DEFAULT_ALPHA)
+            if j == f.n_landmarks:
+                j = f.add_landmark(z)
+            f.update(z, j, Q)
+    assert f._k > 0  # pending rank-2 terms
+    mu, Sigma = np.array(f.mu), np.array(f.Sigma)
+    g = sl.EKFSLAM.from_state(mu, Sigma)
+    for t in range(60, 80):
+        Z = np.vstack([run.z[t], rng.normal([4.0, 0.0], [1.0, 0.5], (2, 2))])
+        np.testing.assert_array_equal(g.jcbb(Z, Q, es.DEFAULT_ALPHA),
+                                      sl.jcbb_associate(mu, Sigma, Z, f.n_landmarks, Q, es.DEFAULT_ALPHA))
+    np.testing.assert_allclose(f._distances(Z, Q), np.array([[nis(mu, Sigma, zi, k) for k in range(f.n_landmarks)]
+                                                             for zi in Z]), rtol=1e-8)
+
+
+def test_jcbb_equals_nn_when_landmarks_are_well_separated(run):
+    nn = sl.run_ekf_slam(run, known=False)
+    jc = sl.run_ekf_slam(run, known=False, association="jcbb")
+    assert sum(len(z) > 1 for z in run.z) > 20  # the joint test runs on many steps
+    np.testing.assert_array_equal(jc.landmark_ids, nn.landmark_ids)
+    for a, b in zip(jc.associations, nn.associations):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_allclose(jc.x, nn.x, rtol=1e-9, atol=1e-9)
+    assert jc.n_gated == 0
+    plain = sl.run_ekf_slam(run, known=False, association="jcbb", fast=False)
+    np.testing.assert_allclose(plain.x, jc.x, rtol=1e-7, atol=1e-7)
+
+
+def test_jcbb_run_beats_nn_on_close_landmark_pairs():
+    rng = np.random.default_rng(35)
+    base = sl.make_landmark_world(6, extent=14.0, min_separation=4.0, rng=rng)
+    landmarks = np.vstack([base, base + [0.6, 0.0]])  # six pairs of landmarks 0.6 m apart
+    u = sl.loop_controls(250, v=1.0, omega=0.15)
+    Mb = np.diag([0.15**2, np.deg2rad(6.0) ** 2])
+    wrong = {"nn": [], "jcbb": []}
+    for seed in range(6):
+        r = sl.simulate_landmark_run(landmarks, u, DT, x0=[0.0, -6.7, 0.0], M=Mb, Q=Q, max_range=6.0, fov=np.pi,
+                                     rng=np.random.default_rng(100 + seed))
+        for assoc in wrong:
+            res = sl.run_ekf_slam(r, known=False, association=assoc)
+            n_bad = sum(int(np.sum(res.landmark_ids[s[s >= 0]] != i[s >= 0])) for s, i in zip(res.associations, r.ids))
+            wrong[assoc].append(n_bad)
+    assert sum(wrong["jcbb"]) < 0.75 * sum(wrong["nn"])  # 200 against 359 wrong associations
+
+
+def test_run_rejects_an_unknown_association_and_a_bad_gate(run):
+    with pytest.raises(ValueError, match="association must be 'nn' or 'jcbb'"):
+        sl.run_ekf_slam(run, known=False, association="jjcb")
+    with pytest.raises(ValueError, match="gate must be non-negative"):
+        sl.run_ekf_slam(run, gate=-1.0)
+    with pytest.raises(ValueError, match="Q_association must be positive semi-definite"):
+        sl.run_ekf_slam(run, known=False, Q_association=-Q)
+    with pytest.raises(ValueError, match="jcbb_alpha must be non-negative"):
+        sl.run_ekf_slam(run, known=False, association="jcbb", jcbb_alpha=-1.0)
+    with pytest.raises(ValueError, match="j must hold distinct landmark indices"):
+        sl.joint_mahalanobis(*random_state(np.random.default_rng(0), 2), [[1.0, 0.0], [1.0, 0.1]], [0, 0], Q)
+
+
+def test_association_noise_only_changes_the_association(run):
+    same = sl.run_ekf_slam(run, known=False, Q_association=Q)
+    default = sl.run_ekf_slam(run, known=False)
+    np.testing.assert_array_equal(same.x, default.x)
+    # a much wider association noise merges landmarks that the default keeps apart
+    wide = sl.run_ekf_slam(run, known=False, Q_association=400 * Q)
+    assert len(wide.landmarks) < len(default.landmarks)
+    # with known correspondences it is not used at all
+    np.testing.assert_array_equal(sl.run_ekf_slam(run, Q_association=400 * Q).x, sl.run_ekf_slam(run).x)
+
+
+def test_gate_with_unknown_correspondences_rejects_the_band_between_gate_and_alpha(run):
+    alpha = es.DEFAULT_ALPHA
+    plain = sl.run_ekf_slam(run, known=False)
+    wide = sl.run_ekf_slam(run, known=False, gate=alpha)  # a gate at alpha never fires: every match has d <= alpha
+    assert wide.n_gated == 0
+    np.testing.assert_array_equal(wide.x, plain.x)
+    tight = sl.run_ekf_slam(run, known=False, gate=1.0)  # matches with 1 < d <= alpha are rejected, not new landmarks
+    assert tight.n_gated > 0
+    assert len(tight.landmarks) == len(plain.landmarks)
+    used = sum(int(np.sum(s >= 0)) for s in tight.associations)
+    assert used + tight.n_gated + tight.n_rejected == sum(len(z) for z in run.z)

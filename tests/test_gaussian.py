@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -351,6 +353,69 @@ def test_unknown_run_without_clutter_matches_known():
     unknown = sl.ekf_localization_run(run, known=False, mu0=mu0, Sigma0=SIGMA0, gate=np.inf)
     assert all(np.array_equal(a, b) for a, b in zip(unknown.ids, run.ids))
     np.testing.assert_allclose(unknown.mu, known.mu, atol=1e-12)
+
+
+def _with_outliers(run, every, seed):
+    """Every `every`-th measurement replaced by a gross outlier: bearing turned by about pi, range +2-4 m."""
+    rng = np.random.default_rng(seed)
+    zs, n = [], 0
+    for z in run.z:
+        z = np.array(z)
+        for k in range(len(z)):
+            n += 1
+            if n % every == 0:
+                z[k] = [z[k, 0] + rng.uniform(2.0, 4.0), sl.wrap_angle(z[k, 1] + np.pi + rng.uniform(-0.2, 0.2))]
+        zs.append(z)
+    return dataclasses.replace(run, z=tuple(zs)), n // every
+
+
+def test_known_run_validation_gate_rejects_outliers():
+    run, mu0 = _run(44)
+    bad_run, n_bad = _with_outliers(run, 25, 45)
+    clean = sl.ekf_localization_run(run, mu0=mu0, Sigma0=SIGMA0)
+    broken = sl.ekf_localization_run(bad_run, mu0=mu0, Sigma0=SIGMA0)
+    gate = -2 * np.log(1e-5)
+    gated = sl.ekf_localization_run(bad_run, mu0=mu0, Sigma0=SIGMA0, gate=gate)
+    assert n_bad >= 5 and clean.n_gated == broken.n_gated == 0
+    assert n_bad <= gated.n_gated <= n_bad + 2
+    err = {k: sl.ate_rmse(r.mu, run.x_true) for k, r in (("clean", clean), ("broken", broken), ("gated", gated))}
+    assert err["broken"] > 2 * err["clean"] and err["gated"] < 1.2 * err["clean"]
+    assert sum(int(np.sum(i < 0)) for i in gated.ids) == gated.n_gated
+    # the gate compares nu^T S^-1 nu, the distance of associate_ml: a gate just below a measurement's
+    # distance rejects it, just above accepts it
+    t = next(t for t in range(run.n_steps) if len(run.z[t]) >= 1)
+    mu_b, S_b = sl.ekf_predict(clean.mu[t], clean.Sigma[t], run.u[t], DT, M_NOISE)
+    j = int(run.ids[t][0])
+    d = sl.landmark_mahalanobis(mu_b, S_b, run.z[t][0], run.landmarks[j:j + 1], Q_NOISE)[0]
+    one = dataclasses.replace(run, u=run.u[t:t + 1], z=(run.z[t][:1],), ids=(run.ids[t][:1],))
+    ref = sl.ekf_update(mu_b, S_b, run.z[t][0], run.landmarks[j], Q_NOISE)
+    lo = sl.ekf_localization_run(one, mu0=clean.mu[t], Sigma0=clean.Sigma[t], gate=d * (1 - 1e-9))
+    hi = sl.ekf_localization_run(one, mu0=clean.mu[t], Sigma0=clean.Sigma[t], gate=d * (1 + 1e-9))
+    assert lo.n_gated == 1 and hi.n_gated == 0
+    np.testing.assert_allclose(hi.mu[1], ref.mean, atol=1e-12)
+    np.testing.assert_allclose(lo.mu[1], mu_b, atol=1e-12)
+
+
+def test_run_gate_defaults_to_the_runs_own_gate():
+    run, mu0 = _run(46)
+    bad_run, _ = _with_outliers(run, 25, 47)
+
+    class WithGate:
+        def __init__(self, base, gate):
+            self.base, self.gate = base, gate
+
+        def __getattr__(self, name):
+            return getattr(self.base, name)
+
+    by_run = sl.ekf_localization_run(WithGate(bad_run, 20.0), mu0=mu0, Sigma0=SIGMA0)
+    by_arg = sl.ekf_localization_run(bad_run, mu0=mu0, Sigma0=SIGMA0, gate=20.0)
+    assert by_run.n_gated == by_arg.n_gated > 0
+    np.testing.assert_array_equal(by_run.mu, by_arg.mu)
+    # unknown correspondences keep DEFAULT_GATE when the run has none
+    a = sl.ekf_localization_run(bad_run, known=False, mu0=mu0, Sigma0=SIGMA0)
+    b = sl.ekf_localization_run(bad_run, known=False, mu0=mu0, Sigma0=SIGMA0, gate=sl.gaussian.DEFAULT_GATE)
+    np.testing.assert_array_equal(a.mu, b.mu)
+    assert a.n_gated == b.n_gated > 0
 
 
 # --------------------------------------------------------------------------- bad input

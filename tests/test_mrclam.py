@@ -103,7 +103,7 @@ def test_run_is_read_only(run1):
 @pytest.mark.parametrize(
     "kwargs, exc, match",
     [
-        ({"robot": 3}, ValueError, "robot"),
+        ({"robot": 6}, ValueError, "robot"),
         ({"robot": 0}, ValueError, "robot"),
         ({"robot": "1"}, TypeError, "robot"),
         ({"robot": True}, TypeError, "robot"),
@@ -114,6 +114,7 @@ def test_run_is_read_only(run1):
         ({"M": np.eye(3)}, ValueError, "M"),
         ({"Q": np.array([[1.0, 2.0], [2.0, 1.0]])}, ValueError, "Q"),
         ({"data_dir": "/nonexistent/mrclam"}, FileNotFoundError, "data_dir"),
+        ({"gate": -1.0}, ValueError, "gate"),
     ],
 )
 def test_bad_arguments(kwargs, exc, match):
@@ -128,7 +129,7 @@ def _write(path, rows, header="# a header line\n"):
 
 @pytest.fixture
 def tiny(tmp_path):
-    """A hand-made log: known controls, two landmarks, unsorted and unknown sightings."""
+    """A hand-made log: known controls, two landmarks, sightings of robots and unknown barcodes."""
     _write(tmp_path / "Barcodes.dat.gz", [(1, 5), (2, 14)] + [(s, 100 + s) for s in range(6, 21)])
     _write(tmp_path / "Landmark_Groundtruth.dat.gz",
            [(s, float(s), 1.0, 1e-4, 1e-4) for s in range(20, 5, -1)])  # reversed order on purpose
@@ -137,11 +138,11 @@ def tiny(tmp_path):
     _write(tmp_path / "Robot1_Groundtruth.dat.gz",
            [(99.9 + 0.1 * k, 0.01 * k, 0.0, 0.0) for k in range(15)])
     _write(tmp_path / "Robot1_Measurement.dat.gz", [
-        (100.52, 106, 6.0, 0.1),   # landmark 0, nearest step end t=0.5 -> step 4
+        (99.0, 107, 7.0, 0.0),     # before the start: outside
         (100.26, 120, 14.0, 3.5),  # landmark 14, step 2 (after 0.3 s); bearing 3.5 is wrapped
         (100.31, 5, 1.0, 0.0),     # robot 1's own barcode: skipped as a robot
         (100.40, 77, 2.0, 0.0),    # barcode of no subject: skipped
-        (99.0, 107, 7.0, 0.0),     # before the start: outside
+        (100.52, 106, 6.0, 0.1),   # landmark 0, nearest step end t=0.5 -> step 4
     ])
     return tmp_path
 
@@ -168,6 +169,97 @@ def test_malformed_file(tiny):
     (tiny / "Robot1_Odometry.dat.gz").unlink()
     with pytest.raises(FileNotFoundError, match="Robot1_Odometry"):
         load_mrclam(1, data_dir=tiny)
+
+
+def _lines(path):
+    with gzip.open(path, "rt") as f:
+        return f.read().splitlines(keepends=True)
+
+
+def _edit_line(path, line, text):
+    """Replace 1-based `line` of a gzip text file."""
+    lines = _lines(path)
+    lines[line - 1] = text + "\n"
+    with gzip.open(path, "wt") as f:
+        f.write("".join(lines))
+
+
+@pytest.mark.parametrize("name, line, text, match", [
+    ("Robot1_Measurement.dat.gz", 3, "100.26\t120\tfourteen\t3.5", r"Robot1_Measurement.dat.gz, line 3: field 'fourteen' is not a number"),
+    ("Robot1_Measurement.dat.gz", 3, "100.26\t120\tnan\t3.5", r"Robot1_Measurement.dat.gz, line 3: NaN or infinity"),
+    ("Robot1_Measurement.dat.gz", 6, "100.52\t106\t-6.0\t0.1", r"Robot1_Measurement.dat.gz, line 6: non-positive range"),
+    ("Robot1_Measurement.dat.gz", 6, "100.52\t106\t0\t0.1", r"Robot1_Measurement.dat.gz, line 6: non-positive range"),
+    ("Robot1_Measurement.dat.gz", 6, "100.52\t106.5\t6.0\t0.1", r"Robot1_Measurement.dat.gz, line 6: barcode is not an integer"),
+    ("Robot1_Measurement.dat.gz", 4, "100.20\t5\t1.0\t0.0", r"Robot1_Measurement.dat.gz, line 4: time runs backwards"),
+    ("Robot1_Odometry.dat.gz", 3, "101.5\t0.3\t0.0", r"Robot1_Odometry.dat.gz, line 4: time runs backwards"),
+    ("Robot1_Odometry.dat.gz", 3, "100.25\t0.3", r"Robot1_Odometry.dat.gz, line 3: expected 3 columns, got 2"),
+    ("Robot1_Groundtruth.dat.gz", 5, "100.2\t0.03\tinf\t0.0", r"Robot1_Groundtruth.dat.gz, line 5: NaN or infinity"),
+    ("Robot1_Groundtruth.dat.gz", 5, "99.0\t0.03\t0.0\t0.0", r"Robot1_Groundtruth.dat.gz, line 5: time runs backwards"),
+    ("Barcodes.dat.gz", 4, "6\t14", r"Barcodes.dat.gz, line 4: duplicate barcode 14 \(subject 6; line 3 gives it to subject 2\)"),
+    ("Barcodes.dat.gz", 4, "1\t106", r"Barcodes.dat.gz, line 4: duplicate subject 1 \(first on line 2\)"),
+    ("Landmark_Groundtruth.dat.gz", 2, "7\t20.0\t1.0\t0.0001\t0.0001", r"Landmark_Groundtruth.dat.gz: expected subjects 6..20 once each"),
+])
+def test_bad_file_content_is_an_error_naming_file_and_line(tiny, name, line, text, match):
+    load_mrclam(1, data_dir=tiny)  # the intact log loads
+    _edit_line(tiny / name, line, text)
+    with pytest.raises(ValueError, match=match):
+        load_mrclam(1, data_dir=tiny)
+
+
+def test_equal_times_are_allowed(tiny):
+    _edit_line(tiny / "Robot1_Odometry.dat.gz", 3, "100.0\t0.3\t0.0")  # same time as line 2: it overrides
+    run = load_mrclam(1, data_dir=tiny)
+    np.testing.assert_allclose(run.u[:, 0], 0.3, atol=1e-12)
+
+
+@pytest.mark.parametrize("damage", ["truncate", "corrupt"])
+def test_truncated_or_corrupt_gzip_is_an_error_naming_the_file(tiny, damage):
+    path = tiny / "Robot1_Groundtruth.dat.gz"
+    raw = path.read_bytes()
+    if damage == "truncate":
+        raw = raw[: len(raw) // 2]
+    else:
+        raw = raw[:12] + bytes(b ^ 0xFF for b in raw[12:40]) + raw[40:]
+    path.write_bytes(raw)
+    with pytest.raises(ValueError, match=r"Robot1_Groundtruth.dat.gz: truncated or corrupt gzip file"):
+        load_mrclam(1, data_dir=tiny)
+
+
+def test_all_five_robots_ship_and_carry_the_gate():
+    from slamlib.datasets.mrclam import MRCLAM_GATE, MRCLAM_ROBOTS
+
+    assert MRCLAM_ROBOTS == (1, 2, 3, 4, 5)
+    np.testing.assert_allclose(MRCLAM_GATE, -2 * np.log(1e-5))
+    for r in MRCLAM_ROBOTS:
+        run = load_mrclam(r, t_max=20.0)
+        assert run.robot == r and run.n_steps == 200 and run.gate == MRCLAM_GATE
+    assert load_mrclam(1, t_max=5.0, gate=np.inf).gate == np.inf
+
+
+@pytest.mark.skipif(not ORIGINAL.is_dir(), reason="the original MRCLAM Dataset 6 folder is not on this machine")
+@pytest.mark.parametrize("robot", [1, 2, 3, 4, 5])
+def test_every_shipped_robot_matches_the_original(robot):
+    ours, orig = load_mrclam(robot), load_mrclam(robot, data_dir=ORIGINAL)
+    T = ours.n_steps
+    assert T > 7000 and orig.n_steps - T < 3
+    np.testing.assert_allclose(ours.u, orig.u[:T], atol=1e-12)
+    assert all(np.array_equal(a, b) for a, b in zip(ours.ids, orig.ids[:T]))
+    assert all(np.array_equal(a, b) for a, b in zip(ours.z, orig.z[:T]))
+    # robot 4's Vicon track has a 2 s gap, where the 60 Hz and the 10 Hz interpolations differ most
+    assert np.abs(ours.x_true[:, :2] - orig.x_true[:T + 1, :2]).max() < (0.03 if robot == 4 else 0.01)
+
+
+@pytest.mark.skipif(not ORIGINAL.is_dir(), reason="the original MRCLAM Dataset 6 folder is not on this machine")
+def test_subset_tool_reproduces_the_shipped_files(tmp_path):
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("mrclam_subset", Path(__file__).resolve().parents[1] / "tools" / "mrclam_subset.py")
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    tool.main([str(ORIGINAL), "--out", str(tmp_path), "--robots", "3"])
+    shipped = Path(sl.datasets.data_path("mrclam"))
+    for name in ("Robot3_Odometry.dat.gz", "Robot3_Groundtruth.dat.gz", "Robot3_Measurement.dat.gz", "Barcodes.dat.gz"):
+        assert _lines(tmp_path / name) == _lines(shipped / name)
 
 
 @pytest.mark.skipif(not ORIGINAL.is_dir(), reason="the original MRCLAM Dataset 6 folder is not on this machine")
@@ -371,3 +463,70 @@ def test_fastslam_beats_dead_reckoning(window):
     assert max(ate) < 0.7 * dr.ate, ate
     assert np.median(ate) < 0.5 * dr.ate, ate
     assert np.median(rmse) < 0.6 * dr.ate, rmse
+
+
+# --------------------------------------------------------------------------- noise calibration and association scoring
+def test_calibrate_noise_recovers_white_noise_of_a_simulated_run():
+    rng = np.random.default_rng(50)
+    landmarks = sl.make_landmark_world(20, extent=20.0, min_separation=2.0, rng=rng)
+    M = np.diag([0.08**2, 0.12**2])
+    Q = np.diag([0.2**2, 0.03**2])
+    run = sl.simulate_landmark_run(landmarks, sl.loop_controls(3000, v=0.8, omega=0.1), 0.1, x0=[0.0, -8.0, 0.0],
+                                   M=M, Q=Q, max_range=8.0, fov=np.pi, rng=rng)
+    cal = sl.calibrate_noise(run, windows=(10, 30))  # long enough runs of blocks for a 7 % standard error
+    assert np.all(np.abs(cal.rho) < 0.1)  # white: consecutive sightings uncorrelated
+    np.testing.assert_allclose(np.sqrt(np.diag(cal.Q)), [0.2, 0.03], rtol=0.12)
+    np.testing.assert_allclose(np.sqrt(np.diag(cal.M)), [0.08, 0.12], rtol=0.15)
+    assert cal.n_outliers == 0 and cal.control_std.shape == (2, 2)
+
+
+def test_sighting_correlation_of_an_ar1_sequence():
+    rng = np.random.default_rng(51)
+    n, rho = 4000, 0.8
+    e = np.empty((n, 2))
+    e[0] = rng.standard_normal(2)
+    for k in range(1, n):
+        e[k] = rho * e[k - 1] + np.sqrt(1 - rho**2) * rng.standard_normal(2)
+    ids = tuple(np.array([0]) for _ in range(n))  # one landmark, one sighting per step
+    np.testing.assert_allclose(sl.sighting_correlation(e, ids), rho, atol=0.03)
+    # sightings further apart than max_gap are not paired: every other step empty, max_gap=1 leaves nothing
+    sparse = tuple(np.array([0]) if k % 2 == 0 else np.array([], dtype=int) for k in range(2 * n))
+    with pytest.raises(ValueError, match="fewer than 3 pairs"):
+        sl.sighting_correlation(e, sparse, max_gap=1)
+
+
+def test_calibrated_noise_of_the_shipped_constants():
+    cal = sl.calibrate_noise(load_mrclam(1))
+    # the loader's constants are robot 1's calibration, rounded
+    np.testing.assert_allclose(np.sqrt(np.diag(cal.M)), np.sqrt(np.diag(MRCLAM_M)), rtol=0.05)
+    np.testing.assert_allclose(np.sqrt(np.diag(cal.Q)), np.sqrt(np.diag(MRCLAM_Q)), rtol=0.08)
+    assert cal.rho[0] > 0.9  # range errors persist over a pass
+
+
+def test_association_errors_counts_against_majority_labels():
+    assoc = (np.array([0, 1]), np.array([0, -1]), np.array([1, 1, 2]))
+    truth = (np.array([5, 6]), np.array([5, 7]), np.array([6, 7, 5]))
+    # slot 0: labels 5, 5 -> 5; slot 1: 6, 6, 7 -> 6 (one wrong); slot 2: 5 -> 5 (a second copy of 5)
+    assert sl.association_errors(assoc, np.arange(3), truth) == (1, 6, 1)
+    with pytest.raises(ValueError, match="one entry per measurement"):
+        sl.association_errors(assoc, np.arange(3), truth[:2])
+
+
+def test_gate_rescues_known_correspondences_on_robot_3():
+    run = load_mrclam(3)
+    gated = sl.run_ekf_slam(run, known=True)  # the run's gate
+    plain = sl.run_ekf_slam(run, known=True, gate=np.inf)
+    assert gated.n_gated == 4 and plain.n_gated == 0
+    ate_g, ate_p = (sl.score_trajectory(r.x, run.x_true).ate for r in (gated, plain))
+    assert ate_g < 0.3 < ate_p
+
+
+def test_gate_rescues_ekf_localization_on_robot_3():
+    run = load_mrclam(3, t_max=300.0)  # its four gross outliers come 255 s in
+    gated = sl.ekf_localization_run(run)  # known correspondences, the run's gate
+    plain = sl.ekf_localization_run(run, gate=np.inf)
+    assert gated.n_gated == 4 and plain.n_gated == 0
+    after = slice(2600, None)  # after the outliers
+    err_g = sl.ate_rmse(gated.mu[after], run.x_true[after])
+    err_p = sl.ate_rmse(plain.mu[after], run.x_true[after])
+    assert err_g < 0.25 and err_p > 2 * err_g

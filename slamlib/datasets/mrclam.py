@@ -11,10 +11,10 @@ tubes carrying barcodes (the landmarks). Each robot logged
 
 ``Barcodes.dat`` maps subject numbers to barcodes (subjects 1-5 are robots,
 6-20 landmarks) and ``Landmark_Groundtruth.dat`` holds the Vicon positions of
-the landmarks. The package ships robots 1 and 2 of the data set, subsetted as
-``slamlib/data/mrclam/ATTRIBUTION.md`` describes; :func:`load_mrclam` also
-reads the full original folder (``data_dir=...``), whose files have the same
-format.
+the landmarks. The package ships all five robots of the data set, subsetted
+as ``slamlib/data/mrclam/ATTRIBUTION.md`` describes (``tools/mrclam_subset.py``
+cuts the subset); :func:`load_mrclam` also reads the full original folder
+(``data_dir=...``), whose files have the same format.
 
 :func:`load_mrclam` turns one robot's log into the same kind of run the
 simulator produces: fixed time steps ``dt``, one averaged control per step,
@@ -32,7 +32,10 @@ controls) and Eq. 6.40 (range-bearing measurements).
 
 from __future__ import annotations
 
+import gzip
+import io
 import numbers
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -42,10 +45,10 @@ from .._checks import as_covariance, as_scalar
 from ..angles import wrap_angle
 from . import data_path
 
-__all__ = ["MRCLAMRun", "load_mrclam", "MRCLAM_ROBOTS", "MRCLAM_DT", "MRCLAM_M", "MRCLAM_Q"]
+__all__ = ["MRCLAMRun", "load_mrclam", "MRCLAM_ROBOTS", "MRCLAM_DT", "MRCLAM_M", "MRCLAM_Q", "MRCLAM_Q_SIGHTING", "MRCLAM_GATE"]
 
-#: Robots whose logs the package ships (the full data set has robots 1-5).
-MRCLAM_ROBOTS = (1, 2)
+#: Robots whose logs the package ships: all five of Dataset 6.
+MRCLAM_ROBOTS = (1, 2, 3, 4, 5)
 #: Subjects 1-5 are robots, 6-20 landmarks (``Barcodes.dat``).
 N_ROBOTS = 5
 FIRST_LANDMARK_SUBJECT = 6
@@ -54,13 +57,30 @@ N_LANDMARKS = 15
 #: Time step (seconds) the book uses on this data set, and for which :data:`MRCLAM_M` is stated.
 MRCLAM_DT = 0.1
 #: Control noise ``M`` of ``[v, omega]`` the book uses at ``dt = MRCLAM_DT``: standard deviations of
-#: 0.05 m/s and 0.15 rad/s per step, the command errors measured against Vicon (robots 1 and 2)
-#: rounded up. :func:`load_mrclam` scales it by ``MRCLAM_DT / dt`` for other steps.
-MRCLAM_M = np.diag([0.05**2, 0.15**2])
-#: Measurement noise ``Q`` of ``[r, phi]`` the book uses: 0.3 m and 0.03 rad (1.7 degrees), near the
-#: 95th percentile of the sighting residuals against Vicon rather than their standard deviation,
-#: because the residuals are heavy-tailed (the real-data chapter explains the choice).
-MRCLAM_Q = np.diag([0.3**2, 0.03**2])
+#: 0.07 m/s and 0.10 rad/s per step, measured on robot 1 (the calibration robot; robots 2-5 are held
+#: out) by :func:`slamlib.scoring.calibrate_noise`: the largest white-noise-equivalent per-step
+#: deviation of the command errors against Vicon over windows of 1 s to 30 s (the errors are partly
+#: correlated, so the value grows with the window). :func:`load_mrclam` scales it by
+#: ``MRCLAM_DT / dt`` for other steps.
+MRCLAM_M = np.diag([0.07**2, 0.10**2])
+#: Measurement noise ``Q`` of ``[r, phi]`` the book uses: 0.6 m and 0.05 rad, measured on robot 1 by
+#: :func:`slamlib.scoring.calibrate_noise`: the RMS sighting residuals against Vicon (0.12 m,
+#: 0.019 rad) inflated by ``sqrt((1 + rho) / (1 - rho))`` for the correlation ``rho`` of consecutive
+#: sightings of the same landmark (0.92 for the range, 0.77 for the bearing): a landmark's range
+#: error persists while the robot keeps seeing it, so repeated sightings carry far less information
+#: than independent ones would.
+MRCLAM_Q = np.diag([0.6**2, 0.05**2])
+#: Spread of a single sighting, ``diag(0.12^2, 0.02^2)``: robot 1's RMS residuals against Vicon without
+#: the inflation of :data:`MRCLAM_Q`. Data association compares one sighting with the map, so its
+#: gates should have the width of one sighting's error (``run_ekf_slam(..., Q_association=...)``).
+MRCLAM_Q_SIGHTING = np.diag([0.12**2, 0.02**2])
+MRCLAM_Q_SIGHTING.setflags(write=False)
+#: Validation gate the filters apply to this data set by default (:attr:`MRCLAMRun.gate`): the
+#: 99.999 % quantile of the chi-square distribution with 2 degrees of freedom, ``-2 ln(1e-5)``
+#: (about 23.0), on the normalised innovation squared of a sighting. A few sightings are grossly
+#: wrong (bearing off by about pi, range off by metres: four in robot 3's log); a tail of 1e-5
+#: rejects them and, with a consistent filter, about one good sighting in 100 000.
+MRCLAM_GATE = float(-2.0 * np.log(1e-5))
 MRCLAM_M.setflags(write=False)
 MRCLAM_Q.setflags(write=False)
 
@@ -113,6 +133,11 @@ class MRCLAMRun:
         ``"robot"`` (sightings of other robots, skipped), ``"unknown"``
         (barcodes of no subject, skipped) and ``"outside"`` (landmark
         sightings outside the time window, skipped).
+    gate : float
+        Validation gate on the normalised innovation squared that the
+        filters apply by default to this real log (``run_ekf_slam``,
+        ``ekf_localization_run`` read it when their ``gate`` is ``None``);
+        :data:`MRCLAM_GATE` unless :func:`load_mrclam` was given another.
     """
 
     landmarks: np.ndarray
@@ -129,6 +154,7 @@ class MRCLAMRun:
     t_start: float
     landmark_std: np.ndarray
     counts: dict = field(default_factory=dict)
+    gate: float = MRCLAM_GATE
 
     @property
     def n_steps(self) -> int:
@@ -141,8 +167,44 @@ class MRCLAMRun:
         return int(sum(len(i) for i in self.ids))
 
 
-def _read_table(directory: Path, name: str, ncols: int) -> np.ndarray:
-    """Numeric rows of a (gzip) text file of the data set; ``#`` starts a comment."""
+def _open_text(path: Path) -> str:
+    """The text of a (gzip) file; a truncated or corrupt archive is a ``ValueError`` naming the file."""
+    try:
+        if path.suffix == ".gz":
+            with gzip.open(path, "rb") as f:
+                raw = f.read()
+        else:
+            raw = path.read_bytes()
+    except (EOFError, zlib.error, gzip.BadGzipFile) as exc:
+        raise ValueError(f"{path}: truncated or corrupt gzip file ({type(exc).__name__}: {exc})") from None
+    try:
+        return raw.decode("ascii")
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path}: not a text file (byte {exc.start} is not ASCII)") from None
+
+
+def _line_numbers(text: str) -> list[int]:
+    """1-based line number of each data row (lines that are neither blank nor only a comment)."""
+    return [k + 1 for k, ln in enumerate(text.splitlines()) if ln.split("#", 1)[0].strip()]
+
+
+def _bad_line(path, text, problem):
+    """``ValueError`` naming the first data line of `text` for which ``problem(fields)`` returns a message."""
+    for k, ln in enumerate(text.splitlines()):
+        fields = ln.split("#", 1)[0].split()
+        if fields:
+            msg = problem(fields)
+            if msg:
+                return ValueError(f"{path}, line {k + 1}: {msg}: {ln.strip()!r}")
+    return None
+
+
+def _read_table(directory: Path, name: str, ncols: int) -> tuple:
+    """Numeric rows of a (gzip) text file of the data set (``#`` starts a comment), and the file's path.
+
+    Every problem is a ``ValueError`` naming the file and, where there is one, the line: a truncated
+    or corrupt archive, a text field, a wrong number of columns, NaN or infinity.
+    """
     path = directory / name
     if not path.exists():
         plain = directory / name.removesuffix(".gz")
@@ -150,24 +212,61 @@ def _read_table(directory: Path, name: str, ncols: int) -> np.ndarray:
             path = plain
         else:
             raise FileNotFoundError(f"MRCLAM file {name} not found in {directory}")
+    text = _open_text(path)
+
+    def fields_problem(fields):
+        if len(fields) != ncols:
+            return f"expected {ncols} columns, got {len(fields)}"
+        for f in fields:
+            try:
+                float(f)
+            except ValueError:
+                return f"field {f!r} is not a number"
+        return None
+
     try:
-        arr = np.loadtxt(path, comments="#", ndmin=2, dtype=np.float64)
+        arr = np.loadtxt(io.StringIO(text), comments="#", ndmin=2, dtype=np.float64)
     except ValueError as exc:
-        raise ValueError(f"{path}: not a numeric table ({exc})") from None
+        raise (_bad_line(path, text, fields_problem) or ValueError(f"{path}: not a numeric table ({exc})")) from None
     if arr.shape[0] == 0:
         raise ValueError(f"{path}: no data rows")
     if arr.shape[1] != ncols:
-        raise ValueError(f"{path}: expected {ncols} columns, got {arr.shape[1]}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{path}: contains NaN or inf")
+        raise _bad_line(path, text, fields_problem) or ValueError(f"{path}: expected {ncols} columns, got {arr.shape[1]}")
+    bad = ~np.all(np.isfinite(arr), axis=1)
+    if np.any(bad):
+        line = _line_numbers(text)[int(np.argmax(bad))]
+        raise ValueError(f"{path}, line {line}: NaN or infinity: {text.splitlines()[line - 1].strip()!r}")
+    return arr, path, text
+
+
+def _check_time_order(arr, path, text):
+    """Times must not decrease (equal times are allowed: a later record overrides)."""
+    back = np.diff(arr[:, 0]) < 0
+    if np.any(back):
+        row = int(np.argmax(back)) + 1
+        line = _line_numbers(text)[row]
+        raise ValueError(f"{path}, line {line}: time runs backwards ({arr[row, 0]!r} after {arr[row - 1, 0]!r})")
     return arr
 
 
-def _sorted_by_time(arr: np.ndarray) -> np.ndarray:
-    """Rows in time order (stable, so equal times keep the file's order)."""
-    if np.all(np.diff(arr[:, 0]) >= 0):
-        return arr
-    return arr[np.argsort(arr[:, 0], kind="stable")]
+def _subject_of_barcode(directory: Path) -> dict:
+    """``{barcode: subject}`` from ``Barcodes.dat``; a duplicate barcode or subject is an error."""
+    arr, path, text = _read_table(directory, "Barcodes.dat.gz", 2)
+    lines = _line_numbers(text)
+    if np.any(arr != np.rint(arr)):
+        row = int(np.argmax(np.any(arr != np.rint(arr), axis=1)))
+        raise ValueError(f"{path}, line {lines[row]}: subject and barcode must be integers")
+    arr = arr.astype(np.int64)
+    first_subject, subject_of = {}, {}
+    for row, (s, b) in enumerate(arr.tolist()):
+        if b in subject_of:
+            raise ValueError(f"{path}, line {lines[row]}: duplicate barcode {b} (subject {s}; line "
+                             f"{lines[first_subject[subject_of[b]]]} gives it to subject {subject_of[b]})")
+        if s in first_subject:
+            raise ValueError(f"{path}, line {lines[row]}: duplicate subject {s} (first on line {lines[first_subject[s]]})")
+        first_subject[s] = row
+        subject_of[b] = s
+    return subject_of
 
 
 def _hold_average(t_rec, values, edges):
@@ -197,15 +296,13 @@ def _interp_poses(t_rec, poses, t):
     return out
 
 
-def load_mrclam(robot=1, *, dt=MRCLAM_DT, t_max=None, M=None, Q=None, data_dir=None):
+def load_mrclam(robot=1, *, dt=MRCLAM_DT, t_max=None, M=None, Q=None, gate=MRCLAM_GATE, data_dir=None):
     """Load one robot of MRCLAM Dataset 6 as a landmark-SLAM run.
 
     Parameters
     ----------
     robot : int
-        Robot number. The package ships robots 1 and 2
-        (:data:`MRCLAM_ROBOTS`); with `data_dir` pointing at the full data
-        set, 1-5.
+        Robot number, 1-5 (the package ships all five, :data:`MRCLAM_ROBOTS`).
     dt : float, keyword-only
         Time step in seconds, in ``[0.005, 1]`` (default :data:`MRCLAM_DT`).
     t_max : float, optional, keyword-only
@@ -218,6 +315,9 @@ def load_mrclam(robot=1, *, dt=MRCLAM_DT, t_max=None, M=None, Q=None, data_dir=N
     Q : ndarray, shape (2, 2), optional, keyword-only
         Measurement noise covariance stored in the run (default
         :data:`MRCLAM_Q`).
+    gate : float, keyword-only
+        Validation gate stored in the run (:attr:`MRCLAMRun.gate`), non-negative;
+        ``numpy.inf`` turns gating off for the filters that read it.
     data_dir : str or Path, optional, keyword-only
         Folder holding ``Barcodes.dat(.gz)``, ``Landmark_Groundtruth.dat(.gz)``
         and ``RobotN_{Odometry,Measurement,Groundtruth}.dat(.gz)``; default:
@@ -236,8 +336,15 @@ def load_mrclam(robot=1, *, dt=MRCLAM_DT, t_max=None, M=None, Q=None, data_dir=N
     Raises
     ------
     ValueError
-        For a robot number outside 1-5 (or not shipped), a non-positive or
-        too large `dt`, a `t_max` shorter than one step, or malformed files.
+        For a robot number outside 1-5, a non-positive or too large `dt`, a
+        `t_max` shorter than one step, or a bad file. A bad file is never
+        repaired silently: the message names the file and, where there is
+        one, the line, for a truncated or corrupt gzip archive, a text field
+        or a wrong number of columns, NaN or infinity, times that run
+        backwards (equal times are allowed), a non-positive range or a
+        non-integer barcode in a sighting, and a barcode or subject listed
+        twice in ``Barcodes.dat`` (which would silently move sightings to
+        another landmark).
     FileNotFoundError
         If a file of the data set is missing.
 
@@ -263,9 +370,6 @@ def load_mrclam(robot=1, *, dt=MRCLAM_DT, t_max=None, M=None, Q=None, data_dir=N
     if not 1 <= robot <= N_ROBOTS:
         raise ValueError(f"robot must be in 1..{N_ROBOTS}, got {robot}")
     if data_dir is None:
-        if robot not in MRCLAM_ROBOTS:
-            raise ValueError(f"robot must be one of the shipped robots {MRCLAM_ROBOTS}, got {robot} "
-                             "(pass data_dir=... to read the full data set)")
         directory = data_path("mrclam")
     else:
         directory = Path(data_dir)
@@ -281,23 +385,32 @@ def load_mrclam(robot=1, *, dt=MRCLAM_DT, t_max=None, M=None, Q=None, data_dir=N
     # white control errors: the variance of a step's average falls like 1 / dt
     M = MRCLAM_M * (MRCLAM_DT / dt) if M is None else as_covariance(M, "M", 2)
     Q = np.array(MRCLAM_Q) if Q is None else as_covariance(Q, "Q", 2)
+    gate = as_scalar(gate, "gate", nonnegative=True, finite=False)
 
     # --- subjects and landmarks
-    barcodes = _read_table(directory, "Barcodes.dat.gz", 2).astype(np.int64)
-    subject_of = {int(b): int(s) for s, b in barcodes}
-    lm = _read_table(directory, "Landmark_Groundtruth.dat.gz", 5)
+    subject_of = _subject_of_barcode(directory)
+    lm, lm_path, _ = _read_table(directory, "Landmark_Groundtruth.dat.gz", 5)
     subjects = lm[:, 0].astype(np.int64)
     expected = np.arange(FIRST_LANDMARK_SUBJECT, FIRST_LANDMARK_SUBJECT + N_LANDMARKS)
     if not np.array_equal(np.sort(subjects), expected):
-        raise ValueError(f"Landmark_Groundtruth: expected subjects {expected[0]}..{expected[-1]}, got {subjects}")
+        raise ValueError(f"{lm_path}: expected subjects {expected[0]}..{expected[-1]} once each, got {subjects}")
+    if np.any(lm[:, 3:5] < 0):
+        raise ValueError(f"{lm_path}: negative standard deviation")
     order = np.argsort(subjects)
     landmarks = lm[order, 1:3].copy()
     landmark_std = lm[order, 3:5].copy()
 
-    # --- the robot's logs
-    odo = _sorted_by_time(_read_table(directory, f"Robot{robot}_Odometry.dat.gz", 3))
-    gt = _sorted_by_time(_read_table(directory, f"Robot{robot}_Groundtruth.dat.gz", 4))
-    meas = _sorted_by_time(_read_table(directory, f"Robot{robot}_Measurement.dat.gz", 4))
+    # --- the robot's logs, each in time order
+    odo = _check_time_order(*_read_table(directory, f"Robot{robot}_Odometry.dat.gz", 3))
+    gt = _check_time_order(*_read_table(directory, f"Robot{robot}_Groundtruth.dat.gz", 4))
+    meas, meas_path, meas_text = _read_table(directory, f"Robot{robot}_Measurement.dat.gz", 4)
+    _check_time_order(meas, meas_path, meas_text)
+    bad = (meas[:, 2] <= 0) | (meas[:, 1] != np.rint(meas[:, 1]))
+    if np.any(bad):
+        row = int(np.argmax(bad))
+        line = _line_numbers(meas_text)[row]
+        what = "non-positive range" if meas[row, 2] <= 0 else "barcode is not an integer"
+        raise ValueError(f"{meas_path}, line {line}: {what}: {meas_text.splitlines()[line - 1].strip()!r}")
 
     t_start = max(odo[0, 0], gt[0, 0])
     t_end = min(odo[-1, 0], gt[-1, 0])
@@ -321,8 +434,6 @@ def load_mrclam(robot=1, *, dt=MRCLAM_DT, t_max=None, M=None, Q=None, data_dir=N
     rel = (meas[:, 0] - t_start) / dt
     inside = (meas[:, 0] >= t_start) & (rel < T + 0.5)
     keep = is_landmark & inside
-    if np.any(meas[keep, 2] <= 0):
-        raise ValueError(f"Robot{robot}_Measurement: non-positive range")
     step = np.clip(np.rint(rel[keep]).astype(np.int64) - 1, 0, T - 1)
     zk = np.column_stack([meas[keep, 2], wrap_angle(meas[keep, 3])])
     idk = subj[keep] - FIRST_LANDMARK_SUBJECT
@@ -339,4 +450,4 @@ def load_mrclam(robot=1, *, dt=MRCLAM_DT, t_max=None, M=None, Q=None, data_dir=N
         arr.setflags(write=False)
     return MRCLAMRun(landmarks=landmarks, dt=dt, x0=x_true[0].copy(), x_true=x_true, u=u, z=z, ids=ids,
                      M=M, Q=Q, t=t, robot=robot, t_start=float(t_start), landmark_std=landmark_std,
-                     counts=counts)
+                     counts=counts, gate=gate)

@@ -1,5 +1,6 @@
 """Plots of real-data runs: sightings over the ground truth, estimated paths and
-maps over the Vicon ground truth, errors over time, and residual histograms.
+maps over the Vicon ground truth, errors over time, residual histograms, and
+NEES over time with its chi-square band.
 
 matplotlib is imported inside the functions only. Functions drawing on one axes
 take an optional ``ax`` and return it; :func:`plot_residual_histograms` draws two
@@ -13,7 +14,8 @@ import numpy as np
 from .._checks import as_array, as_covariance
 from ._core import TRUTH_COLOR, _axes
 
-__all__ = ["plot_sightings", "plot_real_trajectories", "plot_error_over_time", "plot_residual_histograms"]
+__all__ = ["plot_sightings", "plot_real_trajectories", "plot_error_over_time", "plot_residual_histograms",
+           "plot_nees_runs"]
 
 _LANDMARK = "C3"
 #: Colours reserved for methods that appear in several figures of a chapter.
@@ -295,4 +297,75 @@ def plot_residual_histograms(residuals, *, Q=None, axes=None, bins=60):
         ax.set_xlabel(unit)
         ax.legend(fontsize=7, loc="upper left")
     axes[0].set_ylabel("sightings")
+    return axes
+
+
+def plot_nees_runs(t, nees, *, dof=3, p=0.95, window=None, axes=None, title=None):
+    """NEES over time of several runs, one panel each, with the chi-square band of a consistent filter.
+
+    Parameters
+    ----------
+    t : ndarray, shape (T,) or dict of str to ndarray, shape (T_k,)
+        Times (seconds), shared or per run.
+    nees : dict of str to ndarray, shape (T,) or dict of str to dict of str to ndarray
+        ``{run: nees}``, or ``{run: {label: nees}}`` to compare settings on
+        the same run (e.g. before and after a recalibration).
+    dof : int, keyword-only
+        Dimension of the state whose NEES is drawn (3 for a pose).
+    p : float, keyword-only
+        Probability inside the band: ``[chi2.ppf((1-p)/2, dof), chi2.ppf((1+p)/2, dof)]``
+        (:func:`slamlib.nees_band` with one run).
+    window : int, optional, keyword-only
+        Also draw the moving average over this many steps.
+    axes : sequence of matplotlib.axes.Axes, optional, keyword-only
+        One axes per run; a new figure (runs stacked) if omitted.
+    title : str, optional, keyword-only
+        Figure title.
+
+    Returns
+    -------
+    list of matplotlib.axes.Axes
+
+    References
+    ----------
+    Bar-Shalom, Li & Kirubarajan (2001), Sec. 5.4.2 (NEES and its chi-square
+    acceptance region).
+    """
+    import matplotlib.pyplot as plt
+
+    from ..metrics import nees_band
+
+    if not isinstance(nees, dict) or not nees:
+        raise TypeError("nees must be a non-empty dict mapping a run name to NEES values (or to a dict of them)")
+    runs = {str(k): (v if isinstance(v, dict) else {"": v}) for k, v in nees.items()}
+    lo, hi = nees_band(dof, 1, p)
+    if axes is None:
+        fig, axes = plt.subplots(len(runs), 1, figsize=(7.5, 1.5 + 1.3 * len(runs)), sharex=True,
+                                 layout="constrained", squeeze=False)
+        axes = list(axes[:, 0])
+        if title:
+            fig.suptitle(title)
+    elif len(axes) != len(runs):
+        raise ValueError(f"axes must hold one axes per run ({len(runs)}), got {len(axes)}")
+    for k, (ax, (name, series)) in enumerate(zip(axes, runs.items())):
+        tk = as_array(t[name] if isinstance(t, dict) else t, "t", (None,))
+        ax.axhspan(lo, hi, color="0.85", zorder=0, label=f"{p:.0%} band of $\\chi^2_{dof}$" if k == 0 else None)
+        ax.axhline(dof, color="0.4", lw=0.8, ls="--")
+        for i, (label, v) in enumerate(series.items()):
+            v = as_array(v, f"nees[{name!r}]", (tk.shape[0],))
+            c = _CYCLE[i % len(_CYCLE)]
+            ax.plot(tk, v, color=c, lw=0.6, alpha=0.35 if window else 1.0)
+            if window:
+                avg = np.convolve(v, np.ones(window) / window, mode="same")
+                ax.plot(tk, avg, color=c, lw=1.2, label=(label or None) if k == 0 else None)
+            elif k == 0 and label:
+                ax.lines[-1].set_label(label)
+            ax.text(1.01, 0.85 - 0.2 * i, f"{label + ': ' if label else ''}mean {v.mean():.1f}", color=c,
+                    transform=ax.transAxes, fontsize=8, va="top")
+        ax.set_yscale("log")
+        ax.set_ylim(0.05, None)
+        ax.set_ylabel(name, fontsize=9)
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc="upper left", fontsize=7, ncol=3)
+    axes[-1].set_xlabel("time [s]")
     return axes
