@@ -622,6 +622,26 @@ def _ackermann(x, u, dt, a, b, H, L):
     return x_next, G, V
 
 
+def _ackermann1(x, u, dt, a, b, H, L):
+    """One pose with Python floats: the scalar path of :func:`_ackermann` (same equations, tested against it)."""
+    th, ve, al = float(x[2]), float(u[0]), float(u[1])
+    ta = math.tan(al)
+    sec2 = 1.0 + ta * ta
+    k = 1.0 / (1.0 - ta * H / L)
+    vc = ve * k  # v_c = v_e / (1 - tan(alpha) H / L)
+    w = vc * ta / L  # omega = v_c tan(alpha) / L
+    c, s = math.cos(th), math.sin(th)
+    ps, pc = a * s + b * c, a * c - b * s
+    x_next = np.array([x[0] + dt * (vc * c - w * ps), x[1] + dt * (vc * s + w * pc), _wrap1(th + dt * w)])
+    G = np.array([[1.0, 0.0, dt * (-vc * s - w * pc)], [0.0, 1.0, dt * (vc * c - w * ps)], [0.0, 0.0, 1.0]])
+    dv0, dv1 = k, ve * k * k * (H / L) * sec2  # d v_c / d [v_e, alpha]
+    dw0, dw1 = k * ta / L, (dv1 * ta + vc * sec2) / L  # d omega / d [v_e, alpha]
+    V = np.array([[dt * (dv0 * c - dw0 * ps), dt * (dv1 * c - dw1 * ps)],
+                  [dt * (dv0 * s + dw0 * pc), dt * (dv1 * s + dw1 * pc)],
+                  [dt * dw0, dt * dw1]])
+    return x_next, G, V
+
+
 def ackermann_motion(x, u, dt, *, a, b, H, L):
     """Noise-free motion of a car-like vehicle (Ackermann steering) with a laser offset, and its Jacobians.
 
@@ -708,6 +728,8 @@ class AckermannModel:
         self.L = as_scalar(L, "L", positive=True)
 
     def __call__(self, x, u, dt):
+        if np.ndim(x) == 1 and np.ndim(u) == 1:
+            return _ackermann1(x, u, dt, self.a, self.b, self.H, self.L)
         return _ackermann(x, u, dt, self.a, self.b, self.H, self.L)
 
     def __repr__(self):
