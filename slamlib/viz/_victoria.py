@@ -106,6 +106,8 @@ def plot_step_time(table, *, ax=None, title=None):
     ax.loglog(N, table[:, 2], "s--", color="0.4", label="bare numpy: rank-2 updates")
     ref = table[-1, 2] * (N / N[-1]) ** 2
     ax.loglog(N, ref, ":", color="0.6", label=r"$\propto N^2$")
+    ax.set_xticks(N, [str(int(n)) for n in N])
+    ax.minorticks_off()
     ax.set_xlabel("landmarks N")
     ax.set_ylabel("ms per step")
     ax.legend(fontsize=8)
