@@ -4,7 +4,7 @@ Run ``python benchmarks/victoria_park.py`` (a few minutes on 2 cores; the
 targets are EKF SLAM <= 30 s and FastSLAM 2.0 with 100 particles <= 60 s for
 the whole 1549 s run). Options: ``--t-max S`` for a shorter window,
 ``--seeds K`` FastSLAM seeds (default 3), ``--particles M`` (default 100),
-``--skip-fastslam1``, ``--out FILE`` to write the cached results chapter 12
+``--skip-fastslam1`` (also ``--skip-fastslam``, ``--skip-ekf``, ``--skip-jcbb``), ``--out FILE`` to write the cached results chapter 12
 reads (default ``chapters/data/victoria_park_full.npz``; ``--out ''``
 writes nothing).
 
@@ -111,6 +111,7 @@ def main(argv=None):
     ap.add_argument("--skip-fastslam1", action="store_true")
     ap.add_argument("--skip-fastslam", action="store_true")
     ap.add_argument("--skip-jcbb", action="store_true")
+    ap.add_argument("--skip-ekf", action="store_true")
     ap.add_argument("--out", default=str(DEFAULT_OUT))
     args = ap.parse_args(argv)
 
@@ -125,6 +126,8 @@ def main(argv=None):
     out["dr_xy"], out["dr_ate"] = aligned, ate
 
     rows = [("nn", {})] + ([] if args.skip_jcbb else [("jcbb", {"association": "jcbb"})])
+    if args.skip_ekf:
+        rows = []
     for name, extra in rows:
         t0, c0 = time.perf_counter(), time.process_time()
         res = sl.run_ekf_slam(run, motion=run.motion, **EKF_OPTIONS, **extra)
