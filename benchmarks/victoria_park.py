@@ -112,6 +112,7 @@ def main(argv=None):
     ap.add_argument("--skip-fastslam", action="store_true")
     ap.add_argument("--skip-jcbb", action="store_true")
     ap.add_argument("--skip-ekf", action="store_true")
+    ap.add_argument("--versions", default="1,2", help="FastSLAM versions to run, e.g. '2'")
     ap.add_argument("--out", default=str(DEFAULT_OUT))
     args = ap.parse_args(argv)
 
@@ -150,7 +151,8 @@ def main(argv=None):
                       f"ratio {ms / floor:5.1f}x")
             out["step_table"] = np.array(table)
 
-    versions = [] if args.skip_fastslam else ([2] if args.skip_fastslam1 else [1, 2])
+    versions = [int(v) for v in args.versions.split(",") if v.strip()]
+    versions = [] if args.skip_fastslam else ([v for v in versions if v != 1] if args.skip_fastslam1 else versions)
     for version in versions:
         ates, walls, lms = [], [], []
         for seed in range(args.seeds):
