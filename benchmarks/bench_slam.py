@@ -25,7 +25,10 @@ jointly), over the next 3000 steps (all steps, and only those with two or more
 sightings, where the joint test runs); the target is JCBB <= 3x NN.
 
 If ``benchmarks/bench_fastslam.py`` defines ``fastslam_figures()``, its lines
-are printed at the end under "FastSLAM".
+are printed at the end under "FastSLAM"; then the Victoria Park case of
+``benchmarks/victoria_park.py`` (EKF SLAM on the first 300 s of the real log,
+the time of one scan's step against the number of landmarks, and the
+bare-numpy floor at the same size).
 
 Timings are medians over repeats (``time.perf_counter``). The fast filter
 applies its pending rank-2 corrections to the dense covariance every 32
@@ -258,6 +261,23 @@ def main():
         print("FastSLAM")
         for line in lines:
             print(line)
+    lines = victoria_lines()
+    if lines is not None:
+        print()
+        print("Victoria Park (real log, the map grows to hundreds of landmarks)")
+        for line in lines:
+            print(line)
+
+
+def victoria_lines():
+    """Lines of ``benchmarks/victoria_park.py``'s ``victoria_figures()``, if that script is there."""
+    path = HERE / "victoria_park.py"
+    if not path.is_file():
+        return None
+    spec = importlib.util.spec_from_file_location("victoria_park", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return [str(line) for line in mod.victoria_figures()] if hasattr(mod, "victoria_figures") else None
 
 
 if __name__ == "__main__":

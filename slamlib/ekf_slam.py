@@ -779,6 +779,9 @@ class EKFSLAM:
     full-covariance update.
     """
 
+    #: Motion model ``motion(x, u, dt) -> (x_next, G, V)``; None is the velocity model (exact arc).
+    _motion = None
+
     def __init__(self, x0, Sigma0=None, *, capacity=16, prior_var=DEFAULT_PRIOR_VAR):
         x0 = as_array(x0, "x0", (3,))
         x0[2] = wrap_angle(x0[2])
@@ -931,7 +934,10 @@ class EKFSLAM:
 
     def _predict(self, u, dt, M):
         n, k, S = self._n, self._k, self._S
-        x_next, G, V = _arc1(self._mu[:3], u, dt)
+        if self._motion is None:
+            x_next, G, V = _arc1(self._mu[:3], u, dt)
+        else:  # a pluggable motion model, e.g. slamlib.AckermannModel: (x_next, G, V) of the pose
+            x_next, G, V = self._motion(self._mu[:3], u, dt)
         self._mu[:3] = x_next  # mu_bar = mu + F_x^T g(u, mu)  (Table 10.1 line 3)
         R = V @ M @ V.T  # R = V M V^T  (Table 7.2 line 5)
         Sxx = G @ S[:3, :3] @ G.T + R  # robot block of G Sigma G^T + F_x^T R F_x  (Table 10.1 line 5)
@@ -1330,7 +1336,7 @@ class EKFSLAMResult(NamedTuple):
 
 def run_ekf_slam(run, *, known=True, fast=True, alpha=DEFAULT_ALPHA, confirm=1, window=10, M=None, Q=None,
                  Sigma0=None, prior_var=DEFAULT_PRIOR_VAR, capacity=16, snapshots=(), association="nn", gate=None,
-                 Q_association=None, jcbb_alpha=None):
+                 Q_association=None, jcbb_alpha=None, motion=None):
     """Run EKF SLAM over a simulated landmark run.
 
     Parameters
@@ -1363,6 +1369,11 @@ def run_ekf_slam(run, *, known=True, fast=True, alpha=DEFAULT_ALPHA, confirm=1, 
         Initial landmark capacity of the fast filter.
     snapshots : iterable of int, keyword-only
         Steps ``t`` in ``[0, T]`` at which to keep a copy of the full state.
+    motion : callable, optional, keyword-only
+        Motion model ``motion(x, u, dt) -> (x_next, G, V)`` (shapes ``(3,)``,
+        ``(3, 3)``, ``(3, 2)``), e.g. :class:`slamlib.AckermannModel` for a
+        car; default: the velocity model of Table 5.3 (``u = [v, omega]``).
+        Needs ``fast=True``.
     association : {"nn", "jcbb"}, keyword-only
         Unknown correspondences only: ``"nn"`` is Algorithm 2, each
         measurement on its own against the current belief (nearest
@@ -1445,6 +1456,8 @@ def run_ekf_slam(run, *, known=True, fast=True, alpha=DEFAULT_ALPHA, confirm=1, 
     prior_var = as_scalar(prior_var, "prior_var", positive=True)
     capacity = as_index(capacity, "capacity", lower=1)
     keep = {as_index(t, "snapshots", T + 1) for t in snapshots}
+    if motion is not None and (not callable(motion) or not fast):
+        raise ValueError("motion must be a callable motion(x, u, dt) -> (x_next, G, V), with fast=True")
     if association not in ("nn", "jcbb"):
         raise ValueError(f"association must be 'nn' or 'jcbb', got {association!r}")
     gate = _check_gate(getattr(run, "gate", None) if gate is None else gate)
@@ -1458,6 +1471,7 @@ def run_ekf_slam(run, *, known=True, fast=True, alpha=DEFAULT_ALPHA, confirm=1, 
 
     if fast:
         filt = EKFSLAM(x0, Sigma0, capacity=capacity, prior_var=prior_var)
+        filt._motion = motion
         predict, update, add, associate, jcbb = filt._predict, filt._update, filt._add_landmark, filt._associate, filt._jcbb
     else:
         filt = _PlainEKFSLAM(x0, Sigma0, prior_var)

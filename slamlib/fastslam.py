@@ -529,9 +529,11 @@ def fastslam_predict(state, u, dt, *, rng, M=None, alpha=None):
     return state._replace(poses=poses)
 
 
-def _sample_arc(poses, u, dt, L, rng):
+def _sample_arc(poses, u, dt, L, rng, motion=None):
     # u^[k] = u + N(0, M); x_t^[k] = arc(x_{t-1}^[k], u^[k])  (Table 13.1 line 4)
     u_k = u + rng.standard_normal((poses.shape[0], 2)) @ L.T
+    if motion is not None:  # a pluggable motion model (e.g. slamlib.AckermannModel)
+        return motion(poses, u_k, dt)[0]
     return velocity_motion(poses, u_k, dt)[0]
 
 
@@ -950,15 +952,17 @@ def _posterior_log_factor(P, b):
     return 0.5 * (b[0] * b[0] * c00 + 2.0 * b[0] * b[1] * c01 + b[1] * b[1] * c11) - 0.5 * np.log(det)
 
 
-def _motion_terms(x_prev, u, dt, L):
+def _motion_terms(x_prev, u, dt, L, motion=None):
     """``x_hat = g(x_{t-1}, u_t)`` and ``B = V L`` (Table 13.3; ``V = dg/du``)."""
-    x_hat, _, V = _arc(x_prev, u, dt)
+    x_hat, _, V = _arc(x_prev, u, dt) if motion is None else motion(x_prev, u, dt)
     B = np.einsum("...ij,jk->...ik", V, L)
     return x_hat, B
 
 
-def _move(x_prev, u, dt, L, eta):
-    """The sampled pose: the exact arc of the control ``u + L eta``."""
+def _move(x_prev, u, dt, L, eta, motion=None):
+    """The sampled pose: the exact arc (or `motion`) of the control ``u + L eta``."""
+    if motion is not None:
+        return motion(x_prev, u + eta @ L.T, dt)[0]
     return _arc_pose(x_prev, u + eta @ L.T, dt)
 
 
@@ -1139,15 +1143,15 @@ def fastslam2_update_known(state, u, dt, z, ids, Q, *, M, rng, gate=None, return
     return (new, outliers) if return_outliers else new
 
 
-def _update2_known_core(state, u, dt, L, z, ids, Q, rng, gate=None, copy=True):
+def _update2_known_core(state, u, dt, L, z, ids, Q, rng, gate=None, copy=True, motion=None):
     """FastSLAM 2.0 step with known correspondences; returns the state and the outlier mask ``(M, K)``."""
     n = state.n_particles
     x_prev = state.poses
     outliers = np.zeros((n, ids.size), dtype=bool)
-    x_hat, B = _motion_terms(x_prev, u, dt, L)
+    x_hat, B = _motion_terms(x_prev, u, dt, L, motion)
     if ids.size == 0:
         eta = _sample_eta((np.ones(n), np.zeros(n), np.ones(n)), (np.zeros(n), np.zeros(n)), rng, n)
-        return state._replace(poses=_move(x_prev, u, dt, L, eta)), outliers
+        return state._replace(poses=_move(x_prev, u, dt, L, eta, motion)), outliers
     if copy:
         mu, Sigma = state.mu.copy(), state.Sigma.copy()
         seen, counts = state.seen.copy(), state.counts.copy()
@@ -1183,7 +1187,7 @@ def _update2_known_core(state, u, dt, L, z, ids, Q, rng, gate=None, copy=True):
     bs = (np.where(use, b[0], 0.0).sum(axis=1), np.where(use, b[1], 0.0).sum(axis=1))
     # w = N(r; 0, G M G^T + Q_stack), the marginal likelihood given x_{t-1}  (Table 13.3)
     log_w = log_w + np.where(use, log_n, 0.0).sum(axis=1) + _posterior_log_factor(P, bs)
-    x = _move(x_prev, u, dt, L, _sample_eta(P, bs, rng, n))  # x_t ~ N(mu_x, Sigma_x)
+    x = _move(x_prev, u, dt, L, _sample_eta(P, bs, rng, n), motion)  # x_t ~ N(mu_x, Sigma_x)
     xs = x[:, None, :]
     # landmark EKF at the sampled pose
     mu_u, Sigma_u, _, _ = _update_core(xs, mu_j, Sigma_j, zk, Q)
@@ -1261,13 +1265,13 @@ def fastslam2_update_unknown(state, u, dt, z, Q, *, M, rng, p0=None, max_range=N
     return _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rng)
 
 
-def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rng, copy=True):
+def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rng, copy=True, motion=None):
     """FastSLAM 2.0 step with unknown correspondences; ``copy=False`` may write into `state`'s arrays."""
     z = z[z[:, 0] > 0]
     n = state.n_particles
     K = z.shape[0]
     x_prev = state.poses
-    x_hat, B = _motion_terms(x_prev, u, dt, L)
+    x_hat, B = _motion_terms(x_prev, u, dt, L, motion)
     need = int(state.seen.sum(axis=1).max(initial=0)) + K
     grown = _grow(state, need, "the landmarks of a particle")
     if copy and grown is state:
@@ -1329,7 +1333,7 @@ def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rn
             b[1][k] += b_[1]
             avail[k, jk] = False
             match[k, i] = cols[jk]
-    x = _move(x_prev, u, dt, L, _sample_eta(tuple(P), tuple(b), rng, n))  # x_t ~ proposal
+    x = _move(x_prev, u, dt, L, _sample_eta(tuple(P), tuple(b), rng, n), motion)  # x_t ~ proposal
     matched = np.zeros_like(seen)
     kk, ii = np.nonzero(match >= 0)
     if kk.size:
@@ -1541,7 +1545,8 @@ def _run_attr(run, name):
 
 
 def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=None, p0=None, weight_cov="S",
-                 resample_threshold=0.5, capacity=None, max_range=None, fov=None, version=1, gate=None):
+                 resample_threshold=0.5, capacity=None, max_range=None, fov=None, version=1, gate=None,
+                 motion=None):
     """Run FastSLAM 1.0 or 2.0 over a landmark run (simulated or a real log).
 
     Parameters
@@ -1604,6 +1609,12 @@ def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=Non
         gate caps such a measurement's influence at that of an innovation on
         the gate. Not used with unknown correspondences (there ``p0`` plays
         that role).
+    motion : callable, optional, keyword-only
+        Motion model ``motion(x, u, dt) -> (x_next, G, V)`` vectorised over
+        poses ``(M, 3)`` and controls ``(M, 2)``, e.g.
+        :class:`slamlib.AckermannModel` for a car; each particle moves with its
+        own noisy control ``u + N(0, M)``. Default: the velocity model (exact
+        arc). Not with `alpha`.
 
     Returns
     -------
@@ -1641,6 +1652,8 @@ def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=Non
         L = None
     else:
         L = _control_sqrt(as_covariance(_run_attr(run, "M") if M is None else M, "M", 2))
+    if motion is not None and (not callable(motion) or alpha is not None):
+        raise ValueError("motion must be a callable motion(x, u, dt) -> (x_next, G, V), used with M (not alpha)")
     if version == 2 and weight_cov != "S":
         raise ValueError("weight_cov='text' is FastSLAM 1.0's erratum; version=2 has its own weight")
     Q = _check_Q(_run_attr(run, "Q") if Q is None else Q)
@@ -1687,15 +1700,16 @@ def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=Non
         prior_w = np.exp(state.log_weights)
         if version == 2:
             if known:
-                state, out = _update2_known_core(state, u[t], dt, L, zt, idt, Q, rng, gate=gate, copy=False)
+                state, out = _update2_known_core(state, u[t], dt, L, zt, idt, Q, rng, gate=gate, copy=False,
+                                                 motion=motion)
             else:
                 state = _update2_unknown_core(state, u[t], dt, L, zt, Q, log_p0, max_range, half_fov, rng,
-                                              copy=False)
+                                              copy=False, motion=motion)
         else:
             if L is None:
                 poses = sample_motion_model_velocity(state.poses, u[t], dt, alpha, rng=rng)
             else:
-                poses = _sample_arc(state.poses, u[t], dt, L, rng)
+                poses = _sample_arc(state.poses, u[t], dt, L, rng, motion)
             state = state._replace(poses=poses)
             if known:
                 if zt.shape[0]:

@@ -592,3 +592,153 @@ def dead_reckoning(x0, u, dt):
     out[1:, :2] = x0[:2] + np.cumsum(step[:, :2], axis=0)
     out[:, 2] = wrap_angle(theta)
     return out
+
+
+# --------------------------------------------------------------------------- Ackermann (car) model
+__all__ += ["AckermannModel", "ackermann_motion"]
+
+
+def _ackermann(x, u, dt, a, b, H, L):
+    """Ackermann motion of the laser pose with its Jacobians (unchecked, broadcasts over leading axes)."""
+    x = np.asarray(x, dtype=np.float64)
+    u = np.asarray(u, dtype=np.float64)
+    th, ve, al = x[..., 2], u[..., 0], u[..., 1]
+    ta = np.tan(al)
+    sec2 = 1.0 + ta * ta
+    k = 1.0 / (1.0 - ta * H / L)
+    vc = ve * k  # v_c = v_e / (1 - tan(alpha) H / L): rear-left encoder speed moved to the axle centre
+    w = vc * ta / L  # heading rate of the bicycle model, v_c tan(alpha) / L
+    c, s = np.cos(th), np.sin(th)
+    ps = a * s + b * c  # lever arm of the laser, rotated: a sin + b cos
+    pc = a * c - b * s  # a cos - b sin
+    shape = np.broadcast_shapes(th.shape, ve.shape)
+    x_next = np.empty(shape + (3,))
+    # laser velocity = axle-centre velocity + omega x (laser offset), Euler over dt
+    x_next[..., 0] = x[..., 0] + dt * (vc * c - w * ps)
+    x_next[..., 1] = x[..., 1] + dt * (vc * s + w * pc)
+    x_next[..., 2] = wrap_angle(th + dt * w)
+    G = np.zeros(shape + (3, 3))
+    G[..., 0, 0] = G[..., 1, 1] = G[..., 2, 2] = 1.0
+    G[..., 0, 2] = dt * (-vc * s - w * pc)  # d x' / d theta
+    G[..., 1, 2] = dt * (vc * c - w * ps)  # d y' / d theta
+    dvc = np.stack(np.broadcast_arrays(k, ve * k * k * (H / L) * sec2), axis=-1)  # d v_c / d [v_e, alpha]
+    dw = np.stack(np.broadcast_arrays(k * ta / L, (dvc[..., 1] * ta + vc * sec2) / L), axis=-1)  # d omega / d u
+    V = np.empty(shape + (3, 2))
+    V[..., 0, :] = dt * (dvc * c[..., None] - dw * ps[..., None])
+    V[..., 1, :] = dt * (dvc * s[..., None] + dw * pc[..., None])
+    V[..., 2, :] = dt * dw
+    return x_next, G, V
+
+
+def _ackermann1(x, u, dt, a, b, H, L):
+    """One pose with Python floats: the scalar path of :func:`_ackermann` (same equations, tested against it)."""
+    th, ve, al = float(x[2]), float(u[0]), float(u[1])
+    ta = math.tan(al)
+    sec2 = 1.0 + ta * ta
+    k = 1.0 / (1.0 - ta * H / L)
+    vc = ve * k  # v_c = v_e / (1 - tan(alpha) H / L)
+    w = vc * ta / L  # omega = v_c tan(alpha) / L
+    c, s = math.cos(th), math.sin(th)
+    ps, pc = a * s + b * c, a * c - b * s
+    x_next = np.array([x[0] + dt * (vc * c - w * ps), x[1] + dt * (vc * s + w * pc), _wrap1(th + dt * w)])
+    G = np.array([[1.0, 0.0, dt * (-vc * s - w * pc)], [0.0, 1.0, dt * (vc * c - w * ps)], [0.0, 0.0, 1.0]])
+    dv0, dv1 = k, ve * k * k * (H / L) * sec2  # d v_c / d [v_e, alpha]
+    dw0, dw1 = k * ta / L, (dv1 * ta + vc * sec2) / L  # d omega / d [v_e, alpha]
+    V = np.array([[dt * (dv0 * c - dw0 * ps), dt * (dv1 * c - dw1 * ps)],
+                  [dt * (dv0 * s + dw0 * pc), dt * (dv1 * s + dw1 * pc)],
+                  [dt * dw0, dt * dw1]])
+    return x_next, G, V
+
+
+def ackermann_motion(x, u, dt, *, a, b, H, L):
+    """Noise-free motion of a car-like vehicle (Ackermann steering) with a laser offset, and its Jacobians.
+
+    The pose ``[x, y, theta]`` is that of the **laser** (the sensor the
+    landmarks are measured from), not of the rear axle, so the range-bearing
+    measurement model stays the usual one. The control ``u = [v_e, alpha]``
+    is the speed measured by an encoder on the rear left wheel and the
+    steering angle.
+
+    Parameters
+    ----------
+    x : ndarray, shape (3,) or (..., 3)
+        Laser pose(s) ``[x, y, theta]``.
+    u : ndarray, shape (2,) or (..., 2)
+        Control(s) ``[v_e, alpha]`` (m/s, rad); broadcasts against `x`.
+    dt : float
+        Duration of the control, non-negative seconds.
+    a, b : float, keyword-only
+        Laser position in the car frame, metres: `a` ahead of the rear axle,
+        `b` to the left of the car's centre line.
+    H : float, keyword-only
+        Lateral distance from the encoder wheel to the centre line, metres.
+    L : float, keyword-only
+        Wheel base (rear to front axle), metres.
+
+    Returns
+    -------
+    x_next : ndarray, shape (..., 3)
+        Laser pose after ``dt``; heading wrapped to ``[-pi, pi)``.
+    G : ndarray, shape (..., 3, 3)
+        Jacobian ``d x_next / d x``.
+    V : ndarray, shape (..., 3, 2)
+        Jacobian ``d x_next / d u``.
+
+    Notes
+    -----
+    With ``v_c = v_e / (1 - tan(alpha) H / L)`` the speed of the rear-axle
+    centre and ``omega = v_c tan(alpha) / L`` the turn rate of the bicycle
+    model, the laser at ``(a, b)`` in the car frame moves with
+    ``v_c [cos, sin] + omega [-(a sin + b cos), a cos - b sin]``; one Euler
+    step of length ``dt`` gives
+
+    ``x' = x + dt (v_c cos(theta) - omega (a sin(theta) + b cos(theta)))``,
+    ``y' = y + dt (v_c sin(theta) + omega (a cos(theta) - b sin(theta)))``,
+    ``theta' = theta + dt omega``.
+
+    References
+    ----------
+    J. Guivant, E. Nebot, "Optimization of the simultaneous localization and
+    map-building algorithm for real-time implementation", IEEE T-RA 17(3),
+    2001 (the vehicle model); Thrun, Burgard & Fox (2005), Table 7.2 (the
+    Jacobians ``G``, ``V`` an EKF needs).
+    """
+    x = as_poses(x, "x", batched=True)
+    u = as_vector(u, "u", 2)
+    dt = as_scalar(dt, "dt", nonnegative=True)
+    check_batch((x, 1, "x"), (u, 1, "u"))
+    a = as_scalar(a, "a")
+    b = as_scalar(b, "b")
+    H = as_scalar(H, "H", nonnegative=True)
+    L = as_scalar(L, "L", positive=True)
+    if np.any(np.abs(np.tan(u[..., 1])) * H >= L):
+        raise ValueError(f"u: steering angle too large for H={H}, L={L} (tan(alpha) H / L must stay below 1)")
+    return _ackermann(x, u, dt, a, b, H, L)
+
+
+class AckermannModel:
+    """The car model of :func:`ackermann_motion` as a motion model the filters can take (``motion=``).
+
+    Calling ``model(x, u, dt)`` returns ``(x_next, G, V)`` like
+    :func:`velocity_motion`, for one pose or a batch (unchecked: the filters
+    validate their inputs once).
+
+    Parameters
+    ----------
+    a, b, H, L : float
+        Car geometry, metres (see :func:`ackermann_motion`).
+    """
+
+    def __init__(self, a, b, H, L):
+        self.a = as_scalar(a, "a")
+        self.b = as_scalar(b, "b")
+        self.H = as_scalar(H, "H", nonnegative=True)
+        self.L = as_scalar(L, "L", positive=True)
+
+    def __call__(self, x, u, dt):
+        if np.ndim(x) == 1 and np.ndim(u) == 1:
+            return _ackermann1(x, u, dt, self.a, self.b, self.H, self.L)
+        return _ackermann(x, u, dt, self.a, self.b, self.H, self.L)
+
+    def __repr__(self):
+        return f"AckermannModel(a={self.a}, b={self.b}, H={self.H}, L={self.L})"

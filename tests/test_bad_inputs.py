@@ -123,6 +123,14 @@ SPECS = {
     # motion
     "velocity_motion": spec(sl.velocity_motion, {"x": POSES, "u": np.tile([1.0, 0.2], (4, 1)), "dt": 0.1},
                             bad={"x": A("arr", rows="m"), "u": A("arr", rows="m"), "dt": A("scalar", neg=True)}),
+    "ackermann_motion": spec(sl.ackermann_motion, {"x": POSES, "u": np.tile([2.0, 0.1], (4, 1)), "dt": 0.1},
+                             {"a": 3.78, "b": 0.5, "H": 0.76, "L": 2.83},
+                             bad={"x": A("arr", rows="m"), "u": A("arr", rows="m"), "dt": A("scalar", neg=True),
+                                  "a": A("scalar"), "b": A("scalar"), "H": A("scalar", neg=True),
+                                  "L": A("scalar", neg=True)}),
+    "AckermannModel": spec(sl.AckermannModel, {"a": 3.78, "b": 0.5, "H": 0.76, "L": 2.83},
+                           bad={"a": A("scalar"), "b": A("scalar"), "H": A("scalar", neg=True),
+                                "L": A("scalar", neg=True)}),
     "velocity_noise_cov": spec(sl.velocity_noise_cov, {"u": np.array([1.0, 0.2]), "alpha": np.full(4, 0.1)},
                                bad={"u": A("arr"), "alpha": A("arr", neg=True)}),
     "sample_motion_model_velocity": spec(

@@ -7,7 +7,7 @@ from importlib import resources
 from pathlib import Path
 
 __all__ = ["data_path", "CmuLog", "load_cmu_map", "load_cmu_log", "MRCLAMRun", "load_mrclam",
-           "PoseGraph", "load_g2o", "load_intel", "load_m3500"]
+           "PoseGraph", "load_g2o", "load_intel", "load_m3500", "VictoriaRun", "load_victoria_park"]
 
 
 def data_path(*parts: str) -> Path:
@@ -23,3 +23,4 @@ def data_path(*parts: str) -> Path:
 from .cmu import CmuLog, load_cmu_log, load_cmu_map  # noqa: E402
 from .mrclam import MRCLAMRun, load_mrclam  # noqa: E402
 from .g2o import PoseGraph, load_g2o, load_intel, load_m3500  # noqa: E402
+from .victoria import VictoriaRun, load_victoria_park  # noqa: E402

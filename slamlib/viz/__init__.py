@@ -15,3 +15,4 @@ from ._fastslam import *  # noqa: F401,F403
 from ._real_data import *  # noqa: F401,F403
 from ._graph import *  # noqa: F401,F403
 from ._scan import *  # noqa: F401,F403
+from ._victoria import *  # noqa: F401,F403
