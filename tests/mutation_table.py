@@ -4,7 +4,7 @@
 the grader's tolerances) on every input the contract allows. ``label`` is
 ``"<mutated definition>: [<statement>] <before> -> <after>"`` as printed by
 ``python -m tests.mutation``; a ``*`` in a key matches any text (used for dead code:
-``ekf_update`` never reads the ``Hm`` that ``landmark_measurement`` also computes).
+``associate_ml`` never reads the ``Hm`` that ``_landmark_measurement`` also computes).
 
 ``NOT_KILLED[function][label]``: mutants that are not equivalent but that the
 grader does not catch, with the reason. They count against the kill rate (which
@@ -17,7 +17,14 @@ thresholds just below and above the exact smallest distance, with a landmark beh
 the robot; ``n_seen = 0`` with ``alpha = inf`` and an exactly representable
 distance at ``alpha``; EKF-SLAM updates whose heading crosses ``+-pi`` and whose
 bearing innovation wraps; correlated ``Q`` in the FastSLAM update; a pointer of
-low-variance resampling equal to a cumulative weight.
+low-variance resampling equal to a cumulative weight; EKF prediction at small turn
+rates (``1e-6 <= |omega| < 1e-2``, the series branch of the arc's Jacobian).
+
+Since slamlib's one-pose calls take Python-float fast paths (``_ekf_predict1``,
+``_arc1_floats``, ``_rb1``), the batched array code beside them is not reached by
+the contract's inputs (``BATCHED``), and the tests choosing between the two paths
+are equivalent (``DISPATCH``). Input validation (:mod:`slamlib._checks`) is not
+mutated at all (see :mod:`mutation`).
 """
 
 SYM = ("drops the symmetrisation (A + A^T) / 2 of a matrix that is already symmetric up to rounding: "

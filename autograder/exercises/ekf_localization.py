@@ -64,7 +64,7 @@ def _(ctx):
         _check_predict(ctx, mu, Sigma, u, dt, spd(ctx.rng, 2, scale=0.05))
 
 
-@EX.test("ekf_predict", "straight-line motion (omega = 0)", weight=5,
+@EX.test("ekf_predict", "straight-line motion (omega = 0)", weight=3,
          hint="For abs(omega) < 1e-6 use the straight-line limit of the motion and of its Jacobians.")
 def _(ctx):
     for w in (0.0, 1e-8, -3e-7):
