@@ -6,15 +6,22 @@ For every contract function of exercises 1-5 this module
    function, every slamlib function, class and constant it reaches (its private
    cores, ``velocity_motion`` inside ``ekf_predict`` ...), and the imports they
    use (:func:`submission_source`);
-2. generates mutants of it with the :mod:`ast` module (:func:`mutants`): swapped and
+2. generates mutants of it with the :mod:`ast` module (:func:`mutants`). What is
+   mutated is the algorithm: the public function's body and the private cores it
+   calls. Input validation is not: the grader sends only valid inputs, so a mutant
+   that merely weakens a check computes the same values on them (it is equivalent by
+   construction). The rule: every definition of :data:`FROZEN_MODULES`
+   (:mod:`slamlib._checks`, the validation helpers, and :mod:`slamlib.angles`, the
+   angle utilities), every name in :data:`FROZEN` and every name beginning with
+   ``_check``, ``_as_``, ``as_`` or ``check_`` is copied verbatim and never mutated;
+   inside a mutated function, door checks (an ``if`` that only raises, ``raise``,
+   ``assert``, ``try``, a statement calling a checking helper) are left alone as well.
+   The mutation operators: swapped and
    negated arithmetic and comparison operators, dropped ``wrap_angle`` / ``sqrt`` /
    transposes, square vs square root, added transposes, swapped call arguments,
    confusable variables swapped (``Q`` for ``S``, ``dx`` for ``dy`` ...), another
    parameter used in place of one, off-by-one index constants, changed constants,
-   deleted in-place assignments and a parameter returned. Only the computing
-   functions are mutated (:data:`FROZEN` lists the input checks and the
-   angle/array utilities that are copied verbatim), and input checks inside them
-   (an ``if`` that only raises, a call of a checking helper) are left alone, as is
+   deleted in-place assignments and a parameter returned. Also left alone is
    the shape bookkeeping of batched inputs (``x.shape[:-1]``, ``np.broadcast_shapes``:
    the contract gives each input one shape). No mutant adds a transpose to a
    covariance (:data:`SYMMETRIC`), which would change nothing;
@@ -82,11 +89,21 @@ FROZEN = {
 }
 
 
-def _frozen(name):
+#: Modules whose definitions are copied into a submission but never mutated: input validation
+#: (:mod:`slamlib._checks`) and the angle utilities (:mod:`slamlib.angles`).
+FROZEN_MODULES = ("slamlib._checks", "slamlib.angles")
+
+
+def _frozen(name, obj=None):
+    """Whether definition ``name`` (object ``obj``) is copied verbatim (see the module docstring's rule)."""
+    if obj is not None and getattr(obj, "__module__", "") in FROZEN_MODULES:
+        return True
     return name in FROZEN or name.startswith(("_check", "_as_", "as_", "check_"))
 #: Calls whose statements are input checks (left unmutated inside a mutated function).
 _CHECK_CALL_PREFIXES = ("as_", "_as_", "check_", "_check")
-_VALIDATORS = {"_last_axis", "_broadcast", "_beam_params", "_beam_inputs", "_z_arg", "_poses_arg"}
+_VALIDATORS = {"_last_axis", "_broadcast", "_beam_params", "_beam_inputs", "_z_arg", "_poses_arg"} | {
+    name for name, obj in vars(importlib.import_module("slamlib._checks")).items()
+    if inspect.isfunction(obj) and obj.__module__ == "slamlib._checks"}
 
 #: Variables a student confuses (each load of the key may become one of the values).
 CONFUSABLE = {
@@ -394,7 +411,7 @@ def mutants(fn):
     units, imports = _collect(fn)
     out = []
     for name, unit in units.items():
-        if unit.kind != "def" or _frozen(name):
+        if unit.kind != "def" or _frozen(name, unit.obj):
             continue
         tree = ast.parse(unit.source)
         seen = {ast.unparse(tree)}

@@ -64,13 +64,29 @@ def _(ctx):
         _check_predict(ctx, mu, Sigma, u, dt, spd(ctx.rng, 2, scale=0.05))
 
 
-@EX.test("ekf_predict", "straight-line motion (omega = 0)", weight=5,
+@EX.test("ekf_predict", "straight-line motion (omega = 0)", weight=3,
          hint="For abs(omega) < 1e-6 use the straight-line limit of the motion and of its Jacobians.")
 def _(ctx):
     for w in (0.0, 1e-8, -3e-7):
         mu, Sigma = _belief(ctx.rng)
         u, dt = _control(ctx.rng, omega=w)
         _check_predict(ctx, mu, Sigma, u, dt, spd(ctx.rng, 2, scale=0.05))
+
+
+@EX.test("ekf_predict", "small turn rates (1e-6 <= |omega| < 1e-2)", weight=2, visibility="hidden",
+         hint="Between 1e-6 and 1e-2 the arc formulas must still be used; V (and so V M V^T) may lose some "
+              "precision (1e-3 relative).")
+def _(ctx):
+    for w in (2e-6, -3e-5, 1.5e-3, -9e-3):
+        mu, Sigma = _belief(ctx.rng)
+        u, dt = _control(ctx.rng, omega=w)
+        M = spd(ctx.rng, 2, scale=0.05)
+        mu_bar, S = _predict(ctx, mu, Sigma, u, dt, M)
+        ref = sl.ekf_predict(mu, Sigma, u, dt, M)
+        _, _, V = sl.velocity_motion(mu, u, dt)
+        scale = float(np.abs(V @ M @ V.T).max())
+        ctx.close("mu_bar", mu_bar, ref[0], atol=1e-7, rtol=1e-7, angles=[2])
+        ctx.close("Sigma_bar", S, ref[1], atol=1e-9 + 3e-3 * scale, rtol=1e-7)
 
 
 @EX.test("ekf_predict", "heading wrapped to [-pi, pi)", weight=4,
