@@ -35,7 +35,6 @@ localization, Table 8.2) on this kind of data; Sec. 5.4 (odometry, Table 5.5).
 
 from __future__ import annotations
 
-import gzip
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -45,6 +44,7 @@ from .._checks import as_index
 from ..maps import OccupancyGrid
 from ..angles import wrap_angle
 from ..motion import odometry_from_poses
+from ._text import open_text
 
 __all__ = ["CmuLog", "load_cmu_map", "load_cmu_log", "CMU_SENSOR_OFFSET", "CMU_MAX_RANGE", "CMU_LOG_START",
            "CMU_LOG_STARTS"]
@@ -235,16 +235,8 @@ def _readonly(a):
 
 def _read_lines(path):
     """The text lines of a log (plain or gzip), or a ValueError naming the file."""
-    import zlib
-
-    opener = gzip.open if str(path).endswith(".gz") else open
-    try:
-        with opener(path, "rt", encoding="ascii") as f:
-            return f.read().splitlines()
-    except (EOFError, zlib.error, gzip.BadGzipFile) as e:
-        raise ValueError(f"{path}: cannot decompress the log (truncated or corrupt gzip file): {e}") from e
-    except UnicodeDecodeError as e:
-        raise ValueError(f"{path}: not a text log (byte {e.start} is not ASCII)") from e
+    return open_text(path, corrupt="cannot decompress the log (truncated or corrupt gzip file)",
+                     undecodable="not a text log").splitlines()
 
 
 def _parse_records(path, lines):

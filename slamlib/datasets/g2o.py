@@ -28,7 +28,6 @@ The Robotics Data Set Repository (Radish), 2003 (the Intel Research Lab log).
 
 from __future__ import annotations
 
-import gzip
 import math
 from pathlib import Path
 from typing import NamedTuple
@@ -36,6 +35,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import data_path
+from ._text import open_text
 
 __all__ = ["PoseGraph", "load_g2o", "load_intel", "load_m3500"]
 
@@ -81,12 +81,8 @@ class PoseGraph(NamedTuple):
 def _lines(path: Path):
     with open(path, "rb") as fh:
         gz = fh.read(2) == b"\x1f\x8b"
-    opener = gzip.open if gz else open
-    try:
-        with opener(path, "rt", encoding="utf-8") as fh:
-            return fh.read().splitlines()
-    except (OSError, UnicodeDecodeError, EOFError) as exc:
-        raise ValueError(f"{path}: cannot be read as {'gzip-compressed ' if gz else ''}text ({exc})") from None
+    what = f"cannot be read as {'gzip-compressed ' if gz else ''}text"
+    return open_text(path, encoding="utf-8", compressed=gz, corrupt=what, undecodable=what).splitlines()
 
 
 def _numbers(path, lineno, tokens, kinds):

@@ -32,10 +32,8 @@ controls) and Eq. 6.40 (range-bearing measurements).
 
 from __future__ import annotations
 
-import gzip
 import io
 import numbers
-import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -44,6 +42,7 @@ import numpy as np
 from .._checks import as_covariance, as_scalar
 from ..angles import wrap_angle
 from . import data_path
+from ._text import open_text
 
 __all__ = ["MRCLAMRun", "load_mrclam", "MRCLAM_ROBOTS", "MRCLAM_DT", "MRCLAM_M", "MRCLAM_Q", "MRCLAM_Q_SIGHTING", "MRCLAM_GATE"]
 
@@ -167,22 +166,6 @@ class MRCLAMRun:
         return int(sum(len(i) for i in self.ids))
 
 
-def _open_text(path: Path) -> str:
-    """The text of a (gzip) file; a truncated or corrupt archive is a ``ValueError`` naming the file."""
-    try:
-        if path.suffix == ".gz":
-            with gzip.open(path, "rb") as f:
-                raw = f.read()
-        else:
-            raw = path.read_bytes()
-    except (EOFError, zlib.error, gzip.BadGzipFile) as exc:
-        raise ValueError(f"{path}: truncated or corrupt gzip file ({type(exc).__name__}: {exc})") from None
-    try:
-        return raw.decode("ascii")
-    except UnicodeDecodeError as exc:
-        raise ValueError(f"{path}: not a text file (byte {exc.start} is not ASCII)") from None
-
-
 def _line_numbers(text: str) -> list[int]:
     """1-based line number of each data row (lines that are neither blank nor only a comment)."""
     return [k + 1 for k, ln in enumerate(text.splitlines()) if ln.split("#", 1)[0].strip()]
@@ -212,7 +195,7 @@ def _read_table(directory: Path, name: str, ncols: int) -> tuple:
             path = plain
         else:
             raise FileNotFoundError(f"MRCLAM file {name} not found in {directory}")
-    text = _open_text(path)
+    text = open_text(path)
 
     def fields_problem(fields):
         if len(fields) != ncols:

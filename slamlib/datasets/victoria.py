@@ -37,9 +37,7 @@ Robotics and Automation 17(3):242-257, 2001. Thrun, Burgard & Fox,
 
 from __future__ import annotations
 
-import gzip
 import re
-import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -49,6 +47,7 @@ from .._checks import as_array, as_covariance, as_scalar
 from ..motion import AckermannModel
 from ..scoring import align_se2
 from . import data_path
+from ._text import open_text
 from .mrclam import _hold_average
 
 __all__ = ["VictoriaRun", "load_victoria_park", "read_victoria_table", "read_car_geometry", "car_model", "victoria_gps_ate",
@@ -154,13 +153,7 @@ def _open_text(directory: Path, name: str) -> tuple[Path, str]:
             break
     else:
         raise FileNotFoundError(f"Victoria Park file {name}(.gz) not found in {directory}")
-    try:
-        if path.suffix == ".gz":
-            with gzip.open(path, "rt", encoding="ascii") as fh:
-                return path, fh.read()
-        return path, path.read_text(encoding="ascii")
-    except (OSError, EOFError, zlib.error, UnicodeDecodeError) as exc:
-        raise ValueError(f"{path}: corrupt or truncated file ({exc})") from None
+    return path, open_text(path, corrupt="corrupt or truncated file", undecodable="corrupt or truncated file")
 
 
 def read_victoria_table(path, ncols):

@@ -45,6 +45,17 @@ def _legend_outside(ax):
 
 
 
+def _finish_map(ax, title):
+    """Equal axes in metres, the legend outside, the title: the last touches of a map-frame plot."""
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    _legend_outside(ax)
+    if title:
+        ax.set_title(title)
+    return ax
+
+
 def _estimates(estimates, name="estimates"):
     if not isinstance(estimates, dict):
         raise TypeError(f"{name} must be a dict mapping a method name to poses of shape (T, 3)")
@@ -111,13 +122,7 @@ def plot_sightings(run, *, ax=None, max_rays=400, title=None):
     for j, (mx, my) in enumerate(landmarks):
         ax.annotate(str(j), (mx, my), textcoords="offset points", xytext=(5, 4), fontsize=7)
     ax.plot(*x_true[0, :2], "o", color="k", ms=6, label="start")
-    ax.set_aspect("equal")
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    _legend_outside(ax)
-    if title:
-        ax.set_title(title)
-    return ax
+    return _finish_map(ax, title)
 
 
 def plot_real_trajectories(x_true, estimates, *, landmarks=None, maps=None, align=True, colors=None, ax=None,
@@ -182,13 +187,7 @@ def plot_real_trajectories(x_true, estimates, *, landmarks=None, maps=None, alig
         lm = as_array(landmarks, "landmarks", (None, 2))
         ax.plot(lm[:, 0], lm[:, 1], "*", color=_LANDMARK, ms=10, mec="k", mew=0.5, label="landmarks (Vicon)")
     ax.plot(*x_true[0, :2], "o", color="k", ms=6, label="start")
-    ax.set_aspect("equal")
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    _legend_outside(ax)
-    if title:
-        ax.set_title(title)
-    return ax
+    return _finish_map(ax, title)
 
 
 def plot_error_over_time(t, x_true, estimates, *, align=True, log=False, colors=None, ax=None, title=None):

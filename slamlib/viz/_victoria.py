@@ -11,7 +11,7 @@ import numpy as np
 
 from .._checks import as_array
 from ._core import _axes
-from ._real_data import _colors, _legend_outside
+from ._real_data import _colors, _finish_map, _legend_outside
 
 __all__ = ["plot_gps_paths", "plot_map_growth", "plot_step_time"]
 
@@ -50,13 +50,7 @@ def plot_gps_paths(gps, paths, *, maps=None, colors=None, ax=None, title=None):
         if name in maps:
             m = as_array(maps[name], f"maps[{name!r}]", (None, 2))
             ax.plot(m[:, 0], m[:, 1], "+", color=col[name], ms=4, mew=0.8, label=f"{name}: map")
-    ax.set_aspect("equal")
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    _legend_outside(ax)
-    if title:
-        ax.set_title(title)
-    return ax
+    return _finish_map(ax, title)
 
 
 def plot_map_growth(t, counts, *, colors=None, ax=None, title=None):
