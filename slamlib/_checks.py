@@ -284,14 +284,17 @@ def as_covariance(value, name, n=None, *, definite=False, batched=False, psd=Tru
     Symmetric means ``max |A - A^T| <= 1e-9 max(1, max |A|)``; semi-definite
     means the smallest eigenvalue is ``>= -1e-9 max(1, max |eig|)``. A 2x2 or
     3x3 matrix whose leading principal minors are clearly positive (Sylvester's
-    criterion) is accepted without an eigendecomposition, so checking one small
-    covariance costs about a microsecond; anything else goes through
-    ``numpy.linalg.eigvalsh``.
+    criterion), or a 2x2 one whose closed-form eigenvalues are clearly
+    non-negative (when semi-definite is enough), is accepted without an
+    eigendecomposition, so checking one small covariance costs about a
+    microsecond; anything else goes through ``numpy.linalg.eigvalsh``.
     """
     if type(value) is np.ndarray and value.dtype is _F64 and value.ndim == 2:
         k = value.shape[0]
-        if 2 <= k <= 3 and value.shape[1] == k and (n is None or n == k) and _small_pd(value.tolist(), k):
-            return value.copy() if copy else value  # finite, symmetric and clearly positive definite
+        if 2 <= k <= 3 and value.shape[1] == k and (n is None or n == k):
+            a = value.tolist()
+            if _small_pd(a, k) or (k == 2 and not definite and _small_psd2(a)):
+                return value.copy() if copy else value  # finite, symmetric and clearly positive (semi-)definite
     arr = as_matrix(value, name, n, n, copy=copy, ref=ref)
     if arr.shape[-1] != arr.shape[-2]:
         raise ValueError(f"{name} must be square, got shape {arr.shape}")
@@ -399,6 +402,25 @@ def _small_pd(a, k):
     return det > eps * scale * scale
 
 
+def _small_psd2(a):
+    """True if the 2x2 nested list `a` is finite, symmetric and positive semi-definite by a clear margin.
+
+    The eigenvalues in closed form (of the lower triangle, as ``eigvalsh``
+    reads it); the smallest must lie above half the tolerance of the full
+    check, far above the rounding of either computation, so this test is never
+    looser than the full one. False decides nothing (e.g. a singular matrix
+    asked to be definite goes the long way).
+    """
+    (a00, a01), (a10, a11) = a
+    if not math.isfinite(a00 + a01 + a10 + a11):
+        return False
+    if abs(a01 - a10) > SYM_RTOL * max(1.0, abs(a00), abs(a01), abs(a10), abs(a11)):
+        return False
+    mid, rad = 0.5 * (a00 + a11), math.hypot(0.5 * (a00 - a11), a10)
+    low, high = mid - rad, mid + rad
+    return low >= -0.5 * PSD_RTOL * max(1.0, abs(low), abs(high))
+
+
 def check_rows(*named):
     """Arrays ``(array, name)`` must have the same number of rows (first axis); returns it."""
     first, first_name = named[0]
@@ -471,7 +493,12 @@ def as_slam_mean(value, name="mu"):
 
 
 def as_slam_state(mu, Sigma, mu_name="mu", sigma_name="Sigma"):
-    """A landmark-SLAM Gaussian: :func:`as_slam_mean` and its ``(3+2N, 3+2N)`` covariance (symmetric, PSD)."""
+    """A landmark-SLAM Gaussian: :func:`as_slam_mean` and its ``(3+2N, 3+2N)`` covariance (symmetric, PSD).
+
+    The semi-definiteness test costs an eigendecomposition, ``O(N^3)``: no more
+    than a teaching version's dense algebra; a fast filter checks once, when it
+    takes the state.
+    """
     mu = as_slam_mean(mu, mu_name)
     return mu, as_covariance(Sigma, sigma_name, mu.shape[0], ref=mu_name)
 
