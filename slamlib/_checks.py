@@ -6,7 +6,8 @@ of being coerced into a wrong answer.
 
 * arrays: :func:`as_array`, :func:`as_vector` (``(..., n)``), :func:`as_matrix`
   (``(..., r, c)``), :func:`as_rows` (``(K, c)``, e.g. measurements; empty
-  allowed), :func:`as_mask`, :func:`as_scan` (a range scan);
+  allowed), :func:`as_mask`, :func:`as_scan` (a range scan), :func:`as_range_bearing`
+  (one measurement ``[r, phi]``, ``r > 0``);
 * covariances: :func:`as_covariance` (symmetric, PSD or PD, batched or not),
   :func:`as_invertible_covariance` (PD with a representable determinant);
 * poses and states: :func:`as_pose`, :func:`as_poses`, :func:`as_slam_mean` and
@@ -621,6 +622,15 @@ def as_index(value, name, upper=None, *, lower=0):
         want = f">= {lower}" if upper is None else f"in [{lower}, {upper})"
         raise ValueError(f"{name} must be {want}, got {out}")
     return out
+
+
+def as_range_bearing(value, name="z"):
+    """One range-bearing measurement ``[r, phi]``, shape ``(2,)``, finite, with a positive range
+    (the inverse measurement model and its Jacobian are undefined at ``r = 0``)."""
+    z = as_array(value, name, (2,))
+    if z[0] <= 0:
+        raise ValueError(f"{name} must have a positive range {name}[0], got {z[0]}")
+    return z
 
 
 def as_index_set(value, name, upper, *, what="index", why=None):

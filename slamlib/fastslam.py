@@ -54,8 +54,8 @@ from typing import NamedTuple
 import numpy as np
 
 from .particle import _normalized, effective_sample_size, low_variance_resample, normalize_log_weights, particle_gaussian
-from ._checks import (as_array, as_count, as_covariance, as_invertible_covariance, as_poses, as_rows, as_scalar,
-                      as_threshold, check_choice, check_field_shapes, check_rng, check_type)
+from ._checks import (as_array, as_count, as_covariance, as_invertible_covariance, as_poses, as_range_bearing, as_rows,
+                      as_scalar, as_threshold, check_choice, check_field_shapes, check_rng, check_type)
 from .angles import wrap_angle
 from .motion import _arc, _arc_pose, _control_sqrt, sample_motion_model_velocity, velocity_motion
 from .sensors import landmark_from_measurement, landmark_measurement
@@ -223,13 +223,6 @@ _WEIGHT_COVS = {"S": "innovation covariance", "text": "the course text's erratum
 _GONE_WEIGHT_COVS = {"Q": "the course text's formula is weight_cov='text' (|2 pi S|^-1/2 exp(-1/2 nu^T Q^-1 nu))"}
 
 
-def _z_arg(z):
-    z = as_array(z, "z", (2,))
-    if z[0] <= 0:
-        raise ValueError(f"z must have a positive range z[0], got {z[0]}")
-    return z
-
-
 # --------------------------------------------------------------------------- contract functions
 def fastslam_init_landmark(x, z, Q):
     """Initialise one landmark's Gaussian in every particle from its first measurement.
@@ -258,7 +251,7 @@ def fastslam_init_landmark(x, z, Q):
     Table 13.1 lines 7-9.
     """
     x = as_poses(x, "x", ndim=(1, 2))
-    z = _z_arg(z)
+    z = as_range_bearing(z)
     Q = as_invertible_covariance(Q, "Q", 2, max_log_det=_MAX_LOG_DET)
     return _init_core(x, z, Q)
 
@@ -323,7 +316,7 @@ def fastslam_update_landmark(x, mu, Sigma, z, Q, *, weight_cov="S", log=False, g
     Sigma = as_array(Sigma, "Sigma", batch + (2, 2))
     if not np.allclose(Sigma, _T(Sigma), rtol=1e-9, atol=1e-12 * max(1.0, float(np.abs(Sigma).max(initial=0.0)))):
         raise ValueError("Sigma must hold symmetric 2x2 covariances")
-    z = _z_arg(z)
+    z = as_range_bearing(z)
     Q = as_invertible_covariance(Q, "Q", 2, max_log_det=_MAX_LOG_DET)
     check_choice(weight_cov, "weight_cov", _WEIGHT_COVS, removed=_GONE_WEIGHT_COVS)
     gate = as_threshold(gate, "gate", none=None, positive=True, finite=True)
@@ -987,7 +980,7 @@ def fastslam2_proposal(x, u, dt, M, mu, Sigma, z, Q):
     L = _control_sqrt(as_covariance(M, "M", 2))
     mu = as_array(mu, "mu", (n, 2))
     Sigma = as_array(Sigma, "Sigma", (n, 2, 2))
-    z = _z_arg(z)
+    z = as_range_bearing(z)
     Q = as_invertible_covariance(Q, "Q", 2, max_log_det=_MAX_LOG_DET)
     x_hat, B = _motion_terms(x, u, dt, L)
     if np.any(np.hypot(mu[:, 0] - x_hat[:, 0], mu[:, 1] - x_hat[:, 1]) < 1e-9):

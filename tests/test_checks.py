@@ -406,3 +406,12 @@ def test_edges_information_and_pose_graphs():
         c.as_pose_graph(X, [[0, 1], [1, 2]], np.zeros((3, 3)), W[:2], ("g.X", "g.e", "g.Z", "g.W"))
     with pytest.raises(ValueError, match=r"g\.e\[0\] = \[0, 3\]"):
         c.as_pose_graph(X, [[0, 3]], np.zeros((1, 3)), W[:1], ("g.X", "g.e", "g.Z", "g.W"))
+
+
+def test_range_bearing_measurement():
+    np.testing.assert_array_equal(c.as_range_bearing([2.0, -0.5]), [2.0, -0.5])
+    for bad, msg in (([0.0, 0.1], r"z must have a positive range z\[0\], got 0.0"),
+                     ([-1.0, 0.1], "z must have a positive range"), ([1.0, np.nan], "z must be finite"),
+                     ([1.0, 0.1, 0.0], r"z must have shape \(2,\)")):
+        with pytest.raises(ValueError, match=msg):
+            c.as_range_bearing(bad)
