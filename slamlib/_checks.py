@@ -189,17 +189,14 @@ def _real_scalar(value, name):
     return float(arr)
 
 
-_REFUSE = object()
-
-
-def as_threshold(value, name, *, none=_REFUSE, positive=False, finite=False):
+def as_threshold(value, name, *, optional=False, none=None, positive=False, finite=False):
     """A threshold (a gate on a squared Mahalanobis distance, a chi-square bound) as a Python float.
 
     Non-negative (positive with `positive`); ``inf`` (never fires) is allowed
-    unless `finite`. ``None`` means "no threshold" when `none` is given: it
-    returns `none` (e.g. ``math.inf``); otherwise ``None`` is refused.
+    unless `finite`. With `optional`, ``None`` means "no threshold" and gives
+    `none` (e.g. ``math.inf``); otherwise ``None`` is refused.
     """
-    if value is None and none is not _REFUSE:
+    if value is None and optional:
         return none
     return as_scalar(value, name, positive=positive, nonnegative=not positive, finite=finite)
 

@@ -975,7 +975,7 @@ class EKFSLAM:
         z = as_array(z, "z", (2,))
         j = as_index(j, "j", self.n_landmarks)
         Q = as_covariance(Q, "Q", 2)
-        gate = as_threshold(gate, "gate", none=math.inf)
+        gate = as_threshold(gate, "gate", optional=True, none=math.inf)
         self._update(z, j, Q, gate)
         return self
 
@@ -1415,7 +1415,7 @@ def run_ekf_slam(run, *, known=True, fast=True, alpha=DEFAULT_ALPHA, confirm=1, 
         raise ValueError("motion must be a callable motion(x, u, dt) -> (x_next, G, V), with fast=True")
     if association not in ("nn", "jcbb"):
         raise ValueError(f"association must be 'nn' or 'jcbb', got {association!r}")
-    gate = as_threshold(getattr(run, "gate", None) if gate is None else gate, "gate", none=math.inf)
+    gate = as_threshold(getattr(run, "gate", None) if gate is None else gate, "gate", optional=True, none=math.inf)
     Qa = Q if Q_association is None else as_covariance(Q_association, "Q_association", 2)
     alpha_j = JCBB_ALPHA if jcbb_alpha is None else as_threshold(jcbb_alpha, "jcbb_alpha")
     zs = [as_array(z, f"run.z[{t}]", (None, 2)) for t, z in enumerate(run.z)]

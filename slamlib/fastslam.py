@@ -319,7 +319,7 @@ def fastslam_update_landmark(x, mu, Sigma, z, Q, *, weight_cov="S", log=False, g
     z = as_range_bearing(z)
     Q = as_invertible_covariance(Q, "Q", 2, max_log_det=_MAX_LOG_DET)
     check_choice(weight_cov, "weight_cov", _WEIGHT_COVS, removed=_GONE_WEIGHT_COVS)
-    gate = as_threshold(gate, "gate", none=None, positive=True, finite=True)
+    gate = as_threshold(gate, "gate", optional=True, positive=True, finite=True)
     if np.any(np.hypot(mu[..., 0] - x[..., 0], mu[..., 1] - x[..., 1]) < 1e-9):
         raise ValueError("mu coincides with a particle pose x: the measurement Jacobian is undefined")
     mu_new, Sigma_new, log_w, _ = _update_core(x, mu, Sigma, z, Q, weight_cov, gate)
@@ -588,7 +588,7 @@ def fastslam_update_known(state, z, ids, Q, *, weight_cov="S", gate=None, return
     ids = _ids_arg(ids, z.shape[0])
     Q = as_invertible_covariance(Q, "Q", 2, max_log_det=_MAX_LOG_DET)
     check_choice(weight_cov, "weight_cov", _WEIGHT_COVS, removed=_GONE_WEIGHT_COVS)
-    gate = as_threshold(gate, "gate", none=None, positive=True, finite=True)
+    gate = as_threshold(gate, "gate", optional=True, positive=True, finite=True)
     keep = z[:, 0] > 0
     outliers = np.zeros((state.n_particles, z.shape[0]), dtype=bool)
     if not keep.any():
@@ -1066,7 +1066,7 @@ def fastslam2_update_known(state, u, dt, z, ids, Q, *, M, rng, gate=None, return
     Q = as_invertible_covariance(Q, "Q", 2, max_log_det=_MAX_LOG_DET)
     L = _control_sqrt(as_covariance(M, "M", 2))
     check_rng(rng)
-    gate = as_threshold(gate, "gate", none=None, positive=True, finite=True)
+    gate = as_threshold(gate, "gate", optional=True, positive=True, finite=True)
     keep = z[:, 0] > 0
     if keep.any():
         state = _grow(state, int(ids[keep].max()) + 1)

@@ -271,11 +271,11 @@ def test_thresholds_choices_types_and_record_fields():
     from typing import NamedTuple
 
     assert c.as_threshold(9.2, "gate") == 9.2 and c.as_threshold(np.inf, "gate") == math.inf
-    assert c.as_threshold(None, "gate", none=math.inf) == math.inf
-    assert c.as_threshold(None, "gate", none=None) is None
+    assert c.as_threshold(None, "gate", optional=True, none=math.inf) == math.inf
+    assert c.as_threshold(None, "gate", optional=True) is None
     assert c.as_threshold(0.0, "gate") == 0.0
     for value, kw, exc, msg in [
-        (None, {}, TypeError, "gate must be a real number"),  # None only where `none` says what it means
+        (None, {}, TypeError, "gate must be a real number"),  # None only where it is optional
         (-1.0, {}, ValueError, "gate must be non-negative"),
         (np.nan, {}, ValueError, "gate must be non-negative"),
         (0.0, dict(positive=True), ValueError, "gate must be positive"),
