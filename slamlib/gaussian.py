@@ -50,7 +50,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._checks import as_array, as_covariance, as_indices, as_matrix, as_rows, as_scalar, as_vector, check_batch, small_ok
+from ._checks import (as_array, as_covariance, as_indices, as_matrix, as_rows, as_scalar, as_threshold, as_vector,
+                      check_batch, small_ok)
 from .angles import _wrap1, wrap_angle
 from .motion import _arc, _arc1_floats
 from .sensors import _landmark_measurement, _rb1
@@ -110,13 +111,7 @@ def _gaussian(mean, cov):
     return tuple.__new__(Gaussian, (mean, cov))
 
 
-# --------------------------------------------------------------------------- validation helpers
-def _as_cov(value, name, n=None, *, definite=False):
-    """A (batch of) symmetric PSD (or PD) ``(n, n)`` matrices: ``_checks.as_covariance`` as the
-    drivers below call it."""
-    return as_covariance(value, name, n, definite=definite, batched=True, copy=False)
-
-
+# --------------------------------------------------------------------------- algebra helpers
 def _T(A):
     return A.swapaxes(-1, -2)
 
@@ -454,10 +449,10 @@ def landmark_mahalanobis(mu_bar, Sigma_bar, z, landmarks, Q):
     that enter the association), Eq. 3.1 (Gaussian exponent).
     """
     mu_bar = as_array(mu_bar, "mu_bar", (3,))
-    Sigma_bar = _as_cov(Sigma_bar, "Sigma_bar", 3)
+    Sigma_bar = as_covariance(Sigma_bar, "Sigma_bar", 3, batched=True, copy=False)
     z = as_array(z, "z", (2,))
     landmarks = as_array(landmarks, "landmarks", (None, 2))
-    Q = _as_cov(Q, "Q", 2, definite=True)
+    Q = as_covariance(Q, "Q", 2, definite=True, batched=True, copy=False)
     if Sigma_bar.ndim != 2 or Q.ndim != 2:
         raise ValueError("Sigma_bar must have shape (3, 3) and Q shape (2, 2)")
     return _mahalanobis(mu_bar, Sigma_bar, z, landmarks, Q)
@@ -510,23 +505,19 @@ def associate_ml(mu_bar, Sigma_bar, z, landmarks, Q, gate):
     distance in place of the likelihood).
     """
     d = landmark_mahalanobis(mu_bar, Sigma_bar, z, landmarks, Q)
-    gate = as_scalar(gate, "gate", nonnegative=True, finite=False)
+    gate = as_threshold(gate, "gate")
     return _associate(d, gate)
-
-
-def _as_measurements(z, name="z"):
-    return as_rows(z, name, 2)
 
 
 def _step_inputs(mu, Sigma, u, z, landmarks, dt, M, Q):
     mu = as_array(mu, "mu", (3,))
-    Sigma = _as_cov(Sigma, "Sigma", 3)
+    Sigma = as_covariance(Sigma, "Sigma", 3, batched=True, copy=False)
     u = as_array(u, "u", (2,))
-    z = _as_measurements(z)
+    z = as_rows(z, "z", 2)
     landmarks = as_array(landmarks, "landmarks", (None, 2))
     dt = as_scalar(dt, "dt", nonnegative=True)
-    M = _as_cov(M, "M", 2)
-    Q = _as_cov(Q, "Q", 2, definite=True)
+    M = as_covariance(M, "M", 2, batched=True, copy=False)
+    Q = as_covariance(Q, "Q", 2, definite=True, batched=True, copy=False)
     if Sigma.ndim != 2 or M.ndim != 2 or Q.ndim != 2:
         raise ValueError("Sigma must have shape (3, 3), M and Q shape (2, 2)")
     return mu, Sigma, u, z, landmarks, dt, M, Q
@@ -575,12 +566,8 @@ def ekf_localization_known(mu, Sigma, u, z, ids, landmarks, dt, M, Q):
     Thrun, Burgard & Fox (2005), Table 7.2.
     """
     mu, Sigma, u, z, landmarks, dt, M, Q = _step_inputs(mu, Sigma, u, z, landmarks, dt, M, Q)
-    ids = _as_ids(ids, z.shape[0], landmarks.shape[0])
+    ids = as_indices(ids, "ids", landmarks.shape[0], (z.shape[0],), ref="z")
     return _known_step(mu, Sigma, u, z, ids, landmarks, dt, M, Q)
-
-
-def _as_ids(ids, k, n):
-    return as_indices(ids, "ids", n, (k,), ref="z")
 
 
 def _unknown_step(mu, Sigma, u, z, landmarks, dt, M, Q, gate):
@@ -639,7 +626,7 @@ def ekf_localization_unknown(mu, Sigma, u, z, landmarks, dt, M, Q, *, gate=DEFAU
     Mahalanobis neighbour with a gate, cf. Sec. 7.5).
     """
     mu, Sigma, u, z, landmarks, dt, M, Q = _step_inputs(mu, Sigma, u, z, landmarks, dt, M, Q)
-    gate = as_scalar(gate, "gate", nonnegative=True, finite=False)
+    gate = as_threshold(gate, "gate")
     return _unknown_step(mu, Sigma, u, z, landmarks, dt, M, Q, gate)
 
 
@@ -725,12 +712,13 @@ def ekf_localization_run(run, *, known=True, mu0=None, Sigma0=None, M=None, Q=No
     u = as_array(run.u, "run.u", (None, 2))
     dt = as_scalar(run.dt, "run.dt", nonnegative=True)
     mu = as_array(run.x0 if mu0 is None else mu0, "mu0", (3,))
-    Sigma = _as_cov(np.diag([0.01, 0.01, 0.001]) if Sigma0 is None else Sigma0, "Sigma0", 3)
-    M = _as_cov(run.M if M is None else M, "M", 2)
-    Q = _as_cov(run.Q if Q is None else Q, "Q", 2, definite=True)
+    Sigma = as_covariance(np.diag([0.01, 0.01, 0.001]) if Sigma0 is None else Sigma0, "Sigma0", 3, batched=True,
+                          copy=False)
+    M = as_covariance(run.M if M is None else M, "M", 2, batched=True, copy=False)
+    Q = as_covariance(run.Q if Q is None else Q, "Q", 2, definite=True, batched=True, copy=False)
     if gate is None:
         gate = getattr(run, "gate", np.inf if known else DEFAULT_GATE)
-    gate = as_scalar(gate, "gate", nonnegative=True, finite=False)
+    gate = as_threshold(gate, "gate")
     T = u.shape[0]
     if len(run.z) != T or len(run.ids) != T:
         raise ValueError(f"run.z and run.ids must hold one entry per control ({T}), got {len(run.z)} and {len(run.ids)}")
@@ -740,9 +728,9 @@ def ekf_localization_run(run, *, known=True, mu0=None, Sigma0=None, M=None, Q=No
     used = []
     n_gated = 0
     for t in range(T):
-        z = _as_measurements(run.z[t], f"run.z[{t}]")
+        z = as_rows(run.z[t], f"run.z[{t}]", 2)
         if known:
-            ids = _as_ids(run.ids[t], z.shape[0], landmarks.shape[0])
+            ids = as_indices(run.ids[t], "ids", landmarks.shape[0], (z.shape[0],), ref="z")
             if gate < np.inf:
                 (mu, Sigma), ids = _gated_known_step(mu, Sigma, u[t], z, ids, landmarks, dt, M, Q, gate)
             else:
@@ -814,15 +802,15 @@ def ekf_localization_batch(runs, *, mu0=None, Sigma0=None, M=None, Q=None):
     Sigma = per_run(Sigma0, lambda r: np.diag([0.01, 0.01, 0.001]), "Sigma0", (3, 3))
     Mf = per_run(M, lambda r: r.M, "M", (2, 2))
     Qf = per_run(Q, lambda r: r.Q, "Q", (2, 2))
-    _as_cov(Sigma, "Sigma0", 3)
-    _as_cov(Mf, "M", 2)
-    _as_cov(Qf, "Q", 2, definite=True)
+    as_covariance(Sigma, "Sigma0", 3, batched=True, copy=False)
+    as_covariance(Mf, "M", 2, batched=True, copy=False)
+    as_covariance(Qf, "Q", 2, definite=True, batched=True, copy=False)
 
     # pack the measurements of step t into slots: z (N, K_max, 2), landmark (N, K_max, 2), valid (N, K_max)
     packed = []
     for t in range(T):
-        zs = [_as_measurements(r.z[t], f"runs[{k}].z[{t}]") for k, r in enumerate(runs)]
-        ids = [_as_ids(r.ids[t], z.shape[0], r.landmarks.shape[0]) for r, z in zip(runs, zs)]
+        zs = [as_rows(r.z[t], f"runs[{k}].z[{t}]", 2) for k, r in enumerate(runs)]
+        ids = [as_indices(r.ids[t], "ids", r.landmarks.shape[0], (z.shape[0],), ref="z") for r, z in zip(runs, zs)]
         k_max = max(z.shape[0] for z in zs)
         Z = np.zeros((N, k_max, 2))
         Mk = np.zeros((N, k_max, 2))
