@@ -284,3 +284,16 @@ def test_without_a_mount_namespace_the_report_says_what_protects_the_reference()
         assert level == "separate-user" and "separate unprivileged user" in text
     elif iso.get("reference_readable"):
         assert level == "audit-hook-only" and "audit hook ONLY" in text
+
+
+def test_ekf_update_wrapping_cases_cross_the_cut_for_every_seed():
+    """The 'bearing innovation wrapped' test must catch a missing wrap whatever the scenario seed."""
+    from autograder.exercises import ekf_localization as ex
+
+    for seed in range(200):
+        rng = np.random.default_rng(seed)
+        for th in (0.3, np.pi - 0.01, -np.pi + 0.02):
+            mu_bar = np.array([rng.uniform(-5, 5), rng.uniform(-5, 5), th])
+            z, m = ex._meas_case(rng, mu_bar, behind=True)
+            z_hat = sl.landmark_measurement(mu_bar, m)[0]
+            assert abs(z[1] - z_hat[1]) > np.pi, (seed, th, z, z_hat)
