@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 import slamlib as sl
-from autograder import _runner, loops
-from autograder._runner import ProtocolError, decode_result, encode_args, encode_result, pack_frame, parse_frame
+from autograder import loops, wire
+from autograder.wire import ProtocolError, decode_result, encode_args, encode_result, pack_frame, parse_frame
 from autograder.calibrate import calibrate, summarize
 from autograder.context import Ctx, Fail, Out
 from autograder.results import write_json_atomic
@@ -72,8 +72,8 @@ def test_results_become_plain_arrays():
 
 
 def test_args_encoding():
-    header, payload = encode_args((np.eye(2), 3, 0.5, None, True), {"rng": _runner.RngSeed(7)}, np)
-    args, kwargs = _runner.decode_args(header, payload, np)
+    header, payload = encode_args((np.eye(2), 3, 0.5, None, True), {"rng": wire.RngSeed(7)}, np)
+    args, kwargs = wire.decode_args(header, payload, np)
     assert np.array_equal(args[0], np.eye(2)) and args[1:] == [3, 0.5, None, True]
     assert kwargs["rng"].random() == np.random.default_rng(7).random()
 
