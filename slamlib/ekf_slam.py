@@ -1491,9 +1491,9 @@ def run_ekf_slam(run, *, known=True, fast=True, alpha=DEFAULT_ALPHA, confirm=1, 
     `ekf_slam_update` and `ekf_slam_associate` are called with the homework
     contract's arguments, where the teaching version calls the library's own,
     on copies of the filter's arrays; their results are checked (shapes,
-    finite values, an index in ``[0, n_seen]``) and a bad one raises
-    ``ValueError`` naming the function. Exceptions they raise pass through
-    unchanged.
+    finite values, an integer index in ``[0, n_seen]``) and a bad one raises
+    ``ValueError`` (``TypeError`` for an index that is not an integer) naming
+    the function. Exceptions they raise pass through unchanged.
 
     Each step predicts with ``u[t]`` and then processes the measurements
     ``z[t]`` one by one in their stored order (sequential updates, each

@@ -766,9 +766,10 @@ def ekf_localization_run(run, *, known=True, mu0=None, Sigma0=None, M=None, Q=No
     are called with the homework contract's arguments, at the point of the
     algorithm where the filter would do that work itself, on copies of the
     filter's arrays (they cannot change its state); their results are
-    checked (shapes, finite values, an index in ``[-1, N)``) and a bad one
-    raises ``ValueError`` naming the function. Exceptions they raise pass
-    through unchanged.
+    checked (shapes, finite values, an integer index in ``[-1, N)``) and a
+    bad one raises ``ValueError`` (``TypeError`` for an index that is not an
+    integer) naming the function. Exceptions they raise pass through
+    unchanged.
 
     References
     ----------
