@@ -22,6 +22,22 @@ from autograder.submission import forbidden_usage
 
 
 # --------------------------------------------------------------------------- wire format
+def test_the_childs_side_imports_only_the_standard_library_numpy_and_the_wire_format():
+    """``_runner.py`` runs in the sandbox, where neither slamlib nor the rest of the autograder exists."""
+    import ast
+    import sys
+
+    folder = Path(wire.__file__).parent
+    for name in ("_runner.py", "wire.py"):
+        tree = ast.parse((folder / name).read_text(encoding="utf-8"))
+        absolute = {a.name.split(".")[0] for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+        absolute |= {n.module.split(".")[0] for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and not n.level}
+        relative = {a.name for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.level for a in n.names}
+        assert absolute <= set(sys.stdlib_module_names) | {"numpy"}, (name, absolute)
+        assert relative <= ({"wire"} if name == "_runner.py" else set()), (name, relative)
+    assert "wire.py" in (folder / "_runner.py").read_text(encoding="utf-8")  # loaded by its path in the child
+
+
 def _roundtrip(obj):
     desc, payload = encode_result(obj, np)
     header, body, used = parse_frame(pack_frame({"result": desc}, payload))
