@@ -141,7 +141,7 @@ def particle_filter_loop(run, *, likelihood=None, normalize=None, ess=None, resa
     draws = _plug(step, resample, lambda w, seed: sl.low_variance_resample(w, rng=np.random.default_rng(seed)),
                   "resampler")
 
-    def resampler(w, *, rng):  # noqa: ARG001 - the seeded generator of the step replaces the filter's
+    def resampler(w, *, rng):  # the step's seeded generator, not the filter's rng
         return draws(w, 10_000 + 97 * step.t)
 
     res = _drive(step, sl.run_particle_filter, run, particles, rng=rng, resample=resampler, ess_threshold=0.5,
