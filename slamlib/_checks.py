@@ -22,6 +22,8 @@ of being coerced into a wrong answer.
   :func:`as_count`, :func:`as_index`, :func:`as_indices`, :func:`as_index_set`;
 * others: :func:`check_rng`, :func:`check_type`, :func:`check_field_shapes` (a
   record's array fields), :func:`check_choice` (an option among named strings);
+* functions a caller plugs into a driver: :func:`check_callable` (the argument),
+  :func:`as_returned` (what it returned);
 * arguments whose shapes must agree: :func:`check_batch`, :func:`check_rows`,
   :func:`check_broadcast` (the message names both sides); the ``ref`` keyword
   of the array helpers names the argument a required size comes from;
@@ -601,6 +603,30 @@ def as_indices(value, name, upper, shape=None, *, ref=None):
     if arr.size and (arr.min() < 0 or arr.max() >= upper):
         raise ValueError(f"{name} must hold indices in [0, {upper}), got range [{arr.min()}, {arr.max()}]")
     return arr.astype(np.intp)
+
+
+def check_callable(value, name, signature):
+    """``value`` if it is None or callable; the message shows the call `signature` expected."""
+    if value is not None and not callable(value):
+        raise TypeError(f"{name} must be a callable {name}{signature} or None, got {type(value).__name__}")
+    return value
+
+
+def as_returned(value, name, *shapes, nonnegative=()):
+    """What a caller's function `name` returned, as new float64 arrays of the given `shapes`.
+
+    One shape: the returned value itself; several: a tuple (or list) of that many
+    arrays. Every array must be finite; the items whose positions are in
+    `nonnegative` must have no negative entry. Messages name the function and the
+    item (``"ekf_predict(...)[1] must have shape (3, 3), got (3,)"``).
+    """
+    if len(shapes) == 1:
+        return as_array(value, f"{name}(...)", shapes[0], nonnegative=0 in nonnegative)
+    if not isinstance(value, (tuple, list)) or len(value) != len(shapes):
+        got = f"{len(value)} items" if isinstance(value, (tuple, list)) else f"a {type(value).__name__}"
+        raise ValueError(f"{name} must return a tuple of {len(shapes)} arrays, got {got}")
+    return tuple(as_array(v, f"{name}(...)[{i}]", s, nonnegative=i in nonnegative)
+                 for i, (v, s) in enumerate(zip(value, shapes)))
 
 
 def check_rng(rng, name="rng"):

@@ -58,8 +58,8 @@ from typing import NamedTuple
 import numpy as np
 from scipy import stats
 
-from ._checks import (as_array, as_covariance, as_index, as_indices, as_scalar, as_slam_mean, as_slam_state,
-                      as_threshold)
+from ._checks import (as_array, as_covariance, as_index, as_indices, as_returned, as_scalar, as_slam_mean,
+                      as_slam_state, as_threshold, check_callable)
 from .angles import _wrap1, wrap_angle
 from .motion import STRAIGHT_LINE_OMEGA, _arc1, velocity_motion
 from .sensors import _range_bearing1, landmark_from_measurement, landmark_measurement
@@ -622,13 +622,19 @@ class _PlainEKFSLAM:
     """The teaching version behind the same interface as :class:`EKFSLAM`.
 
     Holds ``mu`` and ``Sigma`` and calls the contract functions; a new landmark
-    is appended (the state grows by concatenation, copying ``Sigma``).
+    is appended (the state grows by concatenation, copying ``Sigma``). ``steps``
+    replaces some of them by a caller's functions (see :func:`_plain_steps`).
     """
 
-    def __init__(self, x0, Sigma0, prior_var):
+    def __init__(self, x0, Sigma0, prior_var, steps=None):
         self.mu = np.array(x0, dtype=float)
         self.Sigma = np.array(Sigma0, dtype=float)
         self.prior_var = prior_var
+        steps = steps or {}
+        self._predict_fn = steps.get("predict", ekf_slam_predict)
+        self._init_fn = steps.get("init", ekf_slam_init_landmark)
+        self._update_fn = steps.get("update", ekf_slam_update)
+        self._associate_fn = steps.get("associate", ekf_slam_associate)
 
     @property
     def n_landmarks(self):
@@ -643,7 +649,7 @@ class _PlainEKFSLAM:
         return self.Sigma[:3, :3]
 
     def predict(self, u, dt, M):
-        self.mu, self.Sigma = ekf_slam_predict(self.mu, self.Sigma, u, dt, M)
+        self.mu, self.Sigma = self._predict_fn(self.mu, self.Sigma, u, dt, M)
 
     def add_landmark(self, z):
         j = self.n_landmarks
@@ -652,7 +658,7 @@ class _PlainEKFSLAM:
         Sigma = np.zeros((n + 2, n + 2))
         Sigma[:n, :n] = self.Sigma
         Sigma[n, n] = Sigma[n + 1, n + 1] = self.prior_var  # Sigma_0 of a landmark not seen before
-        self.mu, self.Sigma = ekf_slam_init_landmark(mu, z, j), Sigma
+        self.mu, self.Sigma = self._init_fn(mu, z, j), Sigma
         return j
 
     def update(self, z, j, Q, gate=math.inf):
@@ -661,11 +667,11 @@ class _PlainEKFSLAM:
             nu = _innovation(z, z_hat)
             if nu @ np.linalg.solve(H @ self.Sigma @ H.T + Q, nu) > gate:  # validation gate on nu^T S^-1 nu
                 return False
-        self.mu, self.Sigma = ekf_slam_update(self.mu, self.Sigma, z, j, Q)
+        self.mu, self.Sigma = self._update_fn(self.mu, self.Sigma, z, j, Q)
         return True
 
     def associate(self, z, Q, alpha):
-        return ekf_slam_associate(self.mu, self.Sigma, z, self.n_landmarks, Q, alpha)
+        return self._associate_fn(self.mu, self.Sigma, z, self.n_landmarks, Q, alpha)
 
     def jcbb(self, z, Q, alpha):
         return jcbb_associate(self.mu, self.Sigma, z, self.n_landmarks, Q, alpha)
@@ -673,6 +679,38 @@ class _PlainEKFSLAM:
     def landmark_variances(self):
         d = np.diag(self.Sigma)[3:]
         return d[0::2] + d[1::2]
+
+
+def _plain_steps(predict=None, init=None, update=None, associate=None):
+    """The ``steps`` of :class:`_PlainEKFSLAM` for a caller's contract functions (each may be None: the library's).
+
+    Each is called with the contract's arguments, on copies of the filter's
+    arrays, and what it returns is checked (shapes, finite; an index in
+    ``[0, n_seen]``).
+    """
+    steps = {}
+    if predict is not None:
+        def predict_step(mu, Sigma, u, dt, M):
+            n = mu.shape[0]
+            return as_returned(predict(mu.copy(), Sigma.copy(), u.copy(), dt, M.copy()), "ekf_slam_predict", (n,),
+                               (n, n))
+        steps["predict"] = predict_step
+    if init is not None:
+        def init_step(mu, z, j):
+            return as_returned(init(mu.copy(), z.copy(), j), "ekf_slam_init_landmark", mu.shape)
+        steps["init"] = init_step
+    if update is not None:
+        def update_step(mu_bar, Sigma_bar, z, j, Q):
+            n = mu_bar.shape[0]
+            return as_returned(update(mu_bar.copy(), Sigma_bar.copy(), z.copy(), j, Q.copy()), "ekf_slam_update", (n,),
+                               (n, n))
+        steps["update"] = update_step
+    if associate is not None:
+        def associate_step(mu_bar, Sigma_bar, z, n_seen, Q, alpha):
+            j = associate(mu_bar.copy(), Sigma_bar.copy(), z.copy(), n_seen, Q.copy(), alpha)
+            return as_index(j, "ekf_slam_associate(...)", n_seen + 1)
+        steps["associate"] = associate_step
+    return steps
 
 
 # --------------------------------------------------------------------------- fast version
@@ -1291,7 +1329,8 @@ class EKFSLAMResult(NamedTuple):
 
 def run_ekf_slam(run, *, known=True, fast=True, alpha=DEFAULT_ALPHA, confirm=1, window=10, M=None, Q=None,
                  Sigma0=None, prior_var=DEFAULT_PRIOR_VAR, capacity=16, snapshots=(), association="nn", gate=None,
-                 Q_association=None, jcbb_alpha=None, motion=None):
+                 Q_association=None, jcbb_alpha=None, motion=None, ekf_slam_predict=None, ekf_slam_init_landmark=None,
+                 ekf_slam_update=None, ekf_slam_associate=None, on_step=None):
     """Run EKF SLAM over a simulated landmark run.
 
     Parameters
@@ -1370,6 +1409,31 @@ def run_ekf_slam(run, *, known=True, fast=True, alpha=DEFAULT_ALPHA, confirm=1, 
         sighting with a neighbour several standard deviations away rather
         than leave it unpaired; a measurement compatible with nothing at
         this level goes through Algorithm 2's test with `alpha`.
+    ekf_slam_predict : callable, optional, keyword-only
+        ``ekf_slam_predict(mu, Sigma, u, dt, M) -> (mu_bar, Sigma_bar)`` in
+        place of the filter's prediction (Algorithm 1 lines 2-5): the
+        contract function :func:`ekf_slam_predict` itself, or a student's
+        version of it, as the autograder plugs it in. Needs ``fast=False``
+        (like the three below: they work on the dense state of the teaching
+        version). ``None`` (default): the library's.
+    ekf_slam_init_landmark : callable, optional, keyword-only
+        ``ekf_slam_init_landmark(mu, z, j) -> mu`` in place of the
+        initialisation of a landmark seen for the first time, as
+        :func:`ekf_slam_init_landmark`; it gets the state already grown by the
+        new landmark ``j`` (mean zero, variance `prior_var`).
+    ekf_slam_update : callable, optional, keyword-only
+        ``ekf_slam_update(mu_bar, Sigma_bar, z, j, Q) -> (mu, Sigma)`` in place
+        of the update with one measurement of landmark ``j``, as
+        :func:`ekf_slam_update` (after the validation `gate`, which stays the
+        library's).
+    ekf_slam_associate : callable, optional, keyword-only
+        Unknown correspondences only: ``ekf_slam_associate(mu_bar, Sigma_bar,
+        z, n_seen, Q, alpha) -> j`` in place of Algorithm 2's association, as
+        :func:`ekf_slam_associate` (``j = n_seen``: a new landmark).
+    on_step : callable, optional, keyword-only
+        ``on_step(t)`` is called at the start of step ``t`` (before its
+        prediction), e.g. for progress reports, or so that the functions
+        above know which step they serve.
 
     Returns
     -------
@@ -1378,6 +1442,14 @@ def run_ekf_slam(run, *, known=True, fast=True, alpha=DEFAULT_ALPHA, confirm=1, 
 
     Notes
     -----
+    The functions given for `ekf_slam_predict`, `ekf_slam_init_landmark`,
+    `ekf_slam_update` and `ekf_slam_associate` are called with the homework
+    contract's arguments, where the teaching version calls the library's own,
+    on copies of the filter's arrays; their results are checked (shapes,
+    finite values, an integer index in ``[0, n_seen]``) and a bad one raises
+    ``ValueError`` (``TypeError`` for an index that is not an integer) naming
+    the function. Exceptions they raise pass through unchanged.
+
     Each step predicts with ``u[t]`` and then processes the measurements
     ``z[t]`` one by one in their stored order (sequential updates, each
     re-linearised at the current mean). Gating a measurement is a hard
@@ -1413,6 +1485,20 @@ def run_ekf_slam(run, *, known=True, fast=True, alpha=DEFAULT_ALPHA, confirm=1, 
     keep = {as_index(t, "snapshots", T + 1) for t in snapshots}
     if motion is not None and (not callable(motion) or not fast):
         raise ValueError("motion must be a callable motion(x, u, dt) -> (x_next, G, V), with fast=True")
+    check_callable(ekf_slam_predict, "ekf_slam_predict", "(mu, Sigma, u, dt, M)")
+    check_callable(ekf_slam_init_landmark, "ekf_slam_init_landmark", "(mu, z, j)")
+    check_callable(ekf_slam_update, "ekf_slam_update", "(mu_bar, Sigma_bar, z, j, Q)")
+    check_callable(ekf_slam_associate, "ekf_slam_associate", "(mu_bar, Sigma_bar, z, n_seen, Q, alpha)")
+    check_callable(on_step, "on_step", "(t)")
+    given = [name for name, fn in (("ekf_slam_predict", ekf_slam_predict), ("ekf_slam_init_landmark",
+                                                                          ekf_slam_init_landmark),
+                                   ("ekf_slam_update", ekf_slam_update), ("ekf_slam_associate", ekf_slam_associate))
+             if fn is not None]
+    if given and fast:
+        raise ValueError(f"{given[0]} needs fast=False (the functions of the homework contract work on the teaching "
+                         "version's dense state)")
+    if known and ekf_slam_associate is not None:
+        raise ValueError("ekf_slam_associate needs known=False (with known correspondences nothing is associated)")
     if association not in ("nn", "jcbb"):
         raise ValueError(f"association must be 'nn' or 'jcbb', got {association!r}")
     gate = as_threshold(getattr(run, "gate", None) if gate is None else gate, "gate", optional=True, none=math.inf)
@@ -1429,7 +1515,8 @@ def run_ekf_slam(run, *, known=True, fast=True, alpha=DEFAULT_ALPHA, confirm=1, 
         filt._motion = motion
         predict, update, add, associate, jcbb = filt._predict, filt._update, filt._add_landmark, filt._associate, filt._jcbb
     else:
-        filt = _PlainEKFSLAM(x0, Sigma0, prior_var)
+        filt = _PlainEKFSLAM(x0, Sigma0, prior_var, _plain_steps(ekf_slam_predict, ekf_slam_init_landmark,
+                                                                 ekf_slam_update, ekf_slam_associate))
         predict, update, add, associate, jcbb = filt.predict, filt.update, filt.add_landmark, filt.associate, filt.jcbb
     provisional = _ProvisionalList(confirm, window)
     slot_of, landmark_ids = {}, []
@@ -1451,6 +1538,8 @@ def run_ekf_slam(run, *, known=True, fast=True, alpha=DEFAULT_ALPHA, confirm=1, 
 
     record(0)
     for t in range(T):
+        if on_step is not None:
+            on_step(t)
         predict(u[t], dt, M)  # (Table 10.1 lines 2-5)
         slots = np.full(len(ids[t]), -1)
         if not known and association == "jcbb" and len(ids[t]) > 1:

@@ -54,8 +54,9 @@ from typing import NamedTuple
 import numpy as np
 
 from .particle import _normalized, effective_sample_size, low_variance_resample, normalize_log_weights, particle_gaussian
-from ._checks import (as_array, as_count, as_covariance, as_invertible_covariance, as_poses, as_range_bearing, as_rows,
-                      as_scalar, as_threshold, check_choice, check_field_shapes, check_rng, check_type)
+from ._checks import (as_array, as_count, as_covariance, as_invertible_covariance, as_poses, as_range_bearing,
+                      as_returned, as_rows, as_scalar, as_threshold, check_callable, check_choice, check_field_shapes,
+                      check_log_weights, check_rng, check_type)
 from .angles import wrap_angle
 from .motion import _arc, _arc_pose, _control_sqrt, sample_motion_model_velocity, velocity_motion
 from .sensors import landmark_from_measurement, landmark_measurement
@@ -645,6 +646,60 @@ def _update_known_core(state, z, ids, Q, weight_cov, copy=True, gate=None):
                 counts[:, j] -= out
         seen[:, j] = True
         counts[:, j] += 1
+    return FastSLAMState(state.poses, mu, Sigma, seen, counts, _normalized(log_w)), outliers
+
+
+def _fastslam_steps(init, update):
+    """Checked wrappers of a caller's ``fastslam_init_landmark`` and ``fastslam_update_landmark`` (None stays None).
+
+    Each is called with the contract's arguments on copies; the update's weight
+    comes back as ``log w`` (``-inf`` for a weight of zero).
+    """
+    init_step = update_step = None
+    if init is not None:
+        def init_step(x, z, Q):
+            k = x.shape[0]
+            return as_returned(init(x.copy(), z.copy(), Q.copy()), "fastslam_init_landmark", (k, 2), (k, 2, 2))
+    if update is not None:
+        def update_step(x, mu, Sigma, z, Q):
+            k = x.shape[0]
+            mu_new, Sigma_new, w = as_returned(update(x.copy(), mu.copy(), Sigma.copy(), z.copy(), Q.copy()),
+                                               "fastslam_update_landmark", (k, 2), (k, 2, 2), (k,), nonnegative=(2,))
+            with np.errstate(divide="ignore"):
+                return mu_new, Sigma_new, np.log(w)
+    return init_step, update_step
+
+
+def _stepwise_known_core(state, z, ids, Q, weight_cov, gate, init, update):
+    """:func:`_update_known_core` one measurement at a time, writing into `state`'s arrays.
+
+    ``init(x, z, Q) -> (mu, Sigma)`` and ``update(x, mu, Sigma, z, Q) -> (mu_new,
+    Sigma_new, log_w)`` (from :func:`_fastslam_steps`) replace the cores where
+    given; with None the cores do that part (and only they apply the `gate`).
+    """
+    mu, Sigma, seen, counts = state.mu, state.Sigma, state.seen, state.counts
+    x = state.poses
+    log_w = state.log_weights.copy()
+    outliers = np.zeros((x.shape[0], ids.size), dtype=bool)
+    for k, (zk, j) in enumerate(zip(z, ids)):
+        new = ~seen[:, j]  # never seen before  (Table 13.1 line 6)
+        old = ~new
+        if old.any():
+            if update is None:
+                mu_u, Sigma_u, lw, out = _update_core(x[old], mu[old, j], Sigma[old, j], zk, Q, weight_cov, gate)
+            else:
+                (mu_u, Sigma_u, lw), out = update(x[old], mu[old, j], Sigma[old, j], zk, Q), None
+            mu[old, j], Sigma[old, j] = mu_u, Sigma_u  # (Table 13.1 lines 12-17)
+            log_w[old] += lw  # (Table 13.1 line 18)
+            if out is not None:
+                outliers[old, k] = out
+                counts[old, j] -= out  # an outlier is not a sighting of the landmark
+        if new.any():
+            # mu_j = h^-1(z, x), Sigma_j = H^-1 Q H^-T; w = p0, equal for all particles  (Table 13.1 lines 7-10)
+            mu[new, j], Sigma[new, j] = (_init_core if init is None else init)(x[new], zk, Q)
+        seen[:, j] = True
+        counts[:, j] += 1
+    check_log_weights(log_w, "the log-weights after fastslam_update_landmark's weights")
     return FastSLAMState(state.poses, mu, Sigma, seen, counts, _normalized(log_w)), outliers
 
 
@@ -1479,7 +1534,7 @@ def _run_attr(run, name):
 
 def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=None, p0=None, weight_cov="S",
                  resample_threshold=0.5, capacity=None, max_range=None, fov=None, version=1, gate=None,
-                 motion=None):
+                 motion=None, fastslam_init_landmark=None, fastslam_update_landmark=None, on_step=None):
     """Run FastSLAM 1.0 or 2.0 over a landmark run (simulated or a real log).
 
     Parameters
@@ -1548,12 +1603,41 @@ def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=Non
         :class:`slamlib.AckermannModel` for a car; each particle moves with its
         own noisy control ``u + N(0, M)``. Default: the velocity model (exact
         arc). Not with `alpha`.
+    fastslam_init_landmark : callable, optional, keyword-only
+        ``fastslam_init_landmark(x, z, Q) -> (mu, Sigma)`` in place of the
+        initialisation of a landmark seen for the first time (Algorithm 3,
+        Table 13.1 lines 7-9) for the particles ``x (k, 3)`` that have not seen
+        it: the contract function :func:`fastslam_init_landmark` itself, or a
+        student's version of it, as the autograder plugs it in. FastSLAM 1.0
+        with known correspondences only, like the next one. ``None``
+        (default): the library's core.
+    fastslam_update_landmark : callable, optional, keyword-only
+        ``fastslam_update_landmark(x, mu, Sigma, z, Q) -> (mu_new, Sigma_new,
+        w)`` in place of the landmark update and importance weight of the
+        particles that have seen the landmark (Table 13.1 lines 12-18), as
+        :func:`fastslam_update_landmark`; needs ``weight_cov="S"`` and no
+        `gate`. A weight of zero is allowed (log-weight ``-inf``), as long as
+        some particle keeps a positive weight.
+    on_step : callable, optional, keyword-only
+        ``on_step(t)`` is called at the start of step ``t`` (before the
+        particles move), e.g. for progress reports, or so that the functions
+        above know which step they serve.
 
     Returns
     -------
     FastSLAMResult
         Estimated trajectory, map, ESS and degeneracy over time, and the
         measurements the gate rejected.
+
+    Notes
+    -----
+    With `fastslam_init_landmark` or `fastslam_update_landmark` the
+    measurements of a step are processed one at a time (the library's own
+    path processes them in batches, with the same result up to rounding),
+    and the functions are called with the homework contract's arguments on
+    copies of the particles' arrays. Their results are checked (shapes,
+    finite values, non-negative weights) and a bad one raises ``ValueError``
+    naming the function; exceptions they raise pass through unchanged.
 
     References
     ----------
@@ -1595,6 +1679,17 @@ def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=Non
     if gate is not None:
         gate = as_threshold(gate, "gate")  # chi-square value on nu^T S^-1 nu
         gate = None if gate == np.inf else gate  # inf: no gate
+    check_callable(fastslam_init_landmark, "fastslam_init_landmark", "(x, z, Q)")
+    check_callable(fastslam_update_landmark, "fastslam_update_landmark", "(x, mu, Sigma, z, Q)")
+    check_callable(on_step, "on_step", "(t)")
+    stepwise = fastslam_init_landmark is not None or fastslam_update_landmark is not None
+    if stepwise and (not known or version != 1):
+        raise ValueError("fastslam_init_landmark and fastslam_update_landmark need known=True and version=1 "
+                         "(FastSLAM 1.0 with known correspondences)")
+    if fastslam_update_landmark is not None and (gate is not None or weight_cov != "S"):
+        raise ValueError("fastslam_update_landmark needs weight_cov='S' and no gate (the contract's update has "
+                         "neither)")
+    init_step, update_step = _fastslam_steps(fastslam_init_landmark, fastslam_update_landmark)
     if capacity is None:
         capacity = max(1, int(np.asarray(_run_attr(run, "landmarks")).shape[0]))
     log_p0 = None
@@ -1618,6 +1713,8 @@ def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=Non
     identity = np.arange(n)
     parents[:2] = identity
     for t in range(T):
+        if on_step is not None:
+            on_step(t)
         zt = as_rows(zs[t], "z", 2)
         out = None
         if known:
@@ -1645,7 +1742,9 @@ def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=Non
                 poses = _sample_arc(state.poses, u[t], dt, L, rng, motion)
             state = state._replace(poses=poses)
             if known:
-                if zt.shape[0]:
+                if zt.shape[0] and stepwise:
+                    state, out = _stepwise_known_core(state, zt, idt, Q, weight_cov, gate, init_step, update_step)
+                elif zt.shape[0]:
                     state, out = _update_known_core(state, zt, idt, Q, weight_cov, copy=False, gate=gate)
             else:
                 state = _update_unknown_core(state, zt, Q, log_p0, weight_cov, max_range, half_fov, copy=False)

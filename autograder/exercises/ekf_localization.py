@@ -119,7 +119,7 @@ def _(ctx):
         return _check_predict(ctx, mu, Sigma, u, dt, M, scaled=True)
 
     try:
-        traj, _ = loops.ekf_localization_loop(run, predict=predict, update=loops.ref_ekf_update)
+        traj, _ = loops.ekf_localization_loop(run, predict=predict)
     except loops.LoopError as exc:
         ctx.fail(str(exc))
     ctx.last_call = None
@@ -202,7 +202,7 @@ def _(ctx):
         return _check_update(ctx, mu, Sigma, z, m, Q, scaled=True)
 
     try:
-        traj, _ = loops.ekf_localization_loop(run, predict=loops.ref_ekf_predict, update=update)
+        traj, _ = loops.ekf_localization_loop(run, update=update)
     except loops.LoopError as exc:
         ctx.fail(str(exc))
     ctx.last_call = None
@@ -316,8 +316,7 @@ def _(ctx):
         return got
 
     try:
-        traj, ids = loops.ekf_localization_loop(run, predict=loops.ref_ekf_predict, update=loops.ref_ekf_update,
-                                                associate=associate, gate=loops.GATE)
+        traj, ids = loops.ekf_localization_loop(run, known=False, associate=associate)
     except loops.LoopError as exc:
         ctx.fail(str(exc))
     ctx.last_call = None
