@@ -580,17 +580,17 @@ def test_mode_preserving_resampling_is_unbiased():
     np.testing.assert_allclose(total / n, w, atol=4 * np.sqrt(w.max() / 20 / n) + 1e-6)
 
 
-def test_mode_preserving_resampling_caps_the_minimum_shares_at_half_the_set():
+def test_mode_preserving_resampling_caps_the_minimum_shares_at_a_tenth_of_the_set():
     rng = np.random.default_rng(6)
     centres = np.column_stack([np.arange(30) * 10.0, np.zeros(30), np.zeros(30)])  # 30 separate modes
     poses = np.repeat(centres, 20, axis=0) + rng.normal(0.0, 0.1, (600, 3))
     w = np.repeat(np.geomspace(1.0, 1e-3, 30), 20)
     w /= w.sum()
-    idx, log_w = mcl._mode_preserving_resample(poses, w, rng, 50, 1e-9)
+    idx, log_w = mcl._mode_preserving_resample(poses, w, rng, 6, 1e-9)
     kept = np.unique(idx // 20)
-    assert kept.size == 600 // (2 * 50)  # the six heaviest modes, with at least 50 particles each
-    np.testing.assert_array_equal(kept, np.arange(6))
-    assert np.all(np.bincount(idx // 20, minlength=6)[:6] >= 50)
+    assert kept.size == 60 // 6  # the ten heaviest modes, with at least 6 particles each
+    np.testing.assert_array_equal(kept, np.arange(10))
+    assert np.all(np.bincount(idx // 20, minlength=10)[:10] >= 6)
     np.testing.assert_allclose(np.exp(log_w).sum(), 1.0)
 
 
