@@ -8,7 +8,7 @@ test cases and the isolation model.
 
 Layout: ``submission`` (reading notebooks statically), ``sandbox`` and ``_runner``
 (the isolated process that loads a submission once and forks a worker per
-function), ``seeds`` (scenario seeds from a deployment secret and the submission's
+function), ``wire`` (the format of what passes between them), ``seeds`` (scenario seeds from a deployment secret and the submission's
 content), ``context`` and ``spec`` (test cases, checks, time budgets),
 ``exercises/`` (one module of test cases per exercise), ``loops`` (end-to-end
 filters), ``stats`` and ``calibrate`` (statistical tests), ``engine`` (grading),

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._runner import Returned, RngSeed, describe_value
+from .wire import Returned, RngSeed, describe_value
 
 __all__ = ["Ctx", "Fail", "CallError", "Out", "RngSeed", "fmt_array", "wrap"]
 

@@ -1,15 +1,19 @@
-"""End-to-end checks: the course's filters, with one student function plugged in.
+"""End-to-end checks: slamlib's filters, with one student function plugged in.
 
-Each loop takes the filter's building blocks as callables, so that a test can run
-it twice on the same seeded scenario: once with ``slamlib``'s functions only (the
-reference) and once with exactly one of them replaced by the student's function
-(called in the child process). The loops follow the algorithms of the chapters
-(EKF localization, Table 7.2/7.3; a particle filter, Table 4.3; EKF SLAM,
-Algorithm 1; FastSLAM 1.0, Algorithm 3) and use ``slamlib`` for everything else.
+Each loop is one call of a ``slamlib`` driver (:func:`slamlib.ekf_localization_run`,
+:func:`slamlib.run_particle_filter`, :func:`slamlib.run_ekf_slam`,
+:func:`slamlib.run_fastslam`) on a seeded scenario, with every building block the
+exercises implement plugged into the driver's hooks: the student's function (called
+in the child process, through the test's checks) for the one under test and
+``slamlib``'s public functions for the others. The reference run plugs
+``slamlib``'s functions into all of them, so both runs take exactly the same path
+through the driver.
 
-A reference building block that rejects what the student's function produced
-(say, a covariance that is not symmetric) raises :class:`LoopError`, which the
-test reports as a failure at that step.
+The student's functions are called as ``f(t, *contract arguments)``, ``t`` the step
+(the drivers' ``on_step`` says which). A reference function that rejects what the
+student's function produced (say, a covariance that is not symmetric), or a driver
+that cannot use it, raises :class:`LoopError`, which the test reports as a failure
+at that step.
 """
 
 from __future__ import annotations
@@ -25,14 +29,42 @@ __all__ = ["LoopError", "scenario", "ekf_localization_loop", "particle_filter_lo
 
 
 class LoopError(Exception):
-    """A reference step could not use a value the student's function returned."""
+    """A reference function, or the driver itself, could not use a value the student's function returned."""
 
 
-def _ref(step, what, fn, *args, **kwargs):
+_REJECTED = (ValueError, TypeError, np.linalg.LinAlgError)
+
+
+class _Step:
+    """The step the driver is at: its ``on_step`` hook."""
+
+    def __init__(self):
+        self.t = 0
+
+    def __call__(self, t):
+        self.t = int(t)
+
+
+def _plug(step, student, reference, what):
+    """The hook of one building block: ``student(t, *args)`` if given, else ``slamlib``'s ``reference(*args)``."""
+    if student is not None:
+        return lambda *args, **kwargs: student(step.t, *args, **kwargs)
+
+    def ref(*args, **kwargs):
+        try:
+            return reference(*args, **kwargs)
+        except _REJECTED as exc:
+            raise LoopError(f"step {step.t}: the reference {what} could not use your result ({exc})") from None
+
+    return ref
+
+
+def _drive(step, driver, *args, **kwargs):
+    """``driver(*args, on_step=step, **kwargs)``; a value the driver cannot use is a :class:`LoopError` at that step."""
     try:
-        return fn(*args, **kwargs)
-    except (ValueError, TypeError, np.linalg.LinAlgError) as exc:
-        raise LoopError(f"step {step}: the reference {what} could not use your result ({exc})") from None
+        return driver(*args, on_step=step, **kwargs)
+    except _REJECTED as exc:
+        raise LoopError(f"step {step.t}: the filter could not use your result ({exc})") from None
 
 
 @lru_cache(maxsize=None)
@@ -61,8 +93,12 @@ def ate(est, run):
 
 
 # --------------------------------------------------------------------------- EKF localization
-def ekf_localization_loop(run, *, predict, update, associate=None, gate=None, Sigma0=None):
-    """EKF localization (Table 7.2; with ``associate``, nearest-neighbour association as in Table 7.3).
+def ekf_localization_loop(run, *, known=True, predict=None, update=None, associate=None):
+    """EKF localization with known correspondences (Table 7.2) or unknown ones (Table 7.3).
+
+    :func:`slamlib.ekf_localization_run` with ``ekf_predict``, ``ekf_update`` and
+    (unknown correspondences) ``associate_ml`` plugged in; ``None`` plugs in
+    ``slamlib``'s. Unknown correspondences use the gate :data:`GATE`.
 
     Returns
     -------
@@ -70,47 +106,28 @@ def ekf_localization_loop(run, *, predict, update, associate=None, gate=None, Si
     ids : list of int
         The association chosen for each measurement (unknown correspondences only).
     """
-    mu = np.array(run.x0, dtype=float)
-    Sigma = np.diag([0.01, 0.01, 0.001]) if Sigma0 is None else Sigma0
-    traj = [mu]
-    chosen = []
-    for t in range(run.n_steps):
-        mu, Sigma = predict(t, mu, Sigma, np.array(run.u[t]), run.dt, np.array(run.M))
-        for i, z in enumerate(run.z[t]):
-            z = np.array(z)
-            if associate is None:
-                j = int(run.ids[t][i])
-            else:
-                j = associate(t, mu, Sigma, z, np.array(run.landmarks), np.array(run.Q), gate)
-                chosen.append(j)
-                if j < 0:
-                    continue
-            mu, Sigma = update(t, mu, Sigma, z, np.array(run.landmarks[j]), np.array(run.Q))
-        traj.append(mu)
-    return np.array(traj), chosen
-
-
-def ref_ekf_predict(t, mu, Sigma, u, dt, M):
-    return _ref(t, "EKF prediction", sl.ekf_predict, mu, Sigma, u, dt, M)
-
-
-def ref_ekf_update(t, mu, Sigma, z, m, Q):
-    return _ref(t, "EKF update", sl.ekf_update, mu, Sigma, z, m, Q)
-
-
-def ref_associate(t, mu, Sigma, z, landmarks, Q, gate):
-    return _ref(t, "association", sl.associate_ml, mu, Sigma, z, landmarks, Q, gate)
+    if known and associate is not None:
+        raise ValueError("associate needs known=False")
+    step = _Step()
+    res = _drive(step, sl.ekf_localization_run, run, known=known, gate=None if known else GATE,
+                 ekf_predict=_plug(step, predict, sl.ekf_predict, "EKF prediction"),
+                 ekf_update=_plug(step, update, sl.ekf_update, "EKF update"),
+                 associate_ml=None if known else _plug(step, associate, sl.associate_ml, "association"))
+    return res.mu, [] if known else [int(j) for ids in res.ids for j in ids]
 
 
 # --------------------------------------------------------------------------- particle filter
-def particle_filter_loop(run, *, likelihood, normalize, ess, resample, n_particles=300, seed=77):
+def particle_filter_loop(run, *, likelihood=None, normalize=None, ess=None, resample=None, n_particles=300, seed=77):
     """Particle-filter localization with known landmark correspondences (Table 4.3).
 
-    Motion: each particle follows its own noisy control ``u + N(0, M)`` along the
-    exact arc (the simulator's noise model). Weights: the product of the
-    landmark likelihoods, accumulated in log space; normalised; resampled when
-    the effective sample size drops below half the particles, with the draw's
-    generator seeded per step.
+    :func:`slamlib.run_particle_filter` from ``n_particles`` particles drawn around
+    the start pose, with ``landmark_likelihood``, ``normalize_log_weights``,
+    ``effective_sample_size`` and the resampler plugged in (``None``: ``slamlib``'s;
+    the resampler is ``low_variance_resample``). Resampling when the effective sample
+    size drops below half the particles. The resampler is called as
+    ``resample(t, w, seed)`` and draws from a generator seeded per step, so that the
+    student's draws and the reference's are the same and the filter's own generator
+    (the motion noise) does not depend on them.
 
     Returns
     -------
@@ -118,177 +135,83 @@ def particle_filter_loop(run, *, likelihood, normalize, ess, resample, n_particl
         Weighted mean pose (circular mean heading) after each step.
     """
     rng = np.random.default_rng(seed)
-    Mp = n_particles
-    particles = np.array(run.x0) + rng.normal(0.0, [0.1, 0.1, 0.03], size=(Mp, 3))
+    particles = np.array(run.x0) + rng.normal(0.0, [0.1, 0.1, 0.03], size=(n_particles, 3))
     particles[:, 2] = sl.wrap_angle(particles[:, 2])
-    w = np.full(Mp, 1.0 / Mp)
-    L = np.linalg.cholesky(np.array(run.M) + 1e-12 * np.eye(2))
-    traj = [np.array(run.x0, dtype=float)]
-    for t in range(run.n_steps):
-        u_k = np.array(run.u[t]) + rng.standard_normal((Mp, 2)) @ L.T
-        particles, _, _ = sl.velocity_motion(particles, u_k, run.dt)
-        logw = np.log(np.maximum(w, 1e-300))
-        for z, j in zip(run.z[t], run.ids[t]):
-            p = likelihood(t, particles, np.array(z), np.array(run.landmarks[j]), np.array(run.Q))
-            with np.errstate(divide="ignore"):
-                logw = logw + np.log(p)
-        if not np.any(np.isfinite(logw)):
-            raise LoopError(f"step {t}: every particle got likelihood 0")
-        logw = np.where(np.isfinite(logw), logw, -1e300)
-        w = normalize(t, logw)
-        mean = np.array([np.dot(w, particles[:, 0]), np.dot(w, particles[:, 1]),
-                         sl.circular_mean(particles[:, 2], w)])
-        traj.append(mean)
-        if ess(t, w) < 0.5 * Mp:
-            idx = resample(t, w, 10_000 + 97 * t)
-            particles = particles[idx]
-            w = np.full(Mp, 1.0 / Mp)
-    return np.array(traj)
+    step = _Step()
+    draws = _plug(step, resample, lambda w, seed: sl.low_variance_resample(w, rng=np.random.default_rng(seed)),
+                  "resampler")
 
+    def resampler(w, *, rng):  # the step's seeded generator, not the filter's rng
+        return draws(w, 10_000 + 97 * step.t)
 
-def ref_likelihood(t, particles, z, m, Q):
-    return sl.landmark_likelihood(particles, z, m, Q)
-
-
-def ref_normalize(t, logw):
-    return _ref(t, "weight normalisation", sl.normalize_log_weights, logw)
-
-
-def ref_ess(t, w):
-    return _ref(t, "effective sample size", sl.effective_sample_size, w)
-
-
-def ref_resample(t, w, seed):
-    return _ref(t, "resampler", sl.low_variance_resample, w, rng=np.random.default_rng(seed))
+    res = _drive(step, sl.run_particle_filter, run, particles, rng=rng, resample=resampler, ess_threshold=0.5,
+                 landmark_likelihood=_plug(step, likelihood, sl.landmark_likelihood, "landmark likelihood"),
+                 normalize_log_weights=_plug(step, normalize, sl.normalize_log_weights, "weight normalisation"),
+                 effective_sample_size=_plug(step, ess, sl.effective_sample_size, "effective sample size"))
+    return res.x_est
 
 
 # --------------------------------------------------------------------------- EKF SLAM
-def ekf_slam_loop(run, *, predict, init, update, prior_var=1e4):
+def ekf_slam_loop(run, *, predict=None, init=None, update=None, prior_var=1e4):
     """EKF SLAM with known correspondences (Algorithm 1), sequential updates.
+
+    :func:`slamlib.run_ekf_slam` (the teaching version, ``fast=False``: the state
+    grows by each new landmark) with ``ekf_slam_predict``, ``ekf_slam_init_landmark``
+    and ``ekf_slam_update`` plugged in (``None``: ``slamlib``'s).
 
     Returns
     -------
     traj : ndarray, shape (T+1, 3)
     landmarks : ndarray, shape (N, 2)
-        Final landmark estimates (NaN for landmarks never seen).
+        Final landmark estimates by the run's landmark index (NaN for landmarks never seen).
     """
-    N = run.landmarks.shape[0]
-    n = 3 + 2 * N
-    mu = np.zeros(n)
-    mu[:3] = run.x0
-    Sigma = np.zeros((n, n))
-    Sigma[3:, 3:] = prior_var * np.eye(2 * N)
-    seen = np.zeros(N, dtype=bool)
-    traj = [mu[:3].copy()]
-    for t in range(run.n_steps):
-        mu, Sigma = predict(t, mu, Sigma, np.array(run.u[t]), run.dt, np.array(run.M))
-        for z, j in zip(run.z[t], run.ids[t]):
-            j = int(j)
-            z = np.array(z)
-            if not seen[j]:
-                mu = init(t, mu, z, j)
-                seen[j] = True
-            mu, Sigma = update(t, mu, Sigma, z, j, np.array(run.Q))
-        traj.append(mu[:3].copy())
-    lm = mu[3:].reshape(N, 2).copy()
-    lm[~seen] = np.nan
-    return np.array(traj), lm
-
-
-def ref_slam_predict(t, mu, Sigma, u, dt, M):
-    return _ref(t, "EKF SLAM prediction", sl.ekf_slam_predict, mu, Sigma, u, dt, M)
-
-
-def ref_slam_init(t, mu, z, j):
-    return _ref(t, "landmark initialisation", sl.ekf_slam_init_landmark, mu, z, j)
-
-
-def ref_slam_update(t, mu, Sigma, z, j, Q):
-    return _ref(t, "EKF SLAM update", sl.ekf_slam_update, mu, Sigma, z, j, Q)
+    step = _Step()
+    res = _drive(step, sl.run_ekf_slam, run, known=True, fast=False, prior_var=prior_var,
+                 ekf_slam_predict=_plug(step, predict, sl.ekf_slam_predict, "EKF SLAM prediction"),
+                 ekf_slam_init_landmark=_plug(step, init, sl.ekf_slam_init_landmark, "landmark initialisation"),
+                 ekf_slam_update=_plug(step, update, sl.ekf_slam_update, "EKF SLAM update"))
+    lm = np.full((run.landmarks.shape[0], 2), np.nan)
+    lm[res.landmark_ids] = res.landmarks
+    return res.x, lm
 
 
 # --------------------------------------------------------------------------- FastSLAM
-def fastslam_loop(run, *, init, update, n_particles=60, seed=99):
+def fastslam_loop(run, *, init=None, update=None, n_particles=60, seed=99):
     """FastSLAM 1.0 with known correspondences (Algorithm 3), vectorised over particles.
 
-    Every particle sees a landmark for the first time at the same step (known
-    correspondences), so ``init`` and ``update`` are called once per measurement
-    for all particles. Resampling (low variance, seeded per step) when the
-    effective sample size drops below half the particles.
+    :func:`slamlib.run_fastslam` with ``fastslam_init_landmark`` and
+    ``fastslam_update_landmark`` plugged in (``None``: ``slamlib``'s); every particle
+    sees a landmark for the first time at the same step (known correspondences), so
+    each is called once per measurement for all particles. Resampling (low variance)
+    when the effective sample size drops below half the particles.
 
     Returns
     -------
     traj : ndarray, shape (T+1, 3)
         Weighted mean pose after each step.
     """
-    rng = np.random.default_rng(seed)
-    Mp = n_particles
-    N = run.landmarks.shape[0]
-    poses = np.tile(np.array(run.x0, dtype=float), (Mp, 1))
-    mu = np.zeros((Mp, N, 2))
-    Sig = np.zeros((Mp, N, 2, 2))
-    seen = np.zeros(N, dtype=bool)
-    logw = np.full(Mp, -np.log(Mp))
-    L = np.linalg.cholesky(np.array(run.M) + 1e-12 * np.eye(2))
-    Q = np.array(run.Q)
-    traj = [np.array(run.x0, dtype=float)]
-    for t in range(run.n_steps):
-        u_k = np.array(run.u[t]) + rng.standard_normal((Mp, 2)) @ L.T
-        poses, _, _ = sl.velocity_motion(poses, u_k, run.dt)
-        for z, j in zip(run.z[t], run.ids[t]):
-            j = int(j)
-            z = np.array(z)
-            if z[0] <= 0:
-                continue
-            if not seen[j]:
-                m_new, S_new = init(t, poses, z, Q)
-                mu[:, j], Sig[:, j] = m_new, S_new
-                seen[j] = True
-            else:
-                m_new, S_new, w = update(t, poses, mu[:, j].copy(), Sig[:, j].copy(), z, Q)
-                mu[:, j], Sig[:, j] = m_new, S_new
-                with np.errstate(divide="ignore"):
-                    logw = logw + np.log(w)
-        if not np.any(np.isfinite(logw)):
-            raise LoopError(f"step {t}: every particle got weight 0")
-        logw = np.where(np.isfinite(logw), logw, -1e300)
-        w = sl.normalize_log_weights(logw)
-        traj.append(np.array([np.dot(w, poses[:, 0]), np.dot(w, poses[:, 1]), sl.circular_mean(poses[:, 2], w)]))
-        if sl.effective_sample_size(w) < 0.5 * Mp:
-            idx = sl.low_variance_resample(w, rng=np.random.default_rng(20_000 + 31 * t))
-            poses, mu, Sig = poses[idx], mu[idx], Sig[idx]
-            logw = np.full(Mp, -np.log(Mp))
-        else:
-            logw = np.log(w)
-    return np.array(traj)
-
-
-def ref_fs_init(t, x, z, Q):
-    return _ref(t, "landmark initialisation", sl.fastslam_init_landmark, x, z, Q)
-
-
-def ref_fs_update(t, x, mu, Sigma, z, Q):
-    return _ref(t, "landmark update", sl.fastslam_update_landmark, x, mu, Sigma, z, Q)
+    step = _Step()
+    res = _drive(step, sl.run_fastslam, run, n_particles=n_particles, rng=np.random.default_rng(seed), known=True,
+                 resample_threshold=0.5,
+                 fastslam_init_landmark=_plug(step, init, sl.fastslam_init_landmark, "landmark initialisation"),
+                 fastslam_update_landmark=_plug(step, update, sl.fastslam_update_landmark, "landmark update"))
+    return res.x_est
 
 
 @lru_cache(maxsize=None)
 def reference(name):
-    """Reference results of each loop on its scenario (cached per process)."""
+    """Reference results of each loop on its scenario (cached per process): the same drivers, slamlib's functions."""
     if name == "ekf_known":
-        run = scenario("localization")
-        return ekf_localization_loop(run, predict=ref_ekf_predict, update=ref_ekf_update)[0]
+        return ekf_localization_loop(scenario("localization"))[0]
     if name == "ekf_unknown":
-        run = scenario("localization")
-        traj, ids = ekf_localization_loop(run, predict=ref_ekf_predict, update=ref_ekf_update,
-                                          associate=ref_associate, gate=GATE)
+        traj, ids = ekf_localization_loop(scenario("localization"), known=False)
         return traj, tuple(ids)
     if name == "pf":
-        return particle_filter_loop(scenario("localization"), likelihood=ref_likelihood, normalize=ref_normalize,
-                                    ess=ref_ess, resample=ref_resample)
+        return particle_filter_loop(scenario("localization"))
     if name == "ekf_slam":
-        return ekf_slam_loop(scenario("slam"), predict=ref_slam_predict, init=ref_slam_init, update=ref_slam_update)
+        return ekf_slam_loop(scenario("slam"))
     if name == "fastslam":
-        return fastslam_loop(scenario("slam"), init=ref_fs_init, update=ref_fs_update)
+        return fastslam_loop(scenario("slam"))
     raise KeyError(name)
 
 

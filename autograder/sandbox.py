@@ -51,14 +51,15 @@ from pathlib import Path
 
 import numpy as np
 
-from . import _runner
-from ._runner import ProtocolError, RngSeed, decode_result, encode_args, pack_frame, parse_frame
+from . import wire
+from .wire import ProtocolError, RngSeed, decode_result, encode_args, pack_frame, parse_frame
 
 __all__ = ["Limits", "Sandbox", "Worker", "CallOutcome", "ChildFailed", "RngSeed", "isolation_report",
            "describe_isolation", "protection_level"]
 
-RUNNER = str(Path(_runner.__file__).resolve())
 _PKG_DIR = Path(__file__).resolve().parent
+#: The child's script; it loads ``wire.py`` from the same folder before it isolates itself.
+RUNNER = str(_PKG_DIR / "_runner.py")
 _counter = itertools.count()
 _counter_lock = threading.Lock()
 
@@ -687,7 +688,7 @@ class Worker:
                             res_open = False
                         else:
                             self._res.extend(chunk)
-                            if len(self._res) > _runner.MAX_PAYLOAD + _runner.MAX_HEADER + 64:
+                            if len(self._res) > wire.MAX_PAYLOAD + wire.MAX_HEADER + 64:
                                 return None, None, "protocol", "result too large"
                     else:
                         if self._read_output() is False:

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ._runner import decode_result, encode_result
+from .wire import decode_result, encode_result
 from .context import RngSeed
 from .engine import run_tests
 from .exercises import get_exercise

@@ -5,13 +5,25 @@ argument and says what was expected, so that a wrong call fails loudly instead
 of being coerced into a wrong answer.
 
 * arrays: :func:`as_array`, :func:`as_vector` (``(..., n)``), :func:`as_matrix`
-  (``(..., r, c)``), :func:`as_rows` (``(K, c)``, empty allowed), :func:`as_mask`;
-* covariances: :func:`as_covariance` (symmetric, PSD or PD, batched or not);
-* poses: :func:`as_pose`, :func:`as_poses`;
+  (``(..., r, c)``), :func:`as_rows` (``(K, c)``, e.g. measurements; empty
+  allowed), :func:`as_mask`, :func:`as_scan` (a range scan), :func:`as_range_bearing`
+  (one measurement ``[r, phi]``, ``r > 0``);
+* covariances: :func:`as_covariance` (symmetric, PSD or PD, batched or not),
+  :func:`as_invertible_covariance` (PD with a representable determinant);
+* poses and states: :func:`as_pose`, :func:`as_poses`, :func:`as_slam_mean` and
+  :func:`as_slam_state` (``[x, y, theta, m0x, m0y, ...]`` and its covariance),
+  :func:`as_rigid_transform` (``R``, ``t``);
+* graphs: :func:`as_edges` (index pairs), :func:`as_information` (a stack of
+  PD information matrices), :func:`as_pose_graph`;
 * weights and probabilities: :func:`as_weights`, :func:`as_log_weights`
-  (:func:`check_log_weights`), :func:`as_probability`, :func:`as_probabilities`;
-* numbers: :func:`as_scalar`, :func:`as_count`, :func:`as_index`, :func:`as_indices`;
-* others: :func:`check_rng`, :func:`check_type`;
+  (:func:`check_log_weights`), :func:`as_probability`, :func:`as_probabilities`,
+  :func:`as_kernel` (a motion kernel centred on zero);
+* numbers: :func:`as_scalar`, :func:`as_threshold` (gates; ``None`` for none),
+  :func:`as_count`, :func:`as_index`, :func:`as_indices`, :func:`as_index_set`;
+* others: :func:`check_rng`, :func:`check_type`, :func:`check_field_shapes` (a
+  record's array fields), :func:`check_choice` (an option among named strings);
+* functions a caller plugs into a driver: :func:`check_callable` (the argument),
+  :func:`as_returned` (what it returned);
 * arguments whose shapes must agree: :func:`check_batch`, :func:`check_rows`,
   :func:`check_broadcast` (the message names both sides); the ``ref`` keyword
   of the array helpers names the argument a required size comes from;
@@ -92,20 +104,42 @@ def as_rows(value, name, cols):
     return arr
 
 
-def as_mask(value, name, *, ndim=None):
-    """A boolean array from booleans or 0/1 numbers."""
-    arr = as_array(value, name, ndim=ndim)
+def as_mask(value, name, *, ndim=None, shape=None, ref=None):
+    """A boolean array from booleans or 0/1 numbers (of `shape`, the shape of argument `ref`, when given)."""
+    arr = as_array(value, name, shape, ndim=ndim, ref=ref)
     if not np.all((arr == 0) | (arr == 1)):
         raise ValueError(f"{name} must hold booleans (or 0/1)")
     return arr.astype(bool)
 
 
-def check_type(value, cls, name):
-    """Require an instance of `cls` (a class or a tuple of classes)."""
+def check_type(value, cls, name, hint=None):
+    """Require an instance of `cls` (a class or a tuple of classes); `hint` says where one comes from."""
     if not isinstance(value, cls):
         want = " or ".join(c.__name__ for c in cls) if isinstance(cls, tuple) else cls.__name__
-        raise TypeError(f"{name} must be a {want}, got {type(value).__name__}")
+        raise TypeError(f"{name} must be a {want}{'' if hint is None else f' ({hint})'}, got {type(value).__name__}")
     return value
+
+
+def check_field_shapes(value, name, shapes):
+    """The array fields of record `value` (e.g. a filter's state) must have ``shapes`` (a dict field -> shape)."""
+    for field, shape in shapes.items():
+        got = getattr(value, field).shape
+        if got != shape:
+            raise ValueError(f"{name}.{field} must have shape {shape}, got {got}")
+    return value
+
+
+def check_choice(value, name, choices, *, removed=None):
+    """One of the strings `choices` (a dict: choice -> what it means, said in the message).
+
+    `removed` maps a choice that is gone to the message that says what took its place.
+    """
+    if isinstance(value, str) and value in choices:
+        return value
+    if removed and isinstance(value, str) and value in removed:
+        raise ValueError(f"{name}={value!r} is gone: {removed[value]}")
+    want = " or ".join(f"{c!r} ({what})" for c, what in choices.items())
+    raise ValueError(f"{name} must be {want}, got {value!r}")
 
 
 def _ref(ref):
@@ -155,6 +189,18 @@ def _real_scalar(value, name):
     if arr.ndim != 0 or arr.dtype.kind not in "iuf":
         raise ValueError(f"{name} must be a real scalar, got shape {arr.shape} dtype {arr.dtype}")
     return float(arr)
+
+
+def as_threshold(value, name, *, optional=False, none=None, positive=False, finite=False):
+    """A threshold (a gate on a squared Mahalanobis distance, a chi-square bound) as a Python float.
+
+    Non-negative (positive with `positive`); ``inf`` (never fires) is allowed
+    unless `finite`. With `optional`, ``None`` means "no threshold" and gives
+    `none` (e.g. ``math.inf``); otherwise ``None`` is refused.
+    """
+    if value is None and optional:
+        return none
+    return as_scalar(value, name, positive=positive, nonnegative=not positive, finite=finite)
 
 
 def as_vector(value, name, n=None, *, copy=True, ref=None):
@@ -238,14 +284,17 @@ def as_covariance(value, name, n=None, *, definite=False, batched=False, psd=Tru
     Symmetric means ``max |A - A^T| <= 1e-9 max(1, max |A|)``; semi-definite
     means the smallest eigenvalue is ``>= -1e-9 max(1, max |eig|)``. A 2x2 or
     3x3 matrix whose leading principal minors are clearly positive (Sylvester's
-    criterion) is accepted without an eigendecomposition, so checking one small
-    covariance costs about a microsecond; anything else goes through
-    ``numpy.linalg.eigvalsh``.
+    criterion), or a 2x2 one whose closed-form eigenvalues are clearly
+    non-negative (when semi-definite is enough), is accepted without an
+    eigendecomposition, so checking one small covariance costs about a
+    microsecond; anything else goes through ``numpy.linalg.eigvalsh``.
     """
     if type(value) is np.ndarray and value.dtype is _F64 and value.ndim == 2:
         k = value.shape[0]
-        if 2 <= k <= 3 and value.shape[1] == k and (n is None or n == k) and _small_pd(value.tolist(), k):
-            return value.copy() if copy else value  # finite, symmetric and clearly positive definite
+        if 2 <= k <= 3 and value.shape[1] == k and (n is None or n == k):
+            a = value.tolist()
+            if _small_pd(a, k) or (k == 2 and not definite and _small_psd2(a)):
+                return value.copy() if copy else value  # finite, symmetric and clearly positive (semi-)definite
     arr = as_matrix(value, name, n, n, copy=copy, ref=ref)
     if arr.shape[-1] != arr.shape[-2]:
         raise ValueError(f"{name} must be square, got shape {arr.shape}")
@@ -266,6 +315,28 @@ def as_covariance(value, name, n=None, *, definite=False, batched=False, psd=Tru
         tol = PSD_RTOL * np.maximum(1.0, np.abs(eig).max(axis=-1))
         if np.any(eig.min(axis=-1) < -tol):
             raise ValueError(f"{name} must be positive semi-definite (smallest eigenvalue {low:.3g})")
+    return arr
+
+
+def as_invertible_covariance(value, name, n=None, *, max_log_det):
+    """A positive definite ``(n, n)`` covariance whose determinant and its inverse are ordinary floats.
+
+    ``|log det value| < max_log_det``, so that a Gaussian density's
+    normaliser ``|2 pi value|^-1/2`` and ``value^-1`` stay far from overflow
+    and underflow (e.g. a noise covariance written in standard deviations
+    instead of variances is refused, with a hint).
+    """
+    arr = as_covariance(value, name, n, definite=True)
+    if arr.shape == (2, 2):
+        (a, b), (c, d) = arr.tolist()
+        det = a * d - b * c
+        log_det = math.log(det) if 0.0 < det < math.inf else float(np.linalg.slogdet(arr)[1])
+    else:
+        log_det = float(np.linalg.slogdet(arr)[1])
+    if not abs(log_det) < max_log_det:
+        raise ValueError(f"{name} is out of the representable range: log det {name} = {log_det:.4g} (its entries are "
+                         "squared standard deviations, e.g. diag([0.1, 0.02])**2; the weights need det "
+                         f"{name} and its inverse as floats, |log det {name}| < {max_log_det})")
     return arr
 
 
@@ -331,6 +402,25 @@ def _small_pd(a, k):
     return det > eps * scale * scale
 
 
+def _small_psd2(a):
+    """True if the 2x2 nested list `a` is finite, symmetric and positive semi-definite by a clear margin.
+
+    The eigenvalues in closed form (of the lower triangle, as ``eigvalsh``
+    reads it); the smallest must lie above half the tolerance of the full
+    check, far above the rounding of either computation, so this test is never
+    looser than the full one. False decides nothing (e.g. a singular matrix
+    asked to be definite goes the long way).
+    """
+    (a00, a01), (a10, a11) = a
+    if not math.isfinite(a00 + a01 + a10 + a11):
+        return False
+    if abs(a01 - a10) > SYM_RTOL * max(1.0, abs(a00), abs(a01), abs(a10), abs(a11)):
+        return False
+    mid, rad = 0.5 * (a00 + a11), math.hypot(0.5 * (a00 - a11), a10)
+    low, high = mid - rad, mid + rad
+    return low >= -0.5 * PSD_RTOL * max(1.0, abs(low), abs(high))
+
+
 def check_rows(*named):
     """Arrays ``(array, name)`` must have the same number of rows (first axis); returns it."""
     first, first_name = named[0]
@@ -394,6 +484,34 @@ def as_poses(value, name="poses", *, batched=False, ndim=None, allow_empty=True)
     return arr
 
 
+def as_slam_mean(value, name="mu"):
+    """A landmark-SLAM mean ``[x, y, theta, m0x, m0y, ...]``, shape ``(3+2N,)``, finite."""
+    mu = as_array(value, name, ndim=1)
+    if mu.shape[0] < 3 or (mu.shape[0] - 3) % 2:
+        raise ValueError(f"{name} must have shape (3+2N,) = [x, y, theta, m0x, m0y, ...], got {mu.shape}")
+    return mu
+
+
+def as_slam_state(mu, Sigma, mu_name="mu", sigma_name="Sigma"):
+    """A landmark-SLAM Gaussian: :func:`as_slam_mean` and its ``(3+2N, 3+2N)`` covariance (symmetric, PSD).
+
+    The semi-definiteness test costs an eigendecomposition, ``O(N^3)``: no more
+    than a teaching version's dense algebra; a fast filter checks once, when it
+    takes the state.
+    """
+    mu = as_slam_mean(mu, mu_name)
+    return mu, as_covariance(Sigma, sigma_name, mu.shape[0], ref=mu_name)
+
+
+def as_rigid_transform(R, t, names=("R", "t")):
+    """A 2-D rigid transform ``p -> R p + t``: a rotation matrix ``R (2, 2)`` (orthonormal, det +1) and ``t (2,)``."""
+    R = as_array(R, names[0], (2, 2))
+    t = as_array(t, names[1], (2,))
+    if not np.allclose(R.T @ R, np.eye(2), atol=1e-9) or np.linalg.det(R) < 0:
+        raise ValueError(f"{names[0]} must be a rotation matrix (orthonormal, det +1)")
+    return R, t
+
+
 def as_weights(value, name="w", n=None, *, normalize=True, ref=None):
     """Non-negative weights ``(n,)``, not all zero, finite sum; normalised to sum 1 unless told not to."""
     w = as_array(value, name, (None,) if n is None else (n,), ref=ref)
@@ -453,6 +571,15 @@ def as_probabilities(value, name, shape=None, *, ndim=None, sums_to_one=False, t
     return arr
 
 
+def as_kernel(value, name, ndim, *, tol=1e-6):
+    """A motion kernel: a distribution over displacements centred on zero (odd length along every axis)."""
+    arr = as_probabilities(value, name, ndim=ndim, sums_to_one=True, tol=tol)
+    if any(s % 2 == 0 for s in arr.shape):
+        raise ValueError(f"{name} must have an odd length along every axis (centred on zero displacement), "
+                         f"got shape {arr.shape}")
+    return arr
+
+
 def as_count(value, name, *, minimum=0, maximum=None):
     """A Python int count ``>= minimum`` (and ``<= maximum``); bools and floats are refused."""
     if isinstance(value, bool) or not isinstance(value, (numbers.Integral, np.integer)):
@@ -478,6 +605,30 @@ def as_indices(value, name, upper, shape=None, *, ref=None):
     return arr.astype(np.intp)
 
 
+def check_callable(value, name, signature):
+    """``value`` if it is None or callable; the message shows the call `signature` expected."""
+    if value is not None and not callable(value):
+        raise TypeError(f"{name} must be a callable {name}{signature} or None, got {type(value).__name__}")
+    return value
+
+
+def as_returned(value, name, *shapes, nonnegative=()):
+    """What a caller's function `name` returned, as new float64 arrays of the given `shapes`.
+
+    One shape: the returned value itself; several: a tuple (or list) of that many
+    arrays. Every array must be finite; the items whose positions are in
+    `nonnegative` must have no negative entry. Messages name the function and the
+    item (``"ekf_predict(...)[1] must have shape (3, 3), got (3,)"``).
+    """
+    if len(shapes) == 1:
+        return as_array(value, f"{name}(...)", shapes[0], nonnegative=0 in nonnegative)
+    if not isinstance(value, (tuple, list)) or len(value) != len(shapes):
+        got = f"{len(value)} items" if isinstance(value, (tuple, list)) else f"a {type(value).__name__}"
+        raise ValueError(f"{name} must return a tuple of {len(shapes)} arrays, got {got}")
+    return tuple(as_array(v, f"{name}(...)[{i}]", s, nonnegative=i in nonnegative)
+                 for i, (v, s) in enumerate(zip(value, shapes)))
+
+
 def check_rng(rng, name="rng"):
     """Require a ``numpy.random.Generator`` (no global random state anywhere)."""
     if not isinstance(rng, np.random.Generator):
@@ -496,6 +647,35 @@ def as_index(value, name, upper=None, *, lower=0):
     return out
 
 
+def as_range_bearing(value, name="z"):
+    """One range-bearing measurement ``[r, phi]``, shape ``(2,)``, finite, with a positive range
+    (the inverse measurement model and its Jacobian are undefined at ``r = 0``)."""
+    z = as_array(value, name, (2,))
+    if z[0] <= 0:
+        raise ValueError(f"{name} must have a positive range {name}[0], got {z[0]}")
+    return z
+
+
+def as_index_set(value, name, upper, *, what="index", why=None):
+    """A sorted tuple of distinct Python ints in ``[0, upper)`` from a non-empty sequence of integers.
+
+    Bools and floats are refused; `what` names an index in the messages
+    (e.g. ``"pose"``), `why` says why an empty set is refused.
+    """
+    try:
+        raw = list(value)
+    except TypeError:
+        raise TypeError(f"{name} must be a sequence of {what} indices, got {type(value).__name__}") from None
+    for f in raw:
+        if isinstance(f, bool) or not isinstance(f, (numbers.Integral, np.integer)):
+            raise TypeError(f"{name} must hold integer {what} indices, got {f!r}")
+        if not 0 <= f < upper:
+            raise ValueError(f"{name} holds {what} {int(f)}, outside 0..{upper - 1}")
+    if not raw:
+        raise ValueError(f"{name} must hold at least one {what}" + ("" if why is None else f": {why}"))
+    return tuple(sorted({int(f) for f in raw}))
+
+
 def as_scan(ranges, angles):
     """Return a range scan ``(ranges (K,), angles (K,))`` as new float64 arrays after checking it.
 
@@ -509,3 +689,63 @@ def as_scan(ranges, angles):
     if np.any(ranges < 0):
         raise ValueError("ranges must be non-negative")
     return ranges, angles
+
+
+def as_edges(value, name, n, m=None, *, what=("pose", "landmark")):
+    """Index pairs ``(E, 2)`` as a new int64 array (``E`` may be 0).
+
+    Without `m`: edges ``[i, j]`` between `n` nodes (``what[0]`` names one),
+    ``0 <= i, j < n`` and ``i != j``. With `m`: pairs ``[i, k]`` of a node
+    ``i < n`` and a ``what[1]`` ``k < m``. Integer arrays; floats holding whole
+    numbers are taken as the integers they hold.
+    """
+    arr = np.asarray(value)
+    if arr.dtype.kind not in "iu":
+        if arr.dtype.kind == "f" and arr.size and np.all(np.isfinite(arr)) and np.all(arr == np.round(arr)):
+            arr = arr.astype(np.int64)
+        elif arr.size == 0:
+            arr = arr.astype(np.int64)
+        else:
+            raise TypeError(f"{name} must be an integer array of index pairs, got dtype {arr.dtype}")
+    arr = arr.astype(np.int64, copy=True)
+    if arr.ndim != 2 or arr.shape[1] != 2:
+        raise ValueError(f"{name} must have shape (E, 2), got {arr.shape}")
+    hi = n if m is None else m
+    bad = np.flatnonzero((arr < 0).any(axis=1) | (arr[:, 0] >= n) | (arr[:, 1] >= hi))
+    if bad.size:
+        where = f"a {what[0]} outside 0..{n - 1}" + ("" if m is None else f" or a {what[1]} outside 0..{m - 1}")
+        raise ValueError(f"{name}[{bad[0]}] = {arr[bad[0]].tolist()} refers to {where}")
+    if m is None:
+        loop = np.flatnonzero(arr[:, 0] == arr[:, 1])
+        if loop.size:
+            raise ValueError(f"{name}[{loop[0]}] joins {what[0]} {arr[loop[0], 0]} to itself (i == j)")
+    return arr
+
+
+def as_information(value, name, E, d):
+    """`E` information matrices ``(E, d, d)``, each symmetric and positive definite; the message names the first bad one.
+
+    Positive definite means a smallest eigenvalue above ``1e-15`` times the largest.
+    """
+    W = as_array(value, name, (E, d, d))
+    scale = np.maximum(1.0, np.abs(W).max(axis=(1, 2), initial=0.0))
+    asym = np.flatnonzero(np.abs(W - np.swapaxes(W, 1, 2)).max(axis=(1, 2), initial=0.0) > SYM_RTOL * scale)
+    if asym.size:
+        raise ValueError(f"{name}[{asym[0]}] must be symmetric")
+    if E:
+        eig = np.linalg.eigvalsh(W)
+        bad = np.flatnonzero(eig[:, 0] <= 1e-15 * eig[:, -1].clip(min=0))
+        if bad.size:
+            raise ValueError(f"{name}[{bad[0]}] must be positive definite (smallest eigenvalue {eig[bad[0], 0]:.3g})")
+    return W
+
+
+def as_pose_graph(X, edges, Z, Omega, names=("X", "edges", "Z", "Omega")):
+    """A pose graph: poses ``X (n, 3)`` (at least one), edges ``(E, 2)`` between them, relative poses
+    ``Z (E, 3)`` and information matrices ``Omega (E, 3, 3)``; see :func:`as_edges`, :func:`as_information`."""
+    X = as_poses(X, names[0], allow_empty=False)
+    edges = as_edges(edges, names[1], X.shape[0])
+    E = edges.shape[0]
+    Z = as_array(Z, names[2], (E, 3))
+    Omega = as_information(Omega, names[3], E, 3)
+    return X, edges, Z, Omega

@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import signal, special
 
-from ._checks import as_array, as_index, as_mask, as_probabilities, as_probability, as_scalar, check_rng
+from ._checks import as_array, as_index, as_kernel, as_mask, as_probabilities, as_probability, as_scalar, check_rng
 
 __all__ = [
     "bayes_rule",
@@ -44,25 +44,6 @@ __all__ = [
     "grid_range_likelihood",
     "simulate_grid",
 ]
-
-_SUM_TOL = 1e-6  # how far from 1 the sum of a distribution may be (rounding, float32 inputs)
-
-
-# --------------------------------------------------------------------------- checks
-
-
-def _as_distribution(value, name, shape=None, *, ndim=None):
-    """A non-negative float64 array summing to 1 (within ``_SUM_TOL``)."""
-    return as_probabilities(value, name, shape, ndim=ndim, sums_to_one=True, tol=_SUM_TOL)
-
-
-def _as_kernel(value, name, ndim):
-    arr = _as_distribution(value, name, ndim=ndim)
-    if any(s % 2 == 0 for s in arr.shape):
-        raise ValueError(f"{name} must have an odd length along every axis (centred on zero displacement), "
-                         f"got shape {arr.shape}")
-    return arr
-
 
 def _posterior(prior, likelihood):
     """``eta * likelihood * prior`` for checked arrays of the same shape."""
@@ -118,7 +99,7 @@ def bayes_rule(prior, likelihood):
     >>> bayes_rule([0.5, 0.5], [5 / 10, 3 / 10])
     array([0.625, 0.375])
     """
-    prior = _as_distribution(prior, "prior", ndim=range(1, 33))
+    prior = as_probabilities(prior, "prior", ndim=range(1, 33), sums_to_one=True)
     likelihood = as_array(likelihood, "likelihood", prior.shape, nonnegative=True, ref="prior")
     return _posterior(prior, likelihood)
 
@@ -152,7 +133,7 @@ def histogram_update(belief, likelihood):
     ----------
     Thrun, Burgard & Fox, *Probabilistic Robotics*, Table 4.1 line 4; Table 2.1 line 4.
     """
-    belief = _as_distribution(belief, "belief", ndim=range(1, 33))
+    belief = as_probabilities(belief, "belief", ndim=range(1, 33), sums_to_one=True)
     likelihood = as_array(likelihood, "likelihood", belief.shape, nonnegative=True, ref="belief")
     # bel(x_t) = eta p(z_t | x_t) bel_bar(x_t)  (Table 4.1 line 4)
     return _posterior(belief, likelihood)
@@ -272,8 +253,8 @@ def histogram_predict(belief, kernel):
     ----------
     Thrun, Burgard & Fox, *Probabilistic Robotics*, Table 4.1 line 3; Table 2.1 line 3.
     """
-    belief = _as_distribution(belief, "belief", ndim=1)
-    kernel = _as_kernel(kernel, "kernel", ndim=1)
+    belief = as_probabilities(belief, "belief", ndim=1, sums_to_one=True)
+    kernel = as_kernel(kernel, "kernel", ndim=1)
     return _histogram_predict(belief, kernel)
 
 
@@ -321,7 +302,7 @@ def histogram_filter(belief, kernels, likelihoods):
     ----------
     Thrun, Burgard & Fox, *Probabilistic Robotics*, Table 4.1 (discrete Bayes filter).
     """
-    bel = _as_distribution(belief, "belief", ndim=1)
+    bel = as_probabilities(belief, "belief", ndim=1, sums_to_one=True)
     likelihoods = as_array(likelihoods, "likelihoods", (None, bel.size), nonnegative=True, ref="belief")
     steps = likelihoods.shape[0]
     if kernels is None or isinstance(kernels, (str, bytes)) or not hasattr(kernels, "__len__"):
@@ -331,9 +312,9 @@ def histogram_filter(belief, kernels, likelihoods):
     except (ValueError, TypeError):  # kernels of different lengths
         single = False
     if single:
-        kernels = [_as_kernel(kernels, "kernels", ndim=1)] * steps
+        kernels = [as_kernel(kernels, "kernels", ndim=1)] * steps
     else:
-        kernels = [_as_kernel(k, f"kernels[{t}]", ndim=1) for t, k in enumerate(kernels)]
+        kernels = [as_kernel(k, f"kernels[{t}]", ndim=1) for t, k in enumerate(kernels)]
     if len(kernels) != steps:
         raise ValueError(f"kernels must hold one kernel per step: got {len(kernels)} kernels "
                          f"for {steps} rows of likelihoods")
@@ -476,13 +457,6 @@ def simulate_corridor(doors, x0, moves, *, sigma, p_hit, p_false, rng):
 # --------------------------------------------------------------------------- 2-D grid localization
 
 
-def _as_free(free, shape=None):
-    free = as_mask(free, "free", ndim=2)
-    if shape is not None and free.shape != shape:
-        raise ValueError(f"free must have the shape of belief {shape}, got {free.shape}")
-    return free
-
-
 def grid_predict(belief, kernel, *, free=None):
     """Prediction step of grid localization on a bounded 2-D occupancy grid.
 
@@ -526,9 +500,12 @@ def grid_predict(belief, kernel, *, free=None):
     Thrun, Burgard & Fox, *Probabilistic Robotics*, Table 8.1 line 3 (grid
     localization) and Table 4.1 line 3; Sec. 8.2.
     """
-    belief = _as_distribution(belief, "belief", ndim=2)
-    kernel = _as_kernel(kernel, "kernel", ndim=2)
-    free = np.ones(belief.shape, dtype=bool) if free is None else _as_free(free, belief.shape)
+    belief = as_probabilities(belief, "belief", ndim=2, sums_to_one=True)
+    kernel = as_kernel(kernel, "kernel", ndim=2)
+    if free is None:
+        free = np.ones(belief.shape, dtype=bool)
+    else:
+        free = as_mask(free, "free", shape=belief.shape, ref="belief")
     if np.any(belief[~free] > 0):
         raise ValueError("belief puts probability on occupied cells of free; the robot cannot be inside a wall")
     free_f = free.astype(float)
@@ -578,7 +555,7 @@ def grid_wall_distances(free, *, max_range=None):
     Thrun, Burgard & Fox, *Probabilistic Robotics*, Sec. 6.3 (expected range
     ``z*`` by ray casting), reduced to four axis-aligned beams.
     """
-    free = _as_free(free)
+    free = as_mask(free, "free", ndim=2)
     blocked = ~free
     east = _steps_to_block(blocked, 1)
     north = _steps_to_block(blocked, 0)
@@ -665,7 +642,7 @@ def simulate_grid(free, start, moves, *, sigma, range_sigma, rng, max_range=None
     ----------
     Thrun, Burgard & Fox, *Probabilistic Robotics*, Sec. 8.2 (grid localization).
     """
-    free = _as_free(free)
+    free = as_mask(free, "free", ndim=2)
     H, W = free.shape
     start = as_array(start, "start", (2,))
     if np.any(start != np.round(start)):

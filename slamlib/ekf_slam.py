@@ -58,7 +58,8 @@ from typing import NamedTuple
 import numpy as np
 from scipy import stats
 
-from ._checks import as_array, as_covariance, as_index, as_scalar
+from ._checks import (as_array, as_covariance, as_index, as_indices, as_returned, as_scalar, as_slam_mean,
+                      as_slam_state, as_threshold, check_callable)
 from .angles import _wrap1, wrap_angle
 from .motion import STRAIGHT_LINE_OMEGA, _arc1, velocity_motion
 from .sensors import _range_bearing1, landmark_from_measurement, landmark_measurement
@@ -94,48 +95,6 @@ JCBB_ALPHA = float(-2.0 * np.log(0.01))
 #: finite stand-in for the infinite ``Sigma_0`` entries of Algorithm 1).
 DEFAULT_PRIOR_VAR = 1e4
 _PENDING_COLS = 64  # columns of pending rank-2 terms (32 updates) before the dense covariance is refreshed
-
-
-# --------------------------------------------------------------------------- input checks
-def _check_mu(mu, name="mu"):
-    mu = as_array(mu, name, ndim=1)
-    if mu.shape[0] < 3 or (mu.shape[0] - 3) % 2:
-        raise ValueError(f"{name} must have shape (3+2N,) = [x, y, theta, m0x, m0y, ...], got {mu.shape}")
-    return mu
-
-
-def _check_state(mu, Sigma, mu_name="mu", sigma_name="Sigma"):
-    mu = _check_mu(mu, mu_name)
-    n = mu.shape[0]
-    # symmetric and positive semi-definite, as ekf_predict requires of its Sigma: the eigenvalues cost
-    # O(n^3), no more than the teaching version's dense products (the fast filter checks once, in from_state)
-    Sigma = as_covariance(Sigma, sigma_name, n)
-    return mu, Sigma
-
-
-def _check_z(z, name="z"):
-    return as_array(z, name, (2,))
-
-
-def _as_cov2(value, name):
-    """A ``(2, 2)`` covariance checked without an eigen-decomposition (hot path of :class:`EKFSLAM`)."""
-    A = as_array(value, name, (2, 2))
-    scale = max(1.0, abs(A[0, 0]), abs(A[1, 1]))
-    if abs(A[0, 1] - A[1, 0]) > 1e-9 * scale:
-        raise ValueError(f"{name} must be symmetric")
-    if A[0, 0] < 0 or A[1, 1] < 0 or A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0] < -1e-12 * scale * scale:
-        raise ValueError(f"{name} must be positive semi-definite")
-    return A
-
-
-def _check_alpha(alpha):
-    alpha = as_scalar(alpha, "alpha", nonnegative=True, finite=False)
-    return alpha
-
-
-def _check_gate(gate):
-    """``None`` (no gate) becomes ``inf``; otherwise a non-negative threshold."""
-    return math.inf if gate is None else as_scalar(gate, "gate", nonnegative=True, finite=False)
 
 
 def _innovation(z, z_hat):
@@ -323,11 +282,11 @@ def jcbb_associate(mu_bar, Sigma_bar, z, n_seen, Q, alpha):
     17(6):890-897, 2001; Thrun, Burgard & Fox (2005), Sec. 10.3 (Table 10.2
     lines 16-17 for the individual test).
     """
-    mu_bar, Sigma_bar = _check_state(mu_bar, Sigma_bar, "mu_bar", "Sigma_bar")
+    mu_bar, Sigma_bar = as_slam_state(mu_bar, Sigma_bar, "mu_bar", "Sigma_bar")
     z = as_array(z, "z", (None, 2))
     n_seen = as_index(n_seen, "n_seen", (mu_bar.shape[0] - 3) // 2 + 1)
     Q = as_covariance(Q, "Q", 2)
-    alpha = _check_alpha(alpha)
+    alpha = as_threshold(alpha, "alpha")
     return _dense_jcbb(mu_bar, Sigma_bar, z, n_seen, Q, alpha)
 
 
@@ -367,7 +326,7 @@ def joint_mahalanobis(mu_bar, Sigma_bar, z, j, Q):
     Neira & Tardos (2001) (joint compatibility); course text,
     Eqs. 17.2, 17.3.
     """
-    mu_bar, Sigma_bar = _check_state(mu_bar, Sigma_bar, "mu_bar", "Sigma_bar")
+    mu_bar, Sigma_bar = as_slam_state(mu_bar, Sigma_bar, "mu_bar", "Sigma_bar")
     z = as_array(z, "z", (None, 2))
     j = np.asarray(j)
     N = (mu_bar.shape[0] - 3) // 2
@@ -447,7 +406,7 @@ def ekf_slam_predict(mu, Sigma, u, dt, M):
     Course text, Algorithm 1; Thrun, Burgard & Fox (2005),
     Table 10.1 lines 2-5 and Table 7.2 lines 2-5 (``G``, ``V``, ``M``).
     """
-    mu, Sigma = _check_state(mu, Sigma)
+    mu, Sigma = as_slam_state(mu, Sigma)
     u = as_array(u, "u", (2,))
     dt = as_scalar(dt, "dt", nonnegative=True)
     M = as_covariance(M, "M", 2)
@@ -504,7 +463,7 @@ def ekf_slam_measurement(mu, j):
     Course text, Eqs. 17.2 and 17.3, Algorithm 1; Thrun, Burgard &
     Fox (2005), Table 10.1 lines 12-16.
     """
-    mu = _check_mu(mu)
+    mu = as_slam_mean(mu)
     j = as_index(j, "j", (mu.shape[0] - 3) // 2)
     return _measurement(mu, j)
 
@@ -532,8 +491,8 @@ def ekf_slam_init_landmark(mu, z, j):
     Course text, Algorithm 1; Thrun, Burgard & Fox (2005),
     Table 10.1 line 10.
     """
-    mu = _check_mu(mu)
-    z = _check_z(z)
+    mu = as_slam_mean(mu)
+    z = as_array(z, "z", (2,))
     j = as_index(j, "j", (mu.shape[0] - 3) // 2)
     out = mu.copy()
     # mu_j = (x + r cos(phi + theta), y + r sin(phi + theta))  (Table 10.1 line 10)
@@ -581,8 +540,8 @@ def ekf_slam_update(mu_bar, Sigma_bar, z, j, Q):
     Course text, Algorithm 1, Eqs. 17.2, 17.3; Thrun, Burgard &
     Fox (2005), Table 10.1 lines 12-19.
     """
-    mu_bar, Sigma_bar = _check_state(mu_bar, Sigma_bar, "mu_bar", "Sigma_bar")
-    z = _check_z(z)
+    mu_bar, Sigma_bar = as_slam_state(mu_bar, Sigma_bar, "mu_bar", "Sigma_bar")
+    z = as_array(z, "z", (2,))
     j = as_index(j, "j", (mu_bar.shape[0] - 3) // 2)
     Q = as_covariance(Q, "Q", 2)
     n = mu_bar.shape[0]
@@ -642,11 +601,11 @@ def ekf_slam_associate(mu_bar, Sigma_bar, z, n_seen, Q, alpha):
     Course text, Algorithm 2; Thrun, Burgard & Fox (2005), Table 10.2
     lines 16-20.
     """
-    mu_bar, Sigma_bar = _check_state(mu_bar, Sigma_bar, "mu_bar", "Sigma_bar")
-    z = _check_z(z)
+    mu_bar, Sigma_bar = as_slam_state(mu_bar, Sigma_bar, "mu_bar", "Sigma_bar")
+    z = as_array(z, "z", (2,))
     n_seen = as_index(n_seen, "n_seen", (mu_bar.shape[0] - 3) // 2 + 1)
     Q = as_covariance(Q, "Q", 2)
-    alpha = _check_alpha(alpha)
+    alpha = as_threshold(alpha, "alpha")
     best, best_d = n_seen, np.inf
     for k in range(n_seen):  # for k = 0, ..., N_t - 1  (Table 10.2)
         z_hat, H = _measurement(mu_bar, k)  # z_hat_k, H_k  (Eqs. 17.2, 17.3)
@@ -663,13 +622,19 @@ class _PlainEKFSLAM:
     """The teaching version behind the same interface as :class:`EKFSLAM`.
 
     Holds ``mu`` and ``Sigma`` and calls the contract functions; a new landmark
-    is appended (the state grows by concatenation, copying ``Sigma``).
+    is appended (the state grows by concatenation, copying ``Sigma``). ``steps``
+    replaces some of them by a caller's functions (see :func:`_plain_steps`).
     """
 
-    def __init__(self, x0, Sigma0, prior_var):
+    def __init__(self, x0, Sigma0, prior_var, steps=None):
         self.mu = np.array(x0, dtype=float)
         self.Sigma = np.array(Sigma0, dtype=float)
         self.prior_var = prior_var
+        steps = steps or {}
+        self._predict_fn = steps.get("predict", ekf_slam_predict)
+        self._init_fn = steps.get("init", ekf_slam_init_landmark)
+        self._update_fn = steps.get("update", ekf_slam_update)
+        self._associate_fn = steps.get("associate", ekf_slam_associate)
 
     @property
     def n_landmarks(self):
@@ -684,7 +649,7 @@ class _PlainEKFSLAM:
         return self.Sigma[:3, :3]
 
     def predict(self, u, dt, M):
-        self.mu, self.Sigma = ekf_slam_predict(self.mu, self.Sigma, u, dt, M)
+        self.mu, self.Sigma = self._predict_fn(self.mu, self.Sigma, u, dt, M)
 
     def add_landmark(self, z):
         j = self.n_landmarks
@@ -693,7 +658,7 @@ class _PlainEKFSLAM:
         Sigma = np.zeros((n + 2, n + 2))
         Sigma[:n, :n] = self.Sigma
         Sigma[n, n] = Sigma[n + 1, n + 1] = self.prior_var  # Sigma_0 of a landmark not seen before
-        self.mu, self.Sigma = ekf_slam_init_landmark(mu, z, j), Sigma
+        self.mu, self.Sigma = self._init_fn(mu, z, j), Sigma
         return j
 
     def update(self, z, j, Q, gate=math.inf):
@@ -702,11 +667,11 @@ class _PlainEKFSLAM:
             nu = _innovation(z, z_hat)
             if nu @ np.linalg.solve(H @ self.Sigma @ H.T + Q, nu) > gate:  # validation gate on nu^T S^-1 nu
                 return False
-        self.mu, self.Sigma = ekf_slam_update(self.mu, self.Sigma, z, j, Q)
+        self.mu, self.Sigma = self._update_fn(self.mu, self.Sigma, z, j, Q)
         return True
 
     def associate(self, z, Q, alpha):
-        return ekf_slam_associate(self.mu, self.Sigma, z, self.n_landmarks, Q, alpha)
+        return self._associate_fn(self.mu, self.Sigma, z, self.n_landmarks, Q, alpha)
 
     def jcbb(self, z, Q, alpha):
         return jcbb_associate(self.mu, self.Sigma, z, self.n_landmarks, Q, alpha)
@@ -714,6 +679,38 @@ class _PlainEKFSLAM:
     def landmark_variances(self):
         d = np.diag(self.Sigma)[3:]
         return d[0::2] + d[1::2]
+
+
+def _plain_steps(predict=None, init=None, update=None, associate=None):
+    """The ``steps`` of :class:`_PlainEKFSLAM` for a caller's contract functions (each may be None: the library's).
+
+    Each is called with the contract's arguments, on copies of the filter's
+    arrays, and what it returns is checked (shapes, finite; an index in
+    ``[0, n_seen]``).
+    """
+    steps = {}
+    if predict is not None:
+        def predict_step(mu, Sigma, u, dt, M):
+            n = mu.shape[0]
+            return as_returned(predict(mu.copy(), Sigma.copy(), u.copy(), dt, M.copy()), "ekf_slam_predict", (n,),
+                               (n, n))
+        steps["predict"] = predict_step
+    if init is not None:
+        def init_step(mu, z, j):
+            return as_returned(init(mu.copy(), z.copy(), j), "ekf_slam_init_landmark", mu.shape)
+        steps["init"] = init_step
+    if update is not None:
+        def update_step(mu_bar, Sigma_bar, z, j, Q):
+            n = mu_bar.shape[0]
+            return as_returned(update(mu_bar.copy(), Sigma_bar.copy(), z.copy(), j, Q.copy()), "ekf_slam_update", (n,),
+                               (n, n))
+        steps["update"] = update_step
+    if associate is not None:
+        def associate_step(mu_bar, Sigma_bar, z, n_seen, Q, alpha):
+            j = associate(mu_bar.copy(), Sigma_bar.copy(), z.copy(), n_seen, Q.copy(), alpha)
+            return as_index(j, "ekf_slam_associate(...)", n_seen + 1)
+        steps["associate"] = associate_step
+    return steps
 
 
 # --------------------------------------------------------------------------- fast version
@@ -817,7 +814,7 @@ class EKFSLAM:
         ----------
         Course text, Algorithm 1 (state layout).
         """
-        mu, Sigma = _check_state(mu, Sigma)
+        mu, Sigma = as_slam_state(mu, Sigma)
         N = (mu.shape[0] - 3) // 2
         if capacity is None:
             capacity = max(16, N + N // 4)
@@ -928,7 +925,7 @@ class EKFSLAM:
         """
         u = as_array(u, "u", (2,))
         dt = as_scalar(dt, "dt", nonnegative=True)
-        M = _as_cov2(M, "M")
+        M = as_covariance(M, "M", 2)
         self._predict(u, dt, M)
         return self
 
@@ -974,7 +971,7 @@ class EKFSLAM:
         Course text, Algorithm 1; Thrun, Burgard & Fox (2005),
         Table 10.1 line 10.
         """
-        return self._add_landmark(_check_z(z))
+        return self._add_landmark(as_array(z, "z", (2,)))
 
     def _add_landmark(self, z):
         if self.n_landmarks == self._cap:
@@ -1013,10 +1010,10 @@ class EKFSLAM:
         Course text, Algorithm 1, Eqs. 17.2, 17.3; Thrun, Burgard
         & Fox (2005), Table 10.1 lines 12-19.
         """
-        z = _check_z(z)
+        z = as_array(z, "z", (2,))
         j = as_index(j, "j", self.n_landmarks)
-        Q = _as_cov2(Q, "Q")
-        gate = _check_gate(gate)
+        Q = as_covariance(Q, "Q", 2)
+        gate = as_threshold(gate, "gate", optional=True, none=math.inf)
         self._update(z, j, Q, gate)
         return self
 
@@ -1081,14 +1078,10 @@ class EKFSLAM:
         """
         u = as_array(u, "u", (2,))
         dt = as_scalar(dt, "dt", nonnegative=True)
-        M = _as_cov2(M, "M")
+        M = as_covariance(M, "M", 2)
         z = as_array(z, "z", (None, 2))
-        j = np.asarray(j)
-        if j.shape != (z.shape[0],) or (j.size and j.dtype.kind not in "iu"):
-            raise ValueError(f"j must be an integer array of shape ({z.shape[0]},), got {j.dtype} {j.shape}")
-        if j.size and (j.min() < 0 or j.max() >= self.n_landmarks):
-            raise ValueError(f"j must hold indices in [0, {self.n_landmarks}), got {j.min()}..{j.max()}")
-        Q = _as_cov2(Q, "Q")
+        j = as_indices(j, "j", self.n_landmarks, (z.shape[0],), ref="z")
+        Q = as_covariance(Q, "Q", 2)
         self._predict(u, dt, M)
         for zi, ji in zip(z, j.tolist()):
             self._update(zi, ji, Q)
@@ -1114,7 +1107,7 @@ class EKFSLAM:
         Course text, Algorithm 2; Thrun, Burgard & Fox (2005), Table 10.2
         lines 16-17.
         """
-        return self._mahalanobis(_check_z(z), _as_cov2(Q, "Q"))
+        return self._mahalanobis(as_array(z, "z", (2,)), as_covariance(Q, "Q", 2))
 
     def _mahalanobis(self, z, Q):
         return self._distances(z[None], Q)[0]
@@ -1170,7 +1163,7 @@ class EKFSLAM:
         Neira & Tardos (2001); Thrun, Burgard & Fox (2005), Table 10.2
         lines 16-17 (individual test).
         """
-        return self._jcbb(as_array(z, "z", (None, 2)), _as_cov2(Q, "Q"), _check_alpha(alpha))
+        return self._jcbb(as_array(z, "z", (None, 2)), as_covariance(Q, "Q", 2), as_threshold(alpha, "alpha"))
 
     def _jcbb(self, Z, Q, alpha):
         if self.n_landmarks == 0:
@@ -1201,7 +1194,7 @@ class EKFSLAM:
         Course text, Algorithm 2; Thrun, Burgard & Fox (2005), Table 10.2
         lines 16-20.
         """
-        return self._associate(_check_z(z), _as_cov2(Q, "Q"), _check_alpha(alpha))
+        return self._associate(as_array(z, "z", (2,)), as_covariance(Q, "Q", 2), as_threshold(alpha, "alpha"))
 
     def _associate(self, z, Q, alpha):
         d = self._mahalanobis(z, Q)
@@ -1336,7 +1329,8 @@ class EKFSLAMResult(NamedTuple):
 
 def run_ekf_slam(run, *, known=True, fast=True, alpha=DEFAULT_ALPHA, confirm=1, window=10, M=None, Q=None,
                  Sigma0=None, prior_var=DEFAULT_PRIOR_VAR, capacity=16, snapshots=(), association="nn", gate=None,
-                 Q_association=None, jcbb_alpha=None, motion=None):
+                 Q_association=None, jcbb_alpha=None, motion=None, ekf_slam_predict=None, ekf_slam_init_landmark=None,
+                 ekf_slam_update=None, ekf_slam_associate=None, on_step=None):
     """Run EKF SLAM over a simulated landmark run.
 
     Parameters
@@ -1415,6 +1409,31 @@ def run_ekf_slam(run, *, known=True, fast=True, alpha=DEFAULT_ALPHA, confirm=1, 
         sighting with a neighbour several standard deviations away rather
         than leave it unpaired; a measurement compatible with nothing at
         this level goes through Algorithm 2's test with `alpha`.
+    ekf_slam_predict : callable, optional, keyword-only
+        ``ekf_slam_predict(mu, Sigma, u, dt, M) -> (mu_bar, Sigma_bar)`` in
+        place of the filter's prediction (Algorithm 1 lines 2-5): the
+        contract function :func:`ekf_slam_predict` itself, or a student's
+        version of it, as the autograder plugs it in. Needs ``fast=False``
+        (like the three below: they work on the dense state of the teaching
+        version). ``None`` (default): the library's.
+    ekf_slam_init_landmark : callable, optional, keyword-only
+        ``ekf_slam_init_landmark(mu, z, j) -> mu`` in place of the
+        initialisation of a landmark seen for the first time, as
+        :func:`ekf_slam_init_landmark`; it gets the state already grown by the
+        new landmark ``j`` (mean zero, variance `prior_var`).
+    ekf_slam_update : callable, optional, keyword-only
+        ``ekf_slam_update(mu_bar, Sigma_bar, z, j, Q) -> (mu, Sigma)`` in place
+        of the update with one measurement of landmark ``j``, as
+        :func:`ekf_slam_update` (after the validation `gate`, which stays the
+        library's).
+    ekf_slam_associate : callable, optional, keyword-only
+        Unknown correspondences only: ``ekf_slam_associate(mu_bar, Sigma_bar,
+        z, n_seen, Q, alpha) -> j`` in place of Algorithm 2's association, as
+        :func:`ekf_slam_associate` (``j = n_seen``: a new landmark).
+    on_step : callable, optional, keyword-only
+        ``on_step(t)`` is called at the start of step ``t`` (before its
+        prediction), e.g. for progress reports, or so that the functions
+        above know which step they serve.
 
     Returns
     -------
@@ -1423,6 +1442,14 @@ def run_ekf_slam(run, *, known=True, fast=True, alpha=DEFAULT_ALPHA, confirm=1, 
 
     Notes
     -----
+    The functions given for `ekf_slam_predict`, `ekf_slam_init_landmark`,
+    `ekf_slam_update` and `ekf_slam_associate` are called with the homework
+    contract's arguments, where the teaching version calls the library's own,
+    on copies of the filter's arrays; their results are checked (shapes,
+    finite values, an integer index in ``[0, n_seen]``) and a bad one raises
+    ``ValueError`` (``TypeError`` for an index that is not an integer) naming
+    the function. Exceptions they raise pass through unchanged.
+
     Each step predicts with ``u[t]`` and then processes the measurements
     ``z[t]`` one by one in their stored order (sequential updates, each
     re-linearised at the current mean). Gating a measurement is a hard
@@ -1450,7 +1477,7 @@ def run_ekf_slam(run, *, known=True, fast=True, alpha=DEFAULT_ALPHA, confirm=1, 
     M = as_covariance(run.M if M is None else M, "M", 2)
     Q = as_covariance(run.Q if Q is None else Q, "Q", 2)
     Sigma0 = np.zeros((3, 3)) if Sigma0 is None else as_covariance(Sigma0, "Sigma0", 3)
-    alpha = _check_alpha(alpha)
+    alpha = as_threshold(alpha, "alpha")
     confirm = as_index(confirm, "confirm", lower=1)
     window = as_index(window, "window", lower=1)
     prior_var = as_scalar(prior_var, "prior_var", positive=True)
@@ -1458,11 +1485,25 @@ def run_ekf_slam(run, *, known=True, fast=True, alpha=DEFAULT_ALPHA, confirm=1, 
     keep = {as_index(t, "snapshots", T + 1) for t in snapshots}
     if motion is not None and (not callable(motion) or not fast):
         raise ValueError("motion must be a callable motion(x, u, dt) -> (x_next, G, V), with fast=True")
+    check_callable(ekf_slam_predict, "ekf_slam_predict", "(mu, Sigma, u, dt, M)")
+    check_callable(ekf_slam_init_landmark, "ekf_slam_init_landmark", "(mu, z, j)")
+    check_callable(ekf_slam_update, "ekf_slam_update", "(mu_bar, Sigma_bar, z, j, Q)")
+    check_callable(ekf_slam_associate, "ekf_slam_associate", "(mu_bar, Sigma_bar, z, n_seen, Q, alpha)")
+    check_callable(on_step, "on_step", "(t)")
+    given = [name for name, fn in (("ekf_slam_predict", ekf_slam_predict), ("ekf_slam_init_landmark",
+                                                                          ekf_slam_init_landmark),
+                                   ("ekf_slam_update", ekf_slam_update), ("ekf_slam_associate", ekf_slam_associate))
+             if fn is not None]
+    if given and fast:
+        raise ValueError(f"{given[0]} needs fast=False (the functions of the homework contract work on the teaching "
+                         "version's dense state)")
+    if known and ekf_slam_associate is not None:
+        raise ValueError("ekf_slam_associate needs known=False (with known correspondences nothing is associated)")
     if association not in ("nn", "jcbb"):
         raise ValueError(f"association must be 'nn' or 'jcbb', got {association!r}")
-    gate = _check_gate(getattr(run, "gate", None) if gate is None else gate)
+    gate = as_threshold(getattr(run, "gate", None) if gate is None else gate, "gate", optional=True, none=math.inf)
     Qa = Q if Q_association is None else as_covariance(Q_association, "Q_association", 2)
-    alpha_j = JCBB_ALPHA if jcbb_alpha is None else as_scalar(jcbb_alpha, "jcbb_alpha", nonnegative=True, finite=False)
+    alpha_j = JCBB_ALPHA if jcbb_alpha is None else as_threshold(jcbb_alpha, "jcbb_alpha")
     zs = [as_array(z, f"run.z[{t}]", (None, 2)) for t, z in enumerate(run.z)]
     ids = [np.asarray(i, dtype=int) for i in run.ids]
     for t, (z, i) in enumerate(zip(zs, ids)):
@@ -1474,7 +1515,8 @@ def run_ekf_slam(run, *, known=True, fast=True, alpha=DEFAULT_ALPHA, confirm=1, 
         filt._motion = motion
         predict, update, add, associate, jcbb = filt._predict, filt._update, filt._add_landmark, filt._associate, filt._jcbb
     else:
-        filt = _PlainEKFSLAM(x0, Sigma0, prior_var)
+        filt = _PlainEKFSLAM(x0, Sigma0, prior_var, _plain_steps(ekf_slam_predict, ekf_slam_init_landmark,
+                                                                 ekf_slam_update, ekf_slam_associate))
         predict, update, add, associate, jcbb = filt.predict, filt.update, filt.add_landmark, filt.associate, filt.jcbb
     provisional = _ProvisionalList(confirm, window)
     slot_of, landmark_ids = {}, []
@@ -1496,6 +1538,8 @@ def run_ekf_slam(run, *, known=True, fast=True, alpha=DEFAULT_ALPHA, confirm=1, 
 
     record(0)
     for t in range(T):
+        if on_step is not None:
+            on_step(t)
         predict(u[t], dt, M)  # (Table 10.1 lines 2-5)
         slots = np.full(len(ids[t]), -1)
         if not known and association == "jcbb" and len(ids[t]) > 1:

@@ -54,7 +54,9 @@ from typing import NamedTuple
 import numpy as np
 
 from .particle import _normalized, effective_sample_size, low_variance_resample, normalize_log_weights, particle_gaussian
-from ._checks import as_array, as_covariance, as_scalar, check_rng
+from ._checks import (as_array, as_count, as_covariance, as_invertible_covariance, as_poses, as_range_bearing,
+                      as_returned, as_rows, as_scalar, as_threshold, check_callable, check_choice, check_field_shapes,
+                      check_log_weights, check_rng, check_type)
 from .angles import wrap_angle
 from .motion import _arc, _arc_pose, _control_sqrt, sample_motion_model_velocity, velocity_motion
 from .sensors import landmark_from_measurement, landmark_measurement
@@ -217,50 +219,9 @@ def _update_core(x, mu, Sigma, z, Q, weight_cov="S", gate=None):
     return mu_new, Sigma_new, log_w, outlier
 
 
-_WEIGHT_COVS = ("S", "text")
-
-
-def _check_weight_cov(weight_cov):
-    if isinstance(weight_cov, str) and weight_cov == "Q":
-        raise ValueError("weight_cov='Q' is gone: the course text's formula is weight_cov='text' "
-                         "(|2 pi S|^-1/2 exp(-1/2 nu^T Q^-1 nu))")
-    if not isinstance(weight_cov, str) or weight_cov not in _WEIGHT_COVS:
-        raise ValueError(f"weight_cov must be 'S' (innovation covariance) or 'text' (the course text's erratum), "
-                         f"got {weight_cov!r}")
-    return weight_cov
-
-
-def _check_gate(gate):
-    if gate is None:
-        return None
-    return as_scalar(gate, "gate", positive=True)
-
-
-def _check_Q(Q):
-    Q = as_covariance(Q, "Q", 2)
-    lam = np.linalg.eigvalsh(Q)
-    if lam.min() <= 0:
-        raise ValueError("Q must be positive definite")
-    log_det = float(np.log(lam).sum())
-    if not abs(log_det) < _MAX_LOG_DET:
-        raise ValueError(f"Q is out of the representable range: log det Q = {log_det:.4g} (its entries are "
-                         "squared standard deviations, e.g. diag([0.1, 0.02])**2; the weights need det Q and "
-                         f"its inverse as floats, |log det Q| < {_MAX_LOG_DET})")
-    return Q
-
-
-def _poses_arg(x, name="x"):
-    x = as_array(x, name, ndim=(1, 2))
-    if x.shape[-1] != 3:
-        raise ValueError(f"{name} must have shape (M, 3) or (3,), got {x.shape}")
-    return x
-
-
-def _z_arg(z):
-    z = as_array(z, "z", (2,))
-    if z[0] <= 0:
-        raise ValueError(f"z must have a positive range z[0], got {z[0]}")
-    return z
+#: The choices of ``weight_cov`` and what each means; the one that is gone and what replaced it.
+_WEIGHT_COVS = {"S": "innovation covariance", "text": "the course text's erratum"}
+_GONE_WEIGHT_COVS = {"Q": "the course text's formula is weight_cov='text' (|2 pi S|^-1/2 exp(-1/2 nu^T Q^-1 nu))"}
 
 
 # --------------------------------------------------------------------------- contract functions
@@ -290,9 +251,9 @@ def fastslam_init_landmark(x, z, Q):
     Course text, Algorithm 3 (new landmark). Thrun, Burgard & Fox (2005),
     Table 13.1 lines 7-9.
     """
-    x = _poses_arg(x)
-    z = _z_arg(z)
-    Q = _check_Q(Q)
+    x = as_poses(x, "x", ndim=(1, 2))
+    z = as_range_bearing(z)
+    Q = as_invertible_covariance(Q, "Q", 2, max_log_det=_MAX_LOG_DET)
     return _init_core(x, z, Q)
 
 
@@ -350,16 +311,16 @@ def fastslam_update_landmark(x, mu, Sigma, z, Q, *, weight_cov="S", log=False, g
     Course text, Algorithm 3 (known landmark). Thrun, Burgard & Fox (2005),
     Table 13.1 lines 12-18 (where ``Q`` names the innovation covariance).
     """
-    x = _poses_arg(x)
+    x = as_poses(x, "x", ndim=(1, 2))
     batch = x.shape[:-1]
     mu = as_array(mu, "mu", batch + (2,))
     Sigma = as_array(Sigma, "Sigma", batch + (2, 2))
     if not np.allclose(Sigma, _T(Sigma), rtol=1e-9, atol=1e-12 * max(1.0, float(np.abs(Sigma).max(initial=0.0)))):
         raise ValueError("Sigma must hold symmetric 2x2 covariances")
-    z = _z_arg(z)
-    Q = _check_Q(Q)
-    _check_weight_cov(weight_cov)
-    gate = _check_gate(gate)
+    z = as_range_bearing(z)
+    Q = as_invertible_covariance(Q, "Q", 2, max_log_det=_MAX_LOG_DET)
+    check_choice(weight_cov, "weight_cov", _WEIGHT_COVS, removed=_GONE_WEIGHT_COVS)
+    gate = as_threshold(gate, "gate", optional=True, positive=True, finite=True)
     if np.any(np.hypot(mu[..., 0] - x[..., 0], mu[..., 1] - x[..., 1]) < 1e-9):
         raise ValueError("mu coincides with a particle pose x: the measurement Jacobian is undefined")
     mu_new, Sigma_new, log_w, _ = _update_core(x, mu, Sigma, z, Q, weight_cov, gate)
@@ -423,14 +384,10 @@ class FastSLAMState(NamedTuple):
 
 
 def _check_state(state, name="state"):
-    if not isinstance(state, FastSLAMState):
-        raise TypeError(f"{name} must be a FastSLAMState (from fastslam_initial_state), got {type(state).__name__}")
+    check_type(state, FastSLAMState, name, "from fastslam_initial_state")
     M, N = state.seen.shape
     shapes = {"poses": (M, 3), "mu": (M, N, 2), "Sigma": (M, N, 2, 2), "counts": (M, N), "log_weights": (M,)}
-    for field, shape in shapes.items():
-        if getattr(state, field).shape != shape:
-            raise ValueError(f"{name}.{field} must have shape {shape}, got {getattr(state, field).shape}")
-    return state
+    return check_field_shapes(state, name, shapes)
 
 
 def fastslam_initial_state(x0, n_particles, capacity):
@@ -458,8 +415,8 @@ def fastslam_initial_state(x0, n_particles, capacity):
     particle set it starts from).
     """
     x0 = as_array(x0, "x0", (3,))
-    M = _as_count(n_particles, "n_particles")
-    N = _as_count(capacity, "capacity")
+    M = as_count(n_particles, "n_particles", minimum=1)
+    N = as_count(capacity, "capacity", minimum=1)
     _check_capacity(M, N, "capacity")
     x0 = x0.copy()
     x0[2] = wrap_angle(x0[2])
@@ -471,14 +428,6 @@ def fastslam_initial_state(x0, n_particles, capacity):
         counts=np.zeros((M, N), dtype=np.int64),
         log_weights=np.full(M, -np.log(M)),
     )
-
-
-def _as_count(value, name):
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-        raise TypeError(f"{name} must be an integer, got {type(value).__name__}")
-    if value < 1:
-        raise ValueError(f"{name} must be at least 1, got {value}")
-    return int(value)
 
 
 def fastslam_predict(state, u, dt, *, rng, M=None, alpha=None):
@@ -576,17 +525,6 @@ def _grow(state, need, name="ids"):
     return state._replace(mu=mu, Sigma=Sigma, seen=seen, counts=counts)
 
 
-def _z_matrix(z):
-    z = as_array(z, "z", ndim=(1, 2))
-    if z.ndim == 1:
-        if z.size != 0:
-            raise ValueError(f"z must have shape (K, 2), got {z.shape}")
-        z = z.reshape(0, 2)
-    if z.shape[-1] != 2:
-        raise ValueError(f"z must have shape (K, 2), got {z.shape}")
-    return z
-
-
 def _ids_arg(ids, K):
     ids = np.asarray(ids)
     if ids.shape != (K,) or (ids.size and ids.dtype.kind not in "iu"):
@@ -647,11 +585,11 @@ def fastslam_update_known(state, z, ids, Q, *, weight_cov="S", gate=None, return
     lines 5-18 (one measurement there; several multiply the weights).
     """
     _check_state(state)
-    z = _z_matrix(z)
+    z = as_rows(z, "z", 2)
     ids = _ids_arg(ids, z.shape[0])
-    Q = _check_Q(Q)
-    _check_weight_cov(weight_cov)
-    gate = _check_gate(gate)
+    Q = as_invertible_covariance(Q, "Q", 2, max_log_det=_MAX_LOG_DET)
+    check_choice(weight_cov, "weight_cov", _WEIGHT_COVS, removed=_GONE_WEIGHT_COVS)
+    gate = as_threshold(gate, "gate", optional=True, positive=True, finite=True)
     keep = z[:, 0] > 0
     outliers = np.zeros((state.n_particles, z.shape[0]), dtype=bool)
     if not keep.any():
@@ -711,6 +649,60 @@ def _update_known_core(state, z, ids, Q, weight_cov, copy=True, gate=None):
     return FastSLAMState(state.poses, mu, Sigma, seen, counts, _normalized(log_w)), outliers
 
 
+def _fastslam_steps(init, update):
+    """Checked wrappers of a caller's ``fastslam_init_landmark`` and ``fastslam_update_landmark`` (None stays None).
+
+    Each is called with the contract's arguments on copies; the update's weight
+    comes back as ``log w`` (``-inf`` for a weight of zero).
+    """
+    init_step = update_step = None
+    if init is not None:
+        def init_step(x, z, Q):
+            k = x.shape[0]
+            return as_returned(init(x.copy(), z.copy(), Q.copy()), "fastslam_init_landmark", (k, 2), (k, 2, 2))
+    if update is not None:
+        def update_step(x, mu, Sigma, z, Q):
+            k = x.shape[0]
+            mu_new, Sigma_new, w = as_returned(update(x.copy(), mu.copy(), Sigma.copy(), z.copy(), Q.copy()),
+                                               "fastslam_update_landmark", (k, 2), (k, 2, 2), (k,), nonnegative=(2,))
+            with np.errstate(divide="ignore"):
+                return mu_new, Sigma_new, np.log(w)
+    return init_step, update_step
+
+
+def _stepwise_known_core(state, z, ids, Q, weight_cov, gate, init, update):
+    """:func:`_update_known_core` one measurement at a time, writing into `state`'s arrays.
+
+    ``init(x, z, Q) -> (mu, Sigma)`` and ``update(x, mu, Sigma, z, Q) -> (mu_new,
+    Sigma_new, log_w)`` (from :func:`_fastslam_steps`) replace the cores where
+    given; with None the cores do that part (and only they apply the `gate`).
+    """
+    mu, Sigma, seen, counts = state.mu, state.Sigma, state.seen, state.counts
+    x = state.poses
+    log_w = state.log_weights.copy()
+    outliers = np.zeros((x.shape[0], ids.size), dtype=bool)
+    for k, (zk, j) in enumerate(zip(z, ids)):
+        new = ~seen[:, j]  # never seen before  (Table 13.1 line 6)
+        old = ~new
+        if old.any():
+            if update is None:
+                mu_u, Sigma_u, lw, out = _update_core(x[old], mu[old, j], Sigma[old, j], zk, Q, weight_cov, gate)
+            else:
+                (mu_u, Sigma_u, lw), out = update(x[old], mu[old, j], Sigma[old, j], zk, Q), None
+            mu[old, j], Sigma[old, j] = mu_u, Sigma_u  # (Table 13.1 lines 12-17)
+            log_w[old] += lw  # (Table 13.1 line 18)
+            if out is not None:
+                outliers[old, k] = out
+                counts[old, j] -= out  # an outlier is not a sighting of the landmark
+        if new.any():
+            # mu_j = h^-1(z, x), Sigma_j = H^-1 Q H^-T; w = p0, equal for all particles  (Table 13.1 lines 7-10)
+            mu[new, j], Sigma[new, j] = (_init_core if init is None else init)(x[new], zk, Q)
+        seen[:, j] = True
+        counts[:, j] += 1
+    check_log_weights(log_w, "the log-weights after fastslam_update_landmark's weights")
+    return FastSLAMState(state.poses, mu, Sigma, seen, counts, _normalized(log_w)), outliers
+
+
 def fastslam_default_p0(Q, gate=13.815510557964274):
     """Default new-landmark likelihood ``p0`` for unknown correspondences.
 
@@ -734,8 +726,8 @@ def fastslam_default_p0(Q, gate=13.815510557964274):
     ----------
     Thrun, Burgard & Fox (2005), Table 13.2 (the new-feature likelihood ``p0``).
     """
-    Q = _check_Q(Q)
-    gate = as_scalar(gate, "gate", positive=True)
+    Q = as_invertible_covariance(Q, "Q", 2, max_log_det=_MAX_LOG_DET)
+    gate = as_threshold(gate, "gate", positive=True, finite=True)
     return float(np.exp(-0.5 * gate - _LOG_2PI - 0.5 * np.log(np.linalg.det(Q))))
 
 
@@ -786,9 +778,9 @@ def fastslam_update_unknown(state, z, Q, *, p0=None, weight_cov="S", max_range=N
     Thrun, Burgard & Fox (2005), Table 13.2.
     """
     _check_state(state)
-    z = _z_matrix(z)
-    Q = _check_Q(Q)
-    _check_weight_cov(weight_cov)
+    z = as_rows(z, "z", 2)
+    Q = as_invertible_covariance(Q, "Q", 2, max_log_det=_MAX_LOG_DET)
+    check_choice(weight_cov, "weight_cov", _WEIGHT_COVS, removed=_GONE_WEIGHT_COVS)
     log_p0, max_range, half_fov = _unknown_options(Q, p0, max_range, fov)
     return _update_unknown_core(state, z, Q, log_p0, weight_cov, max_range, half_fov)
 
@@ -1034,7 +1026,7 @@ def fastslam2_proposal(x, u, dt, M, mu, Sigma, z, Q):
     Thrun, Burgard & Fox (2005), Table 13.3
     Eqs. 13.45-13.53. Montemerlo et al. (2003), FastSLAM 2.0.
     """
-    x = _poses_arg(x)
+    x = as_poses(x, "x", ndim=(1, 2))
     if x.ndim != 2:
         raise ValueError(f"x must have shape (P, 3), got {x.shape}")
     n = x.shape[0]
@@ -1043,8 +1035,8 @@ def fastslam2_proposal(x, u, dt, M, mu, Sigma, z, Q):
     L = _control_sqrt(as_covariance(M, "M", 2))
     mu = as_array(mu, "mu", (n, 2))
     Sigma = as_array(Sigma, "Sigma", (n, 2, 2))
-    z = _z_arg(z)
-    Q = _check_Q(Q)
+    z = as_range_bearing(z)
+    Q = as_invertible_covariance(Q, "Q", 2, max_log_det=_MAX_LOG_DET)
     x_hat, B = _motion_terms(x, u, dt, L)
     if np.any(np.hypot(mu[:, 0] - x_hat[:, 0], mu[:, 1] - x_hat[:, 1]) < 1e-9):
         raise ValueError("mu coincides with a predicted pose: the measurement Jacobian is undefined")
@@ -1063,10 +1055,6 @@ def fastslam2_proposal(x, u, dt, M, mu, Sigma, z, Q):
     x_cov = B @ eta_cov @ _T(B)
     log_w = log_n + _posterior_log_factor(P, b)
     return FastSLAM2Proposal(u_mean, 0.5 * (u_cov + _T(u_cov)), x_mean, 0.5 * (x_cov + _T(x_cov)), log_w)
-
-
-def _check_M(M):
-    return _control_sqrt(as_covariance(M, "M", 2))
 
 
 def fastslam2_update_known(state, u, dt, z, ids, Q, *, M, rng, gate=None, return_outliers=False):
@@ -1128,12 +1116,12 @@ def fastslam2_update_known(state, u, dt, z, ids, Q, *, M, rng, gate=None, return
     _check_state(state)
     u = as_array(u, "u", (2,))
     dt = as_scalar(dt, "dt", nonnegative=True)
-    z = _z_matrix(z)
+    z = as_rows(z, "z", 2)
     ids = _ids_arg(ids, z.shape[0])
-    Q = _check_Q(Q)
-    L = _check_M(M)
+    Q = as_invertible_covariance(Q, "Q", 2, max_log_det=_MAX_LOG_DET)
+    L = _control_sqrt(as_covariance(M, "M", 2))
     check_rng(rng)
-    gate = _check_gate(gate)
+    gate = as_threshold(gate, "gate", optional=True, positive=True, finite=True)
     keep = z[:, 0] > 0
     if keep.any():
         state = _grow(state, int(ids[keep].max()) + 1)
@@ -1257,9 +1245,9 @@ def fastslam2_update_unknown(state, u, dt, z, Q, *, M, rng, p0=None, max_range=N
     _check_state(state)
     u = as_array(u, "u", (2,))
     dt = as_scalar(dt, "dt", nonnegative=True)
-    z = _z_matrix(z)
-    Q = _check_Q(Q)
-    L = _check_M(M)
+    z = as_rows(z, "z", 2)
+    Q = as_invertible_covariance(Q, "Q", 2, max_log_det=_MAX_LOG_DET)
+    L = _control_sqrt(as_covariance(M, "M", 2))
     check_rng(rng)
     log_p0, max_range, half_fov = _unknown_options(Q, p0, max_range, fov)
     return _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rng)
@@ -1546,7 +1534,7 @@ def _run_attr(run, name):
 
 def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=None, p0=None, weight_cov="S",
                  resample_threshold=0.5, capacity=None, max_range=None, fov=None, version=1, gate=None,
-                 motion=None):
+                 motion=None, fastslam_init_landmark=None, fastslam_update_landmark=None, on_step=None):
     """Run FastSLAM 1.0 or 2.0 over a landmark run (simulated or a real log).
 
     Parameters
@@ -1615,6 +1603,25 @@ def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=Non
         :class:`slamlib.AckermannModel` for a car; each particle moves with its
         own noisy control ``u + N(0, M)``. Default: the velocity model (exact
         arc). Not with `alpha`.
+    fastslam_init_landmark : callable, optional, keyword-only
+        ``fastslam_init_landmark(x, z, Q) -> (mu, Sigma)`` in place of the
+        initialisation of a landmark seen for the first time (Algorithm 3,
+        Table 13.1 lines 7-9) for the particles ``x (k, 3)`` that have not seen
+        it: the contract function :func:`fastslam_init_landmark` itself, or a
+        student's version of it, as the autograder plugs it in. FastSLAM 1.0
+        with known correspondences only, like the next one. ``None``
+        (default): the library's core.
+    fastslam_update_landmark : callable, optional, keyword-only
+        ``fastslam_update_landmark(x, mu, Sigma, z, Q) -> (mu_new, Sigma_new,
+        w)`` in place of the landmark update and importance weight of the
+        particles that have seen the landmark (Table 13.1 lines 12-18), as
+        :func:`fastslam_update_landmark`; needs ``weight_cov="S"`` and no
+        `gate`. A weight of zero is allowed (log-weight ``-inf``), as long as
+        some particle keeps a positive weight.
+    on_step : callable, optional, keyword-only
+        ``on_step(t)`` is called at the start of step ``t`` (before the
+        particles move), e.g. for progress reports, or so that the functions
+        above know which step they serve.
 
     Returns
     -------
@@ -1622,14 +1629,24 @@ def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=Non
         Estimated trajectory, map, ESS and degeneracy over time, and the
         measurements the gate rejected.
 
+    Notes
+    -----
+    With `fastslam_init_landmark` or `fastslam_update_landmark` the
+    measurements of a step are processed one at a time (the library's own
+    path processes them in batches, with the same result up to rounding),
+    and the functions are called with the homework contract's arguments on
+    copies of the particles' arrays. Their results are checked (shapes,
+    finite values, non-negative weights) and a bad one raises ``ValueError``
+    naming the function; exceptions they raise pass through unchanged.
+
     References
     ----------
     Course text, Algorithm 3. Thrun, Burgard & Fox (2005), Tables 13.1,
     13.2 and 13.3. Montemerlo et al. (2003).
     """
-    n = _as_count(n_particles, "n_particles")
+    n = as_count(n_particles, "n_particles", minimum=1)
     check_rng(rng)
-    _check_weight_cov(weight_cov)
+    check_choice(weight_cov, "weight_cov", _WEIGHT_COVS, removed=_GONE_WEIGHT_COVS)
     if isinstance(version, bool) or version not in (1, 2):
         raise ValueError(f"version must be 1 (FastSLAM 1.0) or 2 (FastSLAM 2.0), got {version!r}")
     thr = as_scalar(resample_threshold, "resample_threshold", nonnegative=True)
@@ -1656,12 +1673,23 @@ def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=Non
         raise ValueError("motion must be a callable motion(x, u, dt) -> (x_next, G, V), used with M (not alpha)")
     if version == 2 and weight_cov != "S":
         raise ValueError("weight_cov='text' is FastSLAM 1.0's erratum; version=2 has its own weight")
-    Q = _check_Q(_run_attr(run, "Q") if Q is None else Q)
+    Q = as_invertible_covariance(_run_attr(run, "Q") if Q is None else Q, "Q", 2, max_log_det=_MAX_LOG_DET)
     if gate is None:
         gate = getattr(run, "gate", None)  # the run's gate (real logs); none for simulated runs
     if gate is not None:
-        gate = as_scalar(gate, "gate", nonnegative=True, finite=False)  # chi-square value on nu^T S^-1 nu
+        gate = as_threshold(gate, "gate")  # chi-square value on nu^T S^-1 nu
         gate = None if gate == np.inf else gate  # inf: no gate
+    check_callable(fastslam_init_landmark, "fastslam_init_landmark", "(x, z, Q)")
+    check_callable(fastslam_update_landmark, "fastslam_update_landmark", "(x, mu, Sigma, z, Q)")
+    check_callable(on_step, "on_step", "(t)")
+    stepwise = fastslam_init_landmark is not None or fastslam_update_landmark is not None
+    if stepwise and (not known or version != 1):
+        raise ValueError("fastslam_init_landmark and fastslam_update_landmark need known=True and version=1 "
+                         "(FastSLAM 1.0 with known correspondences)")
+    if fastslam_update_landmark is not None and (gate is not None or weight_cov != "S"):
+        raise ValueError("fastslam_update_landmark needs weight_cov='S' and no gate (the contract's update has "
+                         "neither)")
+    init_step, update_step = _fastslam_steps(fastslam_init_landmark, fastslam_update_landmark)
     if capacity is None:
         capacity = max(1, int(np.asarray(_run_attr(run, "landmarks")).shape[0]))
     log_p0 = None
@@ -1685,7 +1713,9 @@ def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=Non
     identity = np.arange(n)
     parents[:2] = identity
     for t in range(T):
-        zt = _z_matrix(zs[t])
+        if on_step is not None:
+            on_step(t)
+        zt = as_rows(zs[t], "z", 2)
         out = None
         if known:
             idt = np.asarray(ids[t])
@@ -1712,7 +1742,9 @@ def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=Non
                 poses = _sample_arc(state.poses, u[t], dt, L, rng, motion)
             state = state._replace(poses=poses)
             if known:
-                if zt.shape[0]:
+                if zt.shape[0] and stepwise:
+                    state, out = _stepwise_known_core(state, zt, idt, Q, weight_cov, gate, init_step, update_step)
+                elif zt.shape[0]:
                     state, out = _update_known_core(state, zt, idt, Q, weight_cov, copy=False, gate=gate)
             else:
                 state = _update_unknown_core(state, zt, Q, log_p0, weight_cov, max_range, half_fov, copy=False)

@@ -50,7 +50,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._checks import as_array, as_covariance, as_indices, as_matrix, as_rows, as_scalar, as_vector, check_batch, small_ok
+from ._checks import (as_array, as_covariance, as_index, as_indices, as_matrix, as_returned, as_rows, as_scalar,
+                      as_threshold, as_vector, check_batch, check_callable, small_ok)
 from .angles import _wrap1, wrap_angle
 from .motion import _arc, _arc1_floats
 from .sensors import _landmark_measurement, _rb1
@@ -110,13 +111,7 @@ def _gaussian(mean, cov):
     return tuple.__new__(Gaussian, (mean, cov))
 
 
-# --------------------------------------------------------------------------- validation helpers
-def _as_cov(value, name, n=None, *, definite=False):
-    """A (batch of) symmetric PSD (or PD) ``(n, n)`` matrices: ``_checks.as_covariance`` as the
-    drivers below call it."""
-    return as_covariance(value, name, n, definite=definite, batched=True, copy=False)
-
-
+# --------------------------------------------------------------------------- algebra helpers
 def _T(A):
     return A.swapaxes(-1, -2)
 
@@ -454,10 +449,10 @@ def landmark_mahalanobis(mu_bar, Sigma_bar, z, landmarks, Q):
     that enter the association), Eq. 3.1 (Gaussian exponent).
     """
     mu_bar = as_array(mu_bar, "mu_bar", (3,))
-    Sigma_bar = _as_cov(Sigma_bar, "Sigma_bar", 3)
+    Sigma_bar = as_covariance(Sigma_bar, "Sigma_bar", 3, batched=True, copy=False)
     z = as_array(z, "z", (2,))
     landmarks = as_array(landmarks, "landmarks", (None, 2))
-    Q = _as_cov(Q, "Q", 2, definite=True)
+    Q = as_covariance(Q, "Q", 2, definite=True, batched=True, copy=False)
     if Sigma_bar.ndim != 2 or Q.ndim != 2:
         raise ValueError("Sigma_bar must have shape (3, 3) and Q shape (2, 2)")
     return _mahalanobis(mu_bar, Sigma_bar, z, landmarks, Q)
@@ -510,32 +505,28 @@ def associate_ml(mu_bar, Sigma_bar, z, landmarks, Q, gate):
     distance in place of the likelihood).
     """
     d = landmark_mahalanobis(mu_bar, Sigma_bar, z, landmarks, Q)
-    gate = as_scalar(gate, "gate", nonnegative=True, finite=False)
+    gate = as_threshold(gate, "gate")
     return _associate(d, gate)
-
-
-def _as_measurements(z, name="z"):
-    return as_rows(z, name, 2)
 
 
 def _step_inputs(mu, Sigma, u, z, landmarks, dt, M, Q):
     mu = as_array(mu, "mu", (3,))
-    Sigma = _as_cov(Sigma, "Sigma", 3)
+    Sigma = as_covariance(Sigma, "Sigma", 3, batched=True, copy=False)
     u = as_array(u, "u", (2,))
-    z = _as_measurements(z)
+    z = as_rows(z, "z", 2)
     landmarks = as_array(landmarks, "landmarks", (None, 2))
     dt = as_scalar(dt, "dt", nonnegative=True)
-    M = _as_cov(M, "M", 2)
-    Q = _as_cov(Q, "Q", 2, definite=True)
+    M = as_covariance(M, "M", 2, batched=True, copy=False)
+    Q = as_covariance(Q, "Q", 2, definite=True, batched=True, copy=False)
     if Sigma.ndim != 2 or M.ndim != 2 or Q.ndim != 2:
         raise ValueError("Sigma must have shape (3, 3), M and Q shape (2, 2)")
     return mu, Sigma, u, z, landmarks, dt, M, Q
 
 
-def _known_step(mu, Sigma, u, z, ids, landmarks, dt, M, Q):
-    mu, Sigma = _ekf_predict(mu, Sigma, u, dt, M)
+def _known_step(mu, Sigma, u, z, ids, landmarks, dt, M, Q, predict=_ekf_predict, update=_ekf_update):
+    mu, Sigma = predict(mu, Sigma, u, dt, M)
     for zi, j in zip(z, ids):  # for all observed features  (Table 7.2 line 9)
-        mu, Sigma = _ekf_update(mu, Sigma, zi, landmarks[j], Q)
+        mu, Sigma = update(mu, Sigma, zi, landmarks[j], Q)
     return _gaussian(mu, Sigma)
 
 
@@ -575,23 +566,24 @@ def ekf_localization_known(mu, Sigma, u, z, ids, landmarks, dt, M, Q):
     Thrun, Burgard & Fox (2005), Table 7.2.
     """
     mu, Sigma, u, z, landmarks, dt, M, Q = _step_inputs(mu, Sigma, u, z, landmarks, dt, M, Q)
-    ids = _as_ids(ids, z.shape[0], landmarks.shape[0])
+    ids = as_indices(ids, "ids", landmarks.shape[0], (z.shape[0],), ref="z")
     return _known_step(mu, Sigma, u, z, ids, landmarks, dt, M, Q)
 
 
-def _as_ids(ids, k, n):
-    return as_indices(ids, "ids", n, (k,), ref="z")
+def _nearest(mu, Sigma, z, landmarks, Q, gate):
+    return _associate(_mahalanobis(mu, Sigma, z, landmarks, Q), gate)
 
 
-def _unknown_step(mu, Sigma, u, z, landmarks, dt, M, Q, gate):
-    mu, Sigma = _ekf_predict(mu, Sigma, u, dt, M)
+def _unknown_step(mu, Sigma, u, z, landmarks, dt, M, Q, gate, predict=_ekf_predict, update=_ekf_update,
+                  associate=_nearest):
+    mu, Sigma = predict(mu, Sigma, u, dt, M)
     ids = np.full(z.shape[0], -1, dtype=np.intp)
     for i, zi in enumerate(z):  # for all observed features  (Table 7.3 line 9)
         # j(i) = argmin_k d_k, gated  (Table 7.3 line 16, nearest neighbour)
-        j = _associate(_mahalanobis(mu, Sigma, zi, landmarks, Q), gate)
+        j = associate(mu, Sigma, zi, landmarks, Q, gate)
         ids[i] = j
         if j >= 0:
-            mu, Sigma = _ekf_update(mu, Sigma, zi, landmarks[j], Q)
+            mu, Sigma = update(mu, Sigma, zi, landmarks[j], Q)
     return _gaussian(mu, Sigma), ids
 
 
@@ -639,7 +631,7 @@ def ekf_localization_unknown(mu, Sigma, u, z, landmarks, dt, M, Q, *, gate=DEFAU
     Mahalanobis neighbour with a gate, cf. Sec. 7.5).
     """
     mu, Sigma, u, z, landmarks, dt, M, Q = _step_inputs(mu, Sigma, u, z, landmarks, dt, M, Q)
-    gate = as_scalar(gate, "gate", nonnegative=True, finite=False)
+    gate = as_threshold(gate, "gate")
     return _unknown_step(mu, Sigma, u, z, landmarks, dt, M, Q, gate)
 
 
@@ -666,20 +658,43 @@ class EKFRunResult(NamedTuple):
     n_gated: int = 0
 
 
-def _gated_known_step(mu, Sigma, u, z, ids, landmarks, dt, M, Q, gate):
+def _gated_known_step(mu, Sigma, u, z, ids, landmarks, dt, M, Q, gate, predict=_ekf_predict, update=_ekf_update):
     """:func:`_known_step` with a validation gate; returns the belief and the ids used (``-1``: gated)."""
-    mu, Sigma = _ekf_predict(mu, Sigma, u, dt, M)
+    mu, Sigma = predict(mu, Sigma, u, dt, M)
     used = ids.copy()
     for k, (zi, j) in enumerate(zip(z, ids)):  # for all observed features  (Table 7.2 line 9)
         # validation gate on nu^T S^-1 nu, S = H Sigma_bar H^T + Q  (Table 7.2 lines 11-14)
         if _mahalanobis(mu, Sigma, zi, landmarks[j:j + 1], Q)[0] > gate:
             used[k] = -1
             continue
-        mu, Sigma = _ekf_update(mu, Sigma, zi, landmarks[j], Q)
+        mu, Sigma = update(mu, Sigma, zi, landmarks[j], Q)
     return Gaussian(mu, Sigma), used
 
 
-def ekf_localization_run(run, *, known=True, mu0=None, Sigma0=None, M=None, Q=None, gate=None):
+def _run_steps(ekf_predict, ekf_update, associate_ml):
+    """The prediction, update and association of :func:`ekf_localization_run`: the cores, or the caller's functions.
+
+    A caller's function is called with the contract's arguments (copies, so that it
+    cannot change the filter's state) and what it returns is checked.
+    """
+    predict, update, associate = _ekf_predict, _ekf_update, _nearest
+    if ekf_predict is not None:
+        def predict(mu, Sigma, u, dt, M):
+            out = ekf_predict(mu.copy(), Sigma.copy(), u.copy(), dt, M.copy())
+            return _gaussian(*as_returned(out, "ekf_predict", (3,), (3, 3)))
+    if ekf_update is not None:
+        def update(mu_bar, Sigma_bar, z, m, Q):
+            out = ekf_update(mu_bar.copy(), Sigma_bar.copy(), z.copy(), m.copy(), Q.copy())
+            return _gaussian(*as_returned(out, "ekf_update", (3,), (3, 3)))
+    if associate_ml is not None:
+        def associate(mu_bar, Sigma_bar, z, landmarks, Q, gate):
+            j = associate_ml(mu_bar.copy(), Sigma_bar.copy(), z.copy(), landmarks.copy(), Q.copy(), gate)
+            return as_index(j, "associate_ml(...)", landmarks.shape[0], lower=-1)
+    return predict, update, associate
+
+
+def ekf_localization_run(run, *, known=True, mu0=None, Sigma0=None, M=None, Q=None, gate=None, ekf_predict=None,
+                         ekf_update=None, associate_ml=None, on_step=None):
     """Run EKF localization over a whole simulated run.
 
     Parameters
@@ -707,11 +722,40 @@ def ekf_localization_run(run, *, known=True, mu0=None, Sigma0=None, M=None, Q=No
         :func:`~slamlib.datasets.mrclam.load_mrclam`), else no gate with
         known correspondences and :data:`DEFAULT_GATE` with unknown ones;
         ``numpy.inf`` turns it off.
+    ekf_predict : callable, optional, keyword-only
+        ``ekf_predict(mu, Sigma, u, dt, M) -> (mu_bar, Sigma_bar)`` in place of
+        the filter's own prediction (Table 7.2 lines 2-7): :func:`ekf_predict`
+        itself, or a student's version of it, as the autograder plugs it in.
+        ``None`` (default): the library's core.
+    ekf_update : callable, optional, keyword-only
+        ``ekf_update(mu_bar, Sigma_bar, z, m, Q) -> (mu, Sigma)`` in place of
+        the update with one measurement of landmark ``m`` (Table 7.2 lines
+        10-17), as :func:`ekf_update`.
+    associate_ml : callable, optional, keyword-only
+        Unknown correspondences only: ``associate_ml(mu_bar, Sigma_bar, z,
+        landmarks, Q, gate) -> j`` in place of the nearest-neighbour
+        association of each measurement, as :func:`associate_ml` (``j = -1``
+        discards the measurement).
+    on_step : callable, optional, keyword-only
+        ``on_step(t)`` is called at the start of step ``t`` (before its
+        prediction), e.g. for progress reports, or so that the functions
+        above know which step they serve.
 
     Returns
     -------
     EKFRunResult
         ``(mu (T+1, 3), Sigma (T+1, 3, 3), ids, n_gated)``.
+
+    Notes
+    -----
+    The functions given for `ekf_predict`, `ekf_update` and `associate_ml`
+    are called with the homework contract's arguments, at the point of the
+    algorithm where the filter would do that work itself, on copies of the
+    filter's arrays (they cannot change its state); their results are
+    checked (shapes, finite values, an integer index in ``[-1, N)``) and a
+    bad one raises ``ValueError`` (``TypeError`` for an index that is not an
+    integer) naming the function. Exceptions they raise pass through
+    unchanged.
 
     References
     ----------
@@ -725,30 +769,41 @@ def ekf_localization_run(run, *, known=True, mu0=None, Sigma0=None, M=None, Q=No
     u = as_array(run.u, "run.u", (None, 2))
     dt = as_scalar(run.dt, "run.dt", nonnegative=True)
     mu = as_array(run.x0 if mu0 is None else mu0, "mu0", (3,))
-    Sigma = _as_cov(np.diag([0.01, 0.01, 0.001]) if Sigma0 is None else Sigma0, "Sigma0", 3)
-    M = _as_cov(run.M if M is None else M, "M", 2)
-    Q = _as_cov(run.Q if Q is None else Q, "Q", 2, definite=True)
+    Sigma = as_covariance(np.diag([0.01, 0.01, 0.001]) if Sigma0 is None else Sigma0, "Sigma0", 3, batched=True,
+                          copy=False)
+    M = as_covariance(run.M if M is None else M, "M", 2, batched=True, copy=False)
+    Q = as_covariance(run.Q if Q is None else Q, "Q", 2, definite=True, batched=True, copy=False)
     if gate is None:
         gate = getattr(run, "gate", np.inf if known else DEFAULT_GATE)
-    gate = as_scalar(gate, "gate", nonnegative=True, finite=False)
+    gate = as_threshold(gate, "gate")
     T = u.shape[0]
     if len(run.z) != T or len(run.ids) != T:
         raise ValueError(f"run.z and run.ids must hold one entry per control ({T}), got {len(run.z)} and {len(run.ids)}")
+    check_callable(ekf_predict, "ekf_predict", "(mu, Sigma, u, dt, M)")
+    check_callable(ekf_update, "ekf_update", "(mu_bar, Sigma_bar, z, m, Q)")
+    check_callable(associate_ml, "associate_ml", "(mu_bar, Sigma_bar, z, landmarks, Q, gate)")
+    check_callable(on_step, "on_step", "(t)")
+    if known and associate_ml is not None:
+        raise ValueError("associate_ml needs known=False (with known correspondences nothing is associated)")
+    predict, update, associate = _run_steps(ekf_predict, ekf_update, associate_ml)
     mus = np.empty((T + 1, 3))
     Sigmas = np.empty((T + 1, 3, 3))
     mus[0], Sigmas[0] = mu, Sigma
     used = []
     n_gated = 0
     for t in range(T):
-        z = _as_measurements(run.z[t], f"run.z[{t}]")
+        if on_step is not None:
+            on_step(t)
+        z = as_rows(run.z[t], f"run.z[{t}]", 2)
         if known:
-            ids = _as_ids(run.ids[t], z.shape[0], landmarks.shape[0])
+            ids = as_indices(run.ids[t], "ids", landmarks.shape[0], (z.shape[0],), ref="z")
             if gate < np.inf:
-                (mu, Sigma), ids = _gated_known_step(mu, Sigma, u[t], z, ids, landmarks, dt, M, Q, gate)
+                (mu, Sigma), ids = _gated_known_step(mu, Sigma, u[t], z, ids, landmarks, dt, M, Q, gate, predict,
+                                                     update)
             else:
-                mu, Sigma = _known_step(mu, Sigma, u[t], z, ids, landmarks, dt, M, Q)
+                mu, Sigma = _known_step(mu, Sigma, u[t], z, ids, landmarks, dt, M, Q, predict, update)
         else:
-            (mu, Sigma), ids = _unknown_step(mu, Sigma, u[t], z, landmarks, dt, M, Q, gate)
+            (mu, Sigma), ids = _unknown_step(mu, Sigma, u[t], z, landmarks, dt, M, Q, gate, predict, update, associate)
         n_gated += int(np.sum(ids < 0))
         mus[t + 1], Sigmas[t + 1] = mu, Sigma
         used.append(ids)
@@ -814,15 +869,15 @@ def ekf_localization_batch(runs, *, mu0=None, Sigma0=None, M=None, Q=None):
     Sigma = per_run(Sigma0, lambda r: np.diag([0.01, 0.01, 0.001]), "Sigma0", (3, 3))
     Mf = per_run(M, lambda r: r.M, "M", (2, 2))
     Qf = per_run(Q, lambda r: r.Q, "Q", (2, 2))
-    _as_cov(Sigma, "Sigma0", 3)
-    _as_cov(Mf, "M", 2)
-    _as_cov(Qf, "Q", 2, definite=True)
+    as_covariance(Sigma, "Sigma0", 3, batched=True, copy=False)
+    as_covariance(Mf, "M", 2, batched=True, copy=False)
+    as_covariance(Qf, "Q", 2, definite=True, batched=True, copy=False)
 
     # pack the measurements of step t into slots: z (N, K_max, 2), landmark (N, K_max, 2), valid (N, K_max)
     packed = []
     for t in range(T):
-        zs = [_as_measurements(r.z[t], f"runs[{k}].z[{t}]") for k, r in enumerate(runs)]
-        ids = [_as_ids(r.ids[t], z.shape[0], r.landmarks.shape[0]) for r, z in zip(runs, zs)]
+        zs = [as_rows(r.z[t], f"runs[{k}].z[{t}]", 2) for k, r in enumerate(runs)]
+        ids = [as_indices(r.ids[t], "ids", r.landmarks.shape[0], (z.shape[0],), ref="z") for r, z in zip(runs, zs)]
         k_max = max(z.shape[0] for z in zs)
         Z = np.zeros((N, k_max, 2))
         Mk = np.zeros((N, k_max, 2))

@@ -63,7 +63,6 @@ approximate minimum degree ordering algorithm", ACM TOMS 30(3), 2004 (COLAMD).
 from __future__ import annotations
 
 import math
-import numbers
 import time
 from typing import NamedTuple
 
@@ -73,7 +72,8 @@ from scipy.sparse import csgraph
 from scipy.sparse.linalg import splu
 from scipy.stats import chi2 as _chi2_dist
 
-from ._checks import as_array, as_covariance, as_scalar
+from ._checks import (as_array, as_count, as_covariance, as_edges, as_index, as_index_set, as_information, as_pose_graph,
+                      as_scalar, check_choice, check_type)
 from .angles import wrap_angle
 from .motion import velocity_motion
 from .scoring import dead_reckoning, score_run
@@ -336,7 +336,7 @@ def build_linear_system(X, edges, Z, Omega):
     ----------
     Grisetti et al. (2010), Eqs. 21-28 and Algorithm 1 lines 4-11.
     """
-    X, edges, Z, Omega = _check_pose_graph(X, edges, Z, Omega)
+    X, edges, Z, Omega = as_pose_graph(X, edges, Z, Omega)
     layout = _Layout(3 * X.shape[0], [(3 * edges[:, 0], 3, 3 * edges[:, 1], 3)], fixed_vars=())
     e, A, B = _se2_edges(X[edges[:, 0]], X[edges[:, 1]], Z)
     return layout.assemble([(A, B, e, Omega)])
@@ -362,7 +362,7 @@ def gauss_newton_step(X, edges, Z, Omega):
     ----------
     Grisetti et al. (2010), Algorithm 1 (one iteration; the first pose anchored as in its line 12).
     """
-    X, edges, Z, Omega = _check_pose_graph(X, edges, Z, Omega)
+    X, edges, Z, Omega = as_pose_graph(X, edges, Z, Omega)
     _require_connected(X.shape[0], edges, (0,))
     layout = _Layout(3 * X.shape[0], [(3 * edges[:, 0], 3, 3 * edges[:, 1], 3)], fixed_vars=(0, 1, 2), order=True)
     e, A, B = _se2_edges(X[edges[:, 0]], X[edges[:, 1]], Z)
@@ -583,66 +583,8 @@ def _update_poses(X, dx):
 
 
 # =========================================================================== validation
-def _as_edges(edges, n, name="edges"):
-    arr = np.asarray(edges)
-    if arr.dtype.kind not in "iu":
-        if arr.dtype.kind == "f" and arr.size and np.all(np.isfinite(arr)) and np.all(arr == np.round(arr)):
-            arr = arr.astype(np.int64)
-        elif arr.size == 0:
-            arr = arr.astype(np.int64)
-        else:
-            raise TypeError(f"{name} must be an integer array of index pairs, got dtype {arr.dtype}")
-    arr = arr.astype(np.int64, copy=True)
-    if arr.ndim != 2 or arr.shape[1] != 2:
-        raise ValueError(f"{name} must have shape (E, 2), got {arr.shape}")
-    bad = np.flatnonzero((arr < 0).any(axis=1) | (arr >= n).any(axis=1))
-    if bad.size:
-        raise ValueError(f"{name}[{bad[0]}] = {arr[bad[0]].tolist()} refers to a pose outside 0..{n - 1}")
-    loop = np.flatnonzero(arr[:, 0] == arr[:, 1])
-    if loop.size:
-        raise ValueError(f"{name}[{loop[0]}] joins pose {arr[loop[0], 0]} to itself (i == j)")
-    return arr
-
-
-def _as_information(Omega, E, d, name="Omega"):
-    W = as_array(Omega, name, (E, d, d))
-    scale = np.maximum(1.0, np.abs(W).max(axis=(1, 2)))
-    asym = np.flatnonzero(np.abs(W - np.swapaxes(W, 1, 2)).max(axis=(1, 2)) > 1e-9 * scale)
-    if asym.size:
-        raise ValueError(f"{name}[{asym[0]}] must be symmetric")
-    if E:
-        eig = np.linalg.eigvalsh(W)
-        bad = np.flatnonzero(eig[:, 0] <= 1e-15 * eig[:, -1].clip(min=0))
-        if bad.size:
-            raise ValueError(f"{name}[{bad[0]}] must be positive definite "
-                             f"(smallest eigenvalue {eig[bad[0], 0]:.3g})")
-    return W
-
-
-def _check_pose_graph(X, edges, Z, Omega, name_x="X"):
-    X = as_array(X, name_x, (None, 3))
-    if X.shape[0] < 1:
-        raise ValueError(f"{name_x} must hold at least one pose")
-    edges = _as_edges(edges, X.shape[0])
-    E = edges.shape[0]
-    Z = as_array(Z, "Z", (E, 3))
-    Omega = _as_information(Omega, E, 3)
-    return X, edges, Z, Omega
-
-
-def _as_fixed(fixed, n, name="fixed"):
-    try:
-        idx = [int(f) for f in fixed]
-    except TypeError:
-        raise TypeError(f"{name} must be a sequence of pose indices, got {type(fixed).__name__}") from None
-    for f, raw in zip(idx, fixed):
-        if isinstance(raw, bool) or not isinstance(raw, (numbers.Integral, np.integer)):
-            raise TypeError(f"{name} must hold integer pose indices, got {raw!r}")
-        if not 0 <= f < n:
-            raise ValueError(f"{name} holds pose {f}, outside 0..{n - 1}")
-    if not idx:
-        raise ValueError(f"{name} must hold at least one pose: without an anchor H is singular (gauge freedom)")
-    return tuple(sorted(set(idx)))
+#: Why a pose graph needs a fixed pose (the message when `fixed` is empty).
+_GAUGE = "without an anchor H is singular (gauge freedom)"
 
 
 def _components(n, pairs):
@@ -690,10 +632,9 @@ def check_pose_graph_connected(n, edges, *, fixed=(0,)):
     ----------
     Grisetti et al. (2010), Sec. IV-B (the gauge and the rank of ``H``).
     """
-    if isinstance(n, bool) or not isinstance(n, (numbers.Integral, np.integer)) or n < 1:
-        raise ValueError(f"n must be a positive integer, got {n!r}")
-    edges = _as_edges(edges, int(n))
-    _require_connected(int(n), edges, _as_fixed(fixed, int(n)))
+    n = as_count(n, "n", minimum=1)
+    edges = as_edges(edges, "edges", n)
+    _require_connected(n, edges, as_index_set(fixed, "fixed", n, what="pose", why=_GAUGE))
 
 
 # =========================================================================== public pose-graph functions
@@ -721,7 +662,7 @@ def pose_graph_errors(X, edges, Z):
     Grisetti et al. (2010), Eqs. 30-32.
     """
     X = as_array(X, "X", (None, 3))
-    edges = _as_edges(edges, X.shape[0])
+    edges = as_edges(edges, "edges", X.shape[0])
     Z = as_array(Z, "Z", (edges.shape[0], 3))
     return _se2_edges(X[edges[:, 0]], X[edges[:, 1]], Z)
 
@@ -744,7 +685,7 @@ def pose_graph_chi2(X, edges, Z, Omega):
     ----------
     Grisetti et al. (2010), Eqs. 21-23; Thrun, Burgard & Fox (2005), Eq. 11.17.
     """
-    X, edges, Z, Omega = _check_pose_graph(X, edges, Z, Omega)
+    X, edges, Z, Omega = as_pose_graph(X, edges, Z, Omega)
     e, _, _ = _se2_edges(X[edges[:, 0]], X[edges[:, 1]], Z)
     return float(_chi2_terms(e, Omega).sum())
 
@@ -790,12 +731,10 @@ def pose_graph_initial_guess(n, edges, Z, *, root=0, x_root=(0.0, 0.0, 0.0)):
     Leonard, S. Teller, "Fast iterative alignment of pose graphs with poor initial
     estimates", ICRA 2006 (spanning-tree initialisation).
     """
-    if isinstance(n, bool) or not isinstance(n, (numbers.Integral, np.integer)) or n < 1:
-        raise ValueError(f"n must be a positive integer, got {n!r}")
-    n = int(n)
-    edges = _as_edges(edges, n)
+    n = as_count(n, "n", minimum=1)
+    edges = as_edges(edges, "edges", n)
     Z = as_array(Z, "Z", (edges.shape[0], 3))
-    root = _as_fixed((root,), n, "root")[0]
+    root = as_index(root, "root", n)
     x_root = as_array(x_root, "x_root", (3,))
     _require_connected(n, edges, (root,))
     E = edges.shape[0]
@@ -927,11 +866,8 @@ def _optimize(state, evaluate, layout, update, *, method, max_iter, rtol, lm_lam
 
 
 def _method_args(method, max_iter, rtol):
-    if method not in ("gn", "lm"):
-        raise ValueError(f"method must be 'gn' (Gauss-Newton) or 'lm' (Levenberg-Marquardt), got {method!r}")
-    if isinstance(max_iter, bool) or not isinstance(max_iter, (numbers.Integral, np.integer)) or max_iter < 0:
-        raise ValueError(f"max_iter must be a non-negative integer, got {max_iter!r}")
-    return int(max_iter), as_scalar(rtol, "rtol", nonnegative=True)
+    check_choice(method, "method", {"gn": "Gauss-Newton", "lm": "Levenberg-Marquardt"})
+    return as_count(max_iter, "max_iter"), as_scalar(rtol, "rtol", nonnegative=True)
 
 
 def optimize_pose_graph(X0, edges, Z, Omega, *, method="lm", max_iter=100, rtol=1e-9, robust=None,
@@ -999,11 +935,11 @@ def optimize_pose_graph(X0, edges, Z, Omega, *, method="lm", max_iter=100, rtol=
     Madsen, Nielsen & Tingleff (2004), Algorithm 3.16 (Levenberg-Marquardt).
     """
     start = time.perf_counter()
-    X0, edges, Z, Omega = _check_pose_graph(X0, edges, Z, Omega, name_x="X0")
+    X0, edges, Z, Omega = as_pose_graph(X0, edges, Z, Omega, ("X0", "edges", "Z", "Omega"))
     max_iter, rtol = _method_args(method, max_iter, rtol)
     robust, k = _robust_args(robust, robust_scale, 3)
     n = X0.shape[0]
-    fixed = _as_fixed(fixed, n)
+    fixed = as_index_set(fixed, "fixed", n, what="pose", why=_GAUGE)
     _require_connected(n, edges, fixed)
     if step is not None:
         if not callable(step):
@@ -1067,9 +1003,9 @@ def pose_graph_marginals(result_or_X, edges, Z, Omega, *, poses, fixed=(0,), rob
     solution); Thrun, Burgard & Fox (2005), Sec. 11.4 (GraphSLAM covariances).
     """
     X = result_or_X.X if isinstance(result_or_X, PoseGraphResult) else result_or_X
-    X, edges, Z, Omega = _check_pose_graph(X, edges, Z, Omega)
+    X, edges, Z, Omega = as_pose_graph(X, edges, Z, Omega)
     n = X.shape[0]
-    fixed = _as_fixed(fixed, n)
+    fixed = as_index_set(fixed, "fixed", n, what="pose", why=_GAUGE)
     sel = [int(p) for p in np.atleast_1d(np.asarray(poses, dtype=np.int64))]
     for p in sel:
         if not 0 <= p < n:
@@ -1119,9 +1055,9 @@ def pose_graph_system(X, edges, Z, Omega, *, fixed=(0,), reorder=False):
     ----------
     Grisetti et al. (2010), Eqs. 26-28 and Sec. IV-B; Davis et al. (2004) (fill-reducing orders).
     """
-    X, edges, Z, Omega = _check_pose_graph(X, edges, Z, Omega)
+    X, edges, Z, Omega = as_pose_graph(X, edges, Z, Omega)
     n = X.shape[0]
-    fixed = _as_fixed(fixed, n)
+    fixed = as_index_set(fixed, "fixed", n, what="pose", why=_GAUGE)
     _require_connected(n, edges, fixed)
     layout = _Layout(3 * n, [(3 * edges[:, 0], 3, 3 * edges[:, 1], 3)], [3 * f + c for f in fixed for c in range(3)],
                      order=bool(reorder))
@@ -1228,22 +1164,15 @@ class LandmarkGraphResult(NamedTuple):
 
 
 def _check_landmark_graph(graph):
-    if not isinstance(graph, LandmarkGraph):
-        raise TypeError(f"graph must be a LandmarkGraph, got {type(graph).__name__}")
-    X0, odo, Zo, Wo = _check_pose_graph(graph.X0, graph.odo_edges, graph.odo_Z, graph.odo_Omega, name_x="graph.X0")
+    check_type(graph, LandmarkGraph, "graph")
+    X0, odo, Zo, Wo = as_pose_graph(graph.X0, graph.odo_edges, graph.odo_Z, graph.odo_Omega,
+                                    ("graph.X0", "graph.odo_edges", "graph.odo_Z", "graph.odo_Omega"))
     L0 = as_array(graph.L0, "graph.L0", (None, 2))
-    obs = np.asarray(graph.obs_edges)
-    if obs.dtype.kind not in "iu" or obs.ndim != 2 or obs.shape[1] != 2:
-        raise ValueError(f"graph.obs_edges must be an integer array of shape (S, 2), got {obs.dtype} {obs.shape}")
-    obs = obs.astype(np.int64)
     n, K = X0.shape[0], L0.shape[0]
-    bad = np.flatnonzero((obs[:, 0] < 0) | (obs[:, 0] >= n) | (obs[:, 1] < 0) | (obs[:, 1] >= K))
-    if bad.size:
-        raise ValueError(f"graph.obs_edges[{bad[0]}] = {obs[bad[0]].tolist()} refers to a pose outside 0..{n - 1} "
-                         f"or a landmark outside 0..{K - 1}")
+    obs = as_edges(graph.obs_edges, "graph.obs_edges", n, K)
     S = obs.shape[0]
     Zl = as_array(graph.obs_Z, "graph.obs_Z", (S, 2))
-    Wl = _as_information(graph.obs_Omega, S, 2, "graph.obs_Omega")
+    Wl = as_information(graph.obs_Omega, "graph.obs_Omega", S, 2)
     # connectivity over poses and landmarks together (landmark v is node n + v)
     pairs = np.concatenate([odo, np.column_stack([obs[:, 0], n + obs[:, 1]])])
     n_comp, label = _components(n + K, pairs)

@@ -72,7 +72,7 @@ from scipy import ndimage
 from scipy.special import logsumexp
 from scipy.stats import norm
 
-from ._checks import as_array, as_index, as_scalar, check_rng
+from ._checks import as_array, as_index, as_scalar, as_scan, check_rng, check_type
 from .angles import circular_mean, wrap_angle
 from . import maps, particle, sensors
 from .motion import odometry_from_poses, odometry_motion, sample_motion_model_odometry
@@ -512,23 +512,11 @@ class MCLResult:
 
 # --------------------------------------------------------------------------- checks
 def _check_model(model):
-    if not isinstance(model, MCLModel):
-        raise TypeError(f"model must be an MCLModel (from prepare_mcl), got {type(model).__name__}")
-    return model
+    return check_type(model, MCLModel, "model", "from prepare_mcl")
 
 
 def _check_state(state):
-    if not isinstance(state, MCLState):
-        raise TypeError(f"state must be an MCLState (from mcl_initialize), got {type(state).__name__}")
-    return state
-
-
-def _check_scan(ranges, angles):
-    ranges = as_array(ranges, "ranges", (None,), finite=True)
-    angles = as_array(angles, "angles", (ranges.shape[0],))
-    if np.any(ranges < 0):
-        raise ValueError("ranges must be non-negative")
-    return ranges, angles
+    return check_type(state, MCLState, "state", "from mcl_initialize")
 
 
 # --------------------------------------------------------------------------- set-up
@@ -721,7 +709,7 @@ def scan_log_likelihood(model, poses, ranges, angles):
     """
     model = _check_model(model)
     poses = as_array(poses, "poses", (None, 3))
-    ranges, angles = _check_scan(ranges, angles)
+    ranges, angles = as_scan(ranges, angles)
     z, a = _subsample(ranges, angles, model.params)
     return _scan_loglik(model, poses, z, a)
 
@@ -886,7 +874,7 @@ def _check_step_args(state, u, ranges, angles, model, rng):
     state = _check_state(state)
     model = _check_model(model)
     u = as_array(u, "u", (3,))
-    ranges, angles = _check_scan(ranges, angles)
+    ranges, angles = as_scan(ranges, angles)
     check_rng(rng)
     return state, u, ranges, angles, model
 
@@ -1297,7 +1285,7 @@ def scan_endpoints(pose, ranges, angles, *, z_max=np.inf, sensor_offset=0.25):
     Thrun, Burgard & Fox (2005), Table 6.3 lines 4-5.
     """
     pose = as_array(pose, "pose", (3,))
-    ranges, angles = _check_scan(ranges, angles)
+    ranges, angles = as_scan(ranges, angles)
     z_max = as_scalar(z_max, "z_max", positive=True, finite=False)
     off = as_scalar(sensor_offset, "sensor_offset")
     keep = ranges < z_max
@@ -1338,7 +1326,7 @@ def endpoint_distances(model, pose, ranges, angles):
     """
     model = _check_model(model)
     p = model.params
-    ranges, angles = _check_scan(ranges, angles)
+    ranges, angles = as_scan(ranges, angles)
     pts = scan_endpoints(pose, ranges, angles, z_max=p.z_max, sensor_offset=p.sensor_offset)
     return model.field.distance_at(pts)
 

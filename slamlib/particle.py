@@ -11,8 +11,9 @@
 * :func:`bootstrap_filter_step` -- the generic particle filter (Table 4.3) for
   any state, given a sampler of the motion model and a log-likelihood;
   :func:`particle_filter_step` -- the same for poses with the velocity motion
-  model and landmark measurements; :func:`particle_gaussian` -- the weighted
-  mean and covariance of a particle set.
+  model and landmark measurements, :func:`run_particle_filter` over a whole
+  run; :func:`particle_gaussian` -- the weighted mean and covariance of a
+  particle set.
 
 Nothing loops over particles in Python: every operation is a NumPy array
 operation over all ``M`` particles at once.
@@ -30,8 +31,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._checks import (as_array, as_covariance, as_log_weights, as_poses, as_rows, as_scalar, as_weights,
-                      check_log_weights, check_rng, check_rows)
+from ._checks import (as_array, as_covariance, as_indices, as_log_weights, as_poses, as_probabilities, as_returned,
+                      as_rows, as_scalar, as_weights, check_callable, check_log_weights, check_rng, check_rows)
 from .angles import _circular_mean, wrap_angle
 from .gaussian import _gaussian
 from .motion import _arc_pose, _control_sqrt
@@ -50,6 +51,8 @@ __all__ = [
     "landmark_likelihood",
     "bootstrap_filter_step",
     "particle_filter_step",
+    "PFRunResult",
+    "run_particle_filter",
     "particle_gaussian",
 ]
 
@@ -464,17 +467,56 @@ def _resampler(resample):
     raise ValueError(f"resample must be one of {sorted(RESAMPLERS)}, a callable (w, *, rng) -> indices, or None; got {resample!r}")
 
 
-def _weigh_and_resample(particles, log_w, rng, resample, ess_threshold):
-    log_w = _normalized(log_w)
-    w = np.exp(log_w)
-    ess = float(np.sum(w) ** 2 / np.sum(w * w))  # (sum w)^2 / sum w^2
+def _weigh_and_resample(particles, log_w, rng, resample, ess_threshold, weigh=None):
+    if weigh is None:
+        log_w = _normalized(log_w)
+        w = np.exp(log_w)
+        ess = float(np.sum(w) ** 2 / np.sum(w * w))  # (sum w)^2 / sum w^2
+    else:  # the caller's normalize_log_weights and effective_sample_size (see _weigher)
+        log_w, w, ess = weigh(log_w)
     if resample is not None and (ess_threshold >= 1.0 or ess < ess_threshold * w.size):
         # draw M particles with probability w  (Table 4.3 lines 8-11)
-        idx = np.asarray(resample(w, rng=rng))
-        if idx.shape != (w.size,) or idx.dtype.kind not in "iu":
-            raise ValueError(f"resample must return {w.size} integer indices, got shape {idx.shape} dtype {idx.dtype}")
+        idx = as_indices(resample(w, rng=rng), "the indices resample returned", w.size, (w.size,))
         return _particle_set(particles[idx], np.full(w.size, -np.log(w.size))), PFStepInfo(ess, True)
     return _particle_set(particles, log_w), PFStepInfo(ess, False)
+
+
+def _weigher(normalize_log_weights, effective_sample_size):
+    """``weigh(log_w) -> (log_w, w, ess)`` of :func:`_weigh_and_resample` from a caller's functions (or None).
+
+    Either function may be None (the library's own computation of that part).
+    The caller's functions get copies; their results are checked.
+    """
+    if normalize_log_weights is None and effective_sample_size is None:
+        return None
+
+    def weigh(log_w):
+        if normalize_log_weights is None:
+            log_w = _normalized(log_w)
+            w = np.exp(log_w)
+        else:
+            w = as_probabilities(normalize_log_weights(log_w.copy()), "normalize_log_weights(...)", log_w.shape,
+                                 sums_to_one=True)
+            with np.errstate(divide="ignore"):
+                log_w = np.log(w)  # -inf: a weight of zero
+        if effective_sample_size is None:
+            ess = float(np.sum(w) ** 2 / np.sum(w * w))  # (sum w)^2 / sum w^2
+        else:
+            ess = as_scalar(effective_sample_size(w.copy()), "effective_sample_size(...)", nonnegative=True)
+        return log_w, w, ess
+
+    return weigh
+
+
+def _hooked_log_likelihood(landmark_likelihood, poses, z, m, Q):
+    """``sum_k log p_k`` of a caller's ``landmark_likelihood(particles, z_k, m_k, Q) -> p_k (M,)``, one call per measurement."""
+    total = np.zeros(poses.shape[0])
+    for zk, mk in zip(z, m):
+        p = as_returned(landmark_likelihood(poses.copy(), zk.copy(), mk.copy(), Q.copy()), "landmark_likelihood",
+                        (poses.shape[0],), nonnegative=(0,))
+        with np.errstate(divide="ignore"):
+            total += np.log(p)  # -inf: likelihood zero
+    return total
 
 
 def _step_options(rng, resample, ess_threshold):
@@ -544,7 +586,8 @@ def bootstrap_filter_step(particles, log_w, propagate, log_likelihood, *, rng, r
     return _weigh_and_resample(moved, new_lw, rng, resample, ess_threshold)
 
 
-def particle_filter_step(particles, log_w, u, z, m, dt, M, Q, *, rng, resample="systematic", ess_threshold=0.5):
+def particle_filter_step(particles, log_w, u, z, m, dt, M, Q, *, rng, resample="systematic", ess_threshold=0.5,
+                         landmark_likelihood=None, normalize_log_weights=None, effective_sample_size=None):
     """One particle-filter step for poses with landmark measurements.
 
     Parameters
@@ -571,9 +614,27 @@ def particle_filter_step(particles, log_w, u, z, m, dt, M, Q, *, rng, resample="
         Draws ``standard_normal((n, 2))`` for the motion, then the resampler's
         draws.
     resample : str, callable or None, keyword-only
-        As in :func:`bootstrap_filter_step`.
+        As in :func:`bootstrap_filter_step`; a callable ``resample(w, *, rng)
+        -> indices`` is called where the step resamples (e.g.
+        :func:`low_variance_resample`, or a student's version of it, as the
+        autograder plugs it in).
     ess_threshold : float, keyword-only
         As in :func:`bootstrap_filter_step`.
+    landmark_likelihood : callable, optional, keyword-only
+        ``landmark_likelihood(particles, z_k, m_k, Q) -> p (n,)`` in place of
+        the step's own measurement likelihood, called once per measurement
+        on the moved particles (as :func:`landmark_likelihood`); the weights
+        are multiplied by ``p`` (in log space, ``p = 0`` giving ``-inf``).
+        ``None`` (default): the library's core.
+    normalize_log_weights : callable, optional, keyword-only
+        ``normalize_log_weights(log_w) -> w (n,)`` in place of the
+        normalisation of the weights, as :func:`normalize_log_weights`;
+        ``log_w`` may hold ``-inf`` (weight zero) when `landmark_likelihood`
+        returned zeros.
+    effective_sample_size : callable, optional, keyword-only
+        ``effective_sample_size(w) -> float`` in place of the step's own
+        effective sample size of the normalised weights, as
+        :func:`effective_sample_size`.
 
     Returns
     -------
@@ -582,6 +643,15 @@ def particle_filter_step(particles, log_w, u, z, m, dt, M, Q, *, rng, resample="
         normalised.
     info : PFStepInfo
         Effective sample size before resampling, and whether it resampled.
+
+    Notes
+    -----
+    The functions given for `landmark_likelihood`, `normalize_log_weights`
+    and `effective_sample_size` are called with the homework contract's
+    arguments (copies of the step's arrays), and their results checked
+    (shape; non-negative likelihoods; weights that sum to 1; a non-negative
+    effective sample size): a bad one raises ``ValueError`` naming the
+    function. Exceptions they raise pass through unchanged.
 
     References
     ----------
@@ -600,17 +670,143 @@ def particle_filter_step(particles, log_w, u, z, m, dt, M, Q, *, rng, resample="
     M = as_covariance(M, "M", 2)
     Q = as_covariance(Q, "Q", 2, definite=True)
     resample, ess_threshold = _step_options(rng, resample, ess_threshold)
+    _check_pf_functions(landmark_likelihood, normalize_log_weights, effective_sample_size)
+    return _pf_step(particles, lw, u, z, m, dt, _control_sqrt(M), Q, rng, resample, ess_threshold, landmark_likelihood,
+                    _weigher(normalize_log_weights, effective_sample_size))
+
+
+def _check_pf_functions(landmark_likelihood, normalize_log_weights, effective_sample_size):
+    check_callable(landmark_likelihood, "landmark_likelihood", "(particles, z, m, Q)")
+    check_callable(normalize_log_weights, "normalize_log_weights", "(log_w)")
+    check_callable(effective_sample_size, "effective_sample_size", "(w)")
+
+
+def _pf_step(particles, lw, u, z, m, dt, L, Q, rng, resample, ess_threshold, likelihood=None, weigh=None):
+    """:func:`particle_filter_step` on checked inputs, ``L`` a square root of ``M``; ``likelihood``: a caller's
+    ``landmark_likelihood`` or None, ``weigh``: see :func:`_weigher`."""
+    n = particles.shape[0]
     # u_hat^[m] = u + N(0, M); x_t^[m] = g(u_hat^[m], x_{t-1}^[m])  (Table 4.3 line 4, Table 5.3)
     eps = rng.standard_normal((n, 2))
-    L = _control_sqrt(M)
     u_hat = u + eps[:, :1] * L[:, 0] + eps[:, 1:] * L[:, 1]  # u + L eps per particle, eps ~ N(0, I)
     moved = _arc_pose(particles, u_hat, dt)
     if z.shape[0]:
         # w^[m] = prod_k p(z_k | x_t^[m], m_k), summed in log space  (Table 4.3 line 5, Table 6.4)
-        new_lw = lw + _log_landmark_likelihood(moved, z, m, Q)
+        if likelihood is None:
+            new_lw = lw + _log_landmark_likelihood(moved, z, m, Q)
+        else:
+            new_lw = lw + _hooked_log_likelihood(likelihood, moved, z, m, Q)
+            check_log_weights(new_lw, "log_w + log landmark_likelihood(...)")
     else:
         new_lw = lw
-    return _weigh_and_resample(moved, new_lw, rng, resample, ess_threshold)
+    return _weigh_and_resample(moved, new_lw, rng, resample, ess_threshold, weigh)
+
+
+class PFRunResult(NamedTuple):
+    """What :func:`run_particle_filter` returns.
+
+    Attributes
+    ----------
+    x_est : ndarray, shape (T+1, 3)
+        Weighted mean pose (weighted circular mean of the headings):
+        ``x_est[0]`` of the initial particles, ``x_est[t+1]`` of the
+        particles after step ``t`` (after its resampling, if any).
+    ess : ndarray, shape (T,)
+        Effective sample size at each step, before resampling.
+    resampled : ndarray of bool, shape (T,)
+        Whether each step resampled.
+    particles : ParticleSet
+        The particles and their normalised log-weights after the last step.
+    """
+
+    x_est: np.ndarray
+    ess: np.ndarray
+    resampled: np.ndarray
+    particles: ParticleSet
+
+
+def run_particle_filter(run, particles, *, rng, log_w=None, M=None, Q=None, resample="systematic", ess_threshold=0.5,
+                        landmark_likelihood=None, normalize_log_weights=None, effective_sample_size=None,
+                        on_step=None):
+    """Particle-filter localization over a whole landmark run, known correspondences.
+
+    Each step is :func:`particle_filter_step` with the run's control, the
+    step's measurements and the positions of their landmarks.
+
+    Parameters
+    ----------
+    run : LandmarkRun
+        From :func:`~slamlib.sim.simulate_landmark_run`; uses ``landmarks``,
+        ``dt``, the commanded controls ``u (T, 2)``, the measurements ``z``
+        and their landmark indices ``ids`` and, by default, ``M`` and ``Q``.
+    particles : ndarray, shape (n, 3)
+        The initial particles (e.g. samples around ``run.x0``), ``n >= 1``.
+    rng : numpy.random.Generator, keyword-only
+        Source of the motion noise and the resampler's draws.
+    log_w : ndarray, shape (n,), optional, keyword-only
+        Initial log-weights (normalised or not); equal weights by default.
+    M, Q : ndarray, shape (2, 2), optional, keyword-only
+        Control- and measurement-noise covariances assumed by the filter;
+        default the run's.
+    resample : str, callable or None, keyword-only
+        The resampler, as in :func:`particle_filter_step`: a callable
+        ``resample(w, *, rng) -> indices`` (such as a student's
+        :func:`low_variance_resample`) is called wherever a step resamples.
+    ess_threshold : float, keyword-only
+        Resample when the effective sample size falls below
+        ``ess_threshold * n``, as in :func:`particle_filter_step`.
+    landmark_likelihood, normalize_log_weights, effective_sample_size : callable, optional, keyword-only
+        Functions of the homework contract's signatures in place of the
+        filter's own measurement likelihood, weight normalisation and
+        effective sample size (:func:`landmark_likelihood`,
+        :func:`normalize_log_weights`, :func:`effective_sample_size`, or a
+        student's versions, as the autograder plugs them in); see
+        :func:`particle_filter_step`. ``None`` (default): the library's cores.
+    on_step : callable, optional, keyword-only
+        ``on_step(t)`` is called at the start of step ``t``, e.g. for progress
+        reports, or so that the functions above know which step they serve.
+
+    Returns
+    -------
+    PFRunResult
+        ``(x_est (T+1, 3), ess (T,), resampled (T,), particles)``.
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Table 4.3 (with resampling on low effective
+    sample size, Sec. 4.3.4), Table 5.3, Table 6.4.
+    """
+    for attr in ("landmarks", "dt", "u", "z", "ids", "M", "Q"):
+        if not hasattr(run, attr):
+            raise TypeError(f"run must be a LandmarkRun (missing attribute {attr!r})")
+    landmarks = as_array(run.landmarks, "run.landmarks", (None, 2))
+    u = as_array(run.u, "run.u", (None, 2))
+    dt = as_scalar(run.dt, "run.dt", nonnegative=True)
+    poses = as_poses(particles, "particles", allow_empty=False)
+    n = poses.shape[0]
+    lw = np.full(n, -np.log(n)) if log_w is None else as_log_weights(log_w, "log_w", n, ref="particles")
+    M = as_covariance(run.M if M is None else M, "M", 2)
+    Q = as_covariance(run.Q if Q is None else Q, "Q", 2, definite=True)
+    resample, ess_threshold = _step_options(rng, resample, ess_threshold)
+    _check_pf_functions(landmark_likelihood, normalize_log_weights, effective_sample_size)
+    check_callable(on_step, "on_step", "(t)")
+    T = u.shape[0]
+    if len(run.z) != T or len(run.ids) != T:
+        raise ValueError(f"run.z and run.ids must hold one entry per control ({T}), got {len(run.z)} and {len(run.ids)}")
+    L = _control_sqrt(M)
+    weigh = _weigher(normalize_log_weights, effective_sample_size)
+    x_est = np.empty((T + 1, 3))
+    ess = np.empty(T)
+    resampled = np.zeros(T, dtype=bool)
+    x_est[0] = _weighted_pose_mean(poses, np.exp(_normalized(lw)))
+    for t in range(T):
+        if on_step is not None:
+            on_step(t)
+        z = as_rows(run.z[t], f"run.z[{t}]", 2)
+        ids = as_indices(run.ids[t], f"run.ids[{t}]", landmarks.shape[0], (z.shape[0],), ref=f"run.z[{t}]")
+        (poses, lw), (ess[t], resampled[t]) = _pf_step(poses, lw, u[t], z, landmarks[ids], dt, L, Q, rng, resample,
+                                                       ess_threshold, landmark_likelihood, weigh)
+        x_est[t + 1] = _weighted_pose_mean(poses, np.exp(lw))
+    return PFRunResult(x_est, ess, resampled, _particle_set(poses, lw))
 
 
 def particle_gaussian(particles, log_weights=None, *, angles=()):

@@ -39,7 +39,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from ._checks import as_array, as_scalar
+from ._checks import as_array, as_rigid_transform, as_scalar
 from .angles import wrap_angle
 from .metrics import ate_rmse, heading_rmse, landmark_rmse
 from .motion import dead_reckoning  # noqa: F401  (moved to motion; still sl.dead_reckoning)
@@ -124,14 +124,6 @@ def align_se2(est_xy, true_xy):
     return R, t
 
 
-def _check_transform(R, t, names=("R", "t")):
-    R = as_array(R, names[0], (2, 2))
-    t = as_array(t, names[1], (2,))
-    if not np.allclose(R.T @ R, np.eye(2), atol=1e-9) or np.linalg.det(R) < 0:
-        raise ValueError(f"{names[0]} must be a rotation matrix (orthonormal, det +1)")
-    return R, t
-
-
 def apply_se2(R, t, x):
     """Apply the rigid transform ``p -> R p + t`` to points or poses.
 
@@ -155,7 +147,7 @@ def apply_se2(R, t, x):
     Umeyama (1991), Eq. 1 (the similarity transform, here with scale 1);
     Thrun, Burgard & Fox (2005), Sec. 10.1.
     """
-    R, t = _check_transform(R, t)
+    R, t = as_rigid_transform(R, t)
     x = as_array(x, "x", ndim=range(1, 33))
     if x.shape[-1] not in (2, 3):
         raise ValueError(f"x must have shape (..., 2) points or (..., 3) poses, got {x.shape}")
@@ -234,12 +226,12 @@ def _transform_arg(transform):
     if transform is None:
         return np.eye(2), np.zeros(2)
     if isinstance(transform, TrajectoryScore):
-        return _check_transform(transform.R, transform.t, ("transform.R", "transform.t"))
+        return as_rigid_transform(transform.R, transform.t, ("transform.R", "transform.t"))
     try:
         R, t = transform
     except (TypeError, ValueError):
         raise TypeError("transform must be None, a TrajectoryScore or a pair (R (2, 2), t (2,))") from None
-    return _check_transform(R, t, ("transform[0] (R)", "transform[1] (t)"))
+    return as_rigid_transform(R, t, ("transform[0] (R)", "transform[1] (t)"))
 
 
 def match_landmarks(est, true, *, transform=None, max_dist=np.inf):

@@ -273,6 +273,7 @@ def test_gradescope_bundle_runs(tmp_path):
         with zipfile.ZipFile(root / "source" / wheel[0]) as whl:
             wn = whl.namelist()
             assert "autograder/_runner.py" in wn and "slamlib/gaussian.py" in wn
+            assert "autograder/wire.py" in wn  # the child's script loads it from its own folder
             assert any(n.endswith(".dist-info/RECORD") for n in wn)
     (root / "submission").mkdir()
     (root / "results").mkdir()

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 import slamlib as sl
-from autograder import _runner, loops
-from autograder._runner import ProtocolError, decode_result, encode_args, encode_result, pack_frame, parse_frame
+from autograder import loops, wire
+from autograder.wire import ProtocolError, decode_result, encode_args, encode_result, pack_frame, parse_frame
 from autograder.calibrate import calibrate, summarize
 from autograder.context import Ctx, Fail, Out
 from autograder.results import write_json_atomic
@@ -22,6 +22,22 @@ from autograder.submission import forbidden_usage
 
 
 # --------------------------------------------------------------------------- wire format
+def test_the_childs_side_imports_only_the_standard_library_numpy_and_the_wire_format():
+    """``_runner.py`` runs in the sandbox, where neither slamlib nor the rest of the autograder exists."""
+    import ast
+    import sys
+
+    folder = Path(wire.__file__).parent
+    for name in ("_runner.py", "wire.py"):
+        tree = ast.parse((folder / name).read_text(encoding="utf-8"))
+        absolute = {a.name.split(".")[0] for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+        absolute |= {n.module.split(".")[0] for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and not n.level}
+        relative = {a.name for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.level for a in n.names}
+        assert absolute <= set(sys.stdlib_module_names) | {"numpy"}, (name, absolute)
+        assert relative <= ({"wire"} if name == "_runner.py" else set()), (name, relative)
+    assert "wire.py" in (folder / "_runner.py").read_text(encoding="utf-8")  # loaded by its path in the child
+
+
 def _roundtrip(obj):
     desc, payload = encode_result(obj, np)
     header, body, used = parse_frame(pack_frame({"result": desc}, payload))
@@ -72,8 +88,8 @@ def test_results_become_plain_arrays():
 
 
 def test_args_encoding():
-    header, payload = encode_args((np.eye(2), 3, 0.5, None, True), {"rng": _runner.RngSeed(7)}, np)
-    args, kwargs = _runner.decode_args(header, payload, np)
+    header, payload = encode_args((np.eye(2), 3, 0.5, None, True), {"rng": wire.RngSeed(7)}, np)
+    args, kwargs = wire.decode_args(header, payload, np)
     assert np.array_equal(args[0], np.eye(2)) and args[1:] == [3, 0.5, None, True]
     assert kwargs["rng"].random() == np.random.default_rng(7).random()
 
@@ -190,8 +206,9 @@ def test_statistical_checks_calibrated_on_the_reference():
     assert summarize(ks)["ks_uniform_p"] > 1e-3
 
 
-# --------------------------------------------------------------------------- end-to-end loops against slamlib's own runners
+# --------------------------------------------------------------------------- end-to-end loops: slamlib's own drivers
 def test_loops_reproduce_slamlib_runners():
+    """The reference loops are the drivers' own runs (slamlib's functions plugged in change nothing)."""
     run = loops.scenario("localization")
     traj = loops.reference("ekf_known")
     np.testing.assert_allclose(traj, sl.ekf_localization_run(run, known=True).mu, atol=1e-9)
@@ -202,9 +219,75 @@ def test_loops_reproduce_slamlib_runners():
     srun = loops.scenario("slam")
     traj, lm = loops.reference("ekf_slam")
     ref = sl.run_ekf_slam(srun, known=True, fast=False, prior_var=1e4)
-    np.testing.assert_allclose(traj, ref.x, atol=1e-6)
+    np.testing.assert_allclose(traj, ref.x, atol=1e-9)
+    np.testing.assert_allclose(lm[ref.landmark_ids], ref.landmarks, atol=1e-9)
+    assert np.isnan(lm).sum() == 2 * (srun.landmarks.shape[0] - ref.landmark_ids.size)
+    fs = sl.run_fastslam(srun, n_particles=60, rng=np.random.default_rng(99), known=True)
+    np.testing.assert_allclose(loops.reference("fastslam"), fs.x_est, atol=1e-9)
     for name in ("pf", "fastslam"):
         assert loops.ate(loops.reference(name), run if name == "pf" else srun) < 0.5
+
+
+class _Calls:
+    """A student's function for a loop: slamlib's, recording the step of every call."""
+
+    def __init__(self, fn):
+        self.fn, self.steps = fn, []
+
+    def __call__(self, t, *args, **kwargs):
+        self.steps.append(t)
+        return self.fn(*args, **kwargs)
+
+
+def test_loops_plug_the_student_function_into_the_driver():
+    """Every loop calls the student's function at every step that needs it and, given slamlib's, matches the reference."""
+    run, srun = loops.scenario("localization"), loops.scenario("slam")
+    predict = _Calls(sl.ekf_predict)
+    np.testing.assert_array_equal(loops.ekf_localization_loop(run, predict=predict)[0], loops.reference("ekf_known"))
+    assert predict.steps == list(range(run.n_steps))
+    associate = _Calls(sl.associate_ml)
+    traj, ids = loops.ekf_localization_loop(run, known=False, associate=associate)
+    assert tuple(ids) == loops.reference("ekf_unknown")[1] and len(associate.steps) == len(ids)
+    assert associate.steps == [t for t in range(run.n_steps) for _ in run.z[t]]
+    lik = _Calls(sl.landmark_likelihood)
+    np.testing.assert_array_equal(loops.particle_filter_loop(run, likelihood=lik), loops.reference("pf"))
+    assert lik.steps == [t for t in range(run.n_steps) for _ in run.z[t]]
+    draws = _Calls(lambda w, seed: sl.low_variance_resample(w, rng=np.random.default_rng(seed)))
+    np.testing.assert_array_equal(loops.particle_filter_loop(run, resample=draws), loops.reference("pf"))
+    assert 0 < len(draws.steps) < run.n_steps
+    init = _Calls(sl.ekf_slam_init_landmark)
+    traj, lm = loops.ekf_slam_loop(srun, init=init)
+    np.testing.assert_array_equal(traj, loops.reference("ekf_slam")[0])
+    assert len(init.steps) == int(np.sum(~np.isnan(lm[:, 0])))
+    update = _Calls(sl.fastslam_update_landmark)
+    np.testing.assert_array_equal(loops.fastslam_loop(srun, update=update), loops.reference("fastslam"))
+    assert update.steps == sorted(update.steps) and len(update.steps) > srun.n_steps
+
+
+def test_loops_report_a_value_the_reference_rejects_at_its_step():
+    run = loops.scenario("localization")
+
+    def predict(t, mu, Sigma, u, dt, M):
+        mu_bar, S = sl.ekf_predict(mu, Sigma, u, dt, M)
+        if t == 7:
+            S = S.copy()
+            S[0, 1] += 1.0  # not symmetric: the reference ekf_update refuses it
+        return mu_bar, S
+
+    with pytest.raises(loops.LoopError, match=r"^step 7: the reference EKF update could not use your result"):
+        loops.ekf_localization_loop(run, predict=predict)
+
+    def update(t, mu, Sigma, z, m, Q):
+        return sl.ekf_update(mu, Sigma, z, m, Q)[0], np.eye(2)  # a covariance of the wrong shape
+
+    with pytest.raises(loops.LoopError, match=r"^step 0: the filter could not use your result .*ekf_update"):
+        loops.ekf_localization_loop(run, update=update)
+
+    def likelihood(t, particles, z, m, Q):
+        return np.zeros(particles.shape[0]) if t == 3 else sl.landmark_likelihood(particles, z, m, Q)
+
+    with pytest.raises(loops.LoopError, match=r"^step 3: the filter could not use your result .*-inf"):
+        loops.particle_filter_loop(run, likelihood=likelihood)
 
 
 # --------------------------------------------------------------------------- isolation and results files
@@ -284,3 +367,16 @@ def test_without_a_mount_namespace_the_report_says_what_protects_the_reference()
         assert level == "separate-user" and "separate unprivileged user" in text
     elif iso.get("reference_readable"):
         assert level == "audit-hook-only" and "audit hook ONLY" in text
+
+
+def test_ekf_update_wrapping_cases_cross_the_cut_for_every_seed():
+    """The 'bearing innovation wrapped' test must catch a missing wrap whatever the scenario seed."""
+    from autograder.exercises import ekf_localization as ex
+
+    for seed in range(200):
+        rng = np.random.default_rng(seed)
+        for th in (0.3, np.pi - 0.01, -np.pi + 0.02):
+            mu_bar = np.array([rng.uniform(-5, 5), rng.uniform(-5, 5), th])
+            z, m = ex._meas_case(rng, mu_bar, behind=True)
+            z_hat = sl.landmark_measurement(mu_bar, m)[0]
+            assert abs(z[1] - z_hat[1]) > np.pi, (seed, th, z, z_hat)

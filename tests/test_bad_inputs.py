@@ -27,6 +27,7 @@ MODULES = ("angles", "bayes", "maps", "motion", "sensors", "metrics", "sim", "pa
 NOT_CALLED = {
     "RESAMPLERS": "a dict of the resamplers, each tested below",
     "PFStepInfo": "a result record filled by the filter steps",
+    "PFRunResult": "a result record filled by run_particle_filter",
     "EKFRunResult": "a result record filled by the EKF drivers",
     "LandmarkRun": "a result record filled by simulate_landmark_run",
     "LikelihoodField": "built by likelihood_field, whose inputs are tested",
@@ -228,7 +229,14 @@ SPECS = {
                                   "m": LANDMARKS[:2], "dt": 0.1, "M": M2, "Q": Q2},
         {"rng": np.random.default_rng(1)},
         bad={"particles": A("arr", rows="p"), "log_w": A("logw", rows="p"), "u": A("arr"), "z": A("arr", rows="z"),
-             "m": A("arr", rows="z"), "dt": A("scalar", neg=True), "M": A("cov"), "Q": A("pd"), "rng": A("rng")}),
+             "m": A("arr", rows="z"), "dt": A("scalar", neg=True), "M": A("cov"), "Q": A("pd"), "rng": A("rng"),
+             "landmark_likelihood": A("fn"), "normalize_log_weights": A("fn"), "effective_sample_size": A("fn")}),
+    "run_particle_filter": spec(
+        sl.run_particle_filter, {"run": RUN, "particles": POSES}, {"rng": np.random.default_rng(1), "log_w": LOGW},
+        bad={"run": A("obj"), "particles": A("arr", rows="p"), "log_w": A("logw", rows="p", none_ok=True),
+             "rng": A("rng"), "M": A("cov", none_ok=True), "Q": A("pd", none_ok=True), "ess_threshold": A("prob"),
+             "landmark_likelihood": A("fn"), "normalize_log_weights": A("fn"), "effective_sample_size": A("fn"),
+             "on_step": A("fn")}),
     "particle_gaussian": spec(sl.particle_gaussian, {"particles": POSES, "log_weights": LOGW}, {"angles": (2,)},
                               bad={"particles": A("rowsarr", rows="m"),
                                    "log_weights": A("logw", rows="m", none_ok=True)}),
@@ -269,7 +277,8 @@ SPECS = {
     "ekf_localization_run": spec(sl.ekf_localization_run, {"run": RUN}, {"mu0": POSE, "Sigma0": P3},
                                  bad={"mu0": A("arr", none_ok=True), "Sigma0": A("cov", none_ok=True),
                                       "M": A("cov", none_ok=True), "Q": A("pd", none_ok=True),
-                                      "gate": A("scalar", neg=True, none_ok=True)}),
+                                      "gate": A("scalar", neg=True, none_ok=True), "ekf_predict": A("fn"),
+                                      "ekf_update": A("fn"), "on_step": A("fn")}),
     "ekf_localization_batch": spec(sl.ekf_localization_batch, {"runs": [RUN, RUN]}, {"mu0": POSE, "Sigma0": P3},
                                    bad={"mu0": A("arr", none_ok=True), "Sigma0": A("cov", none_ok=True),
                                         "M": A("cov", none_ok=True), "Q": A("pd", none_ok=True)}),
@@ -282,6 +291,8 @@ def _default(name, sp):
     for source in (sp["args"], sp["kwargs"]):
         if name in source:
             return source[name]
+    if sp["bad"][name].kind == "fn":
+        return None  # an optional function (None: the library's own)
     return {"extent": 10.0, "M": M2, "Q": Q2, "gate": 9.2, "ess_threshold": 0.5}[name]
 
 

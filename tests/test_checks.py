@@ -263,3 +263,155 @@ def test_small_ok_never_passes_what_the_full_checks_refuse():
     assert not c.small_ok((np.zeros(3, dtype=np.float32),))  # anything unusual goes the long way
     assert not c.small_ok((), (np.zeros(3),))
     assert not c.small_ok((), (), (np.eye(4),))
+
+
+# --------------------------------------------------------------------------- checks the filters and graphs share
+def test_thresholds_choices_types_and_record_fields():
+    import math
+    from typing import NamedTuple
+
+    assert c.as_threshold(9.2, "gate") == 9.2 and c.as_threshold(np.inf, "gate") == math.inf
+    assert c.as_threshold(None, "gate", optional=True, none=math.inf) == math.inf
+    assert c.as_threshold(None, "gate", optional=True) is None
+    assert c.as_threshold(0.0, "gate") == 0.0
+    for value, kw, exc, msg in [
+        (None, {}, TypeError, "gate must be a real number"),  # None only where it is optional
+        (-1.0, {}, ValueError, "gate must be non-negative"),
+        (np.nan, {}, ValueError, "gate must be non-negative"),
+        (0.0, dict(positive=True), ValueError, "gate must be positive"),
+        (np.inf, dict(finite=True), ValueError, "gate must be finite"),
+    ]:
+        with pytest.raises(exc, match=msg):
+            c.as_threshold(value, "gate", **kw)
+
+    choices = {"S": "innovation covariance", "text": "the course text's erratum"}
+    assert c.check_choice("text", "weight_cov", choices) == "text"
+    with pytest.raises(ValueError, match=r"weight_cov must be 'S' \(innovation covariance\) or 'text' .*got 'R'"):
+        c.check_choice("R", "weight_cov", choices)
+    with pytest.raises(ValueError, match="weight_cov must be .*got 3"):
+        c.check_choice(3, "weight_cov", choices)
+    with pytest.raises(ValueError, match="weight_cov='Q' is gone: use 'text'"):
+        c.check_choice("Q", "weight_cov", choices, removed={"Q": "use 'text'"})
+
+    class Rec(NamedTuple):
+        a: np.ndarray
+        b: np.ndarray
+
+    with pytest.raises(TypeError, match=r"state must be a Rec \(from make\), got tuple"):
+        c.check_type((1, 2), Rec, "state", "from make")
+    r = Rec(np.zeros((2, 3)), np.zeros(2))
+    assert c.check_field_shapes(r, "state", {"a": (2, 3), "b": (2,)}) is r
+    with pytest.raises(ValueError, match=r"state\.b must have shape \(3,\), got \(2,\)"):
+        c.check_field_shapes(r, "state", {"a": (2, 3), "b": (3,)})
+    with pytest.raises(ValueError, match=r"free must have shape \(2, 2\) \(to match belief\), got \(2, 3\)"):
+        c.as_mask(np.ones((2, 3)), "free", ndim=2, shape=(2, 2), ref="belief")
+
+
+def test_invertible_covariance_kernel_and_slam_state():
+    Q = np.diag([0.1, 0.02]) ** 2
+    np.testing.assert_array_equal(c.as_invertible_covariance(Q, "Q", 2, max_log_det=600.0), Q)
+    np.testing.assert_array_equal(c.as_invertible_covariance(np.eye(3), "Q", 3, max_log_det=1.0), np.eye(3))
+    with pytest.raises(ValueError, match="Q is out of the representable range: log det Q = -1382"):
+        c.as_invertible_covariance(np.eye(2) * 1e-300, "Q", 2, max_log_det=600.0)
+    with pytest.raises(ValueError, match="Q is out of the representable range: log det Q = 1382"):
+        c.as_invertible_covariance(np.eye(2) * 1e300, "Q", 2, max_log_det=600.0)  # det overflows; slogdet does not
+    with pytest.raises(ValueError, match="Q must be positive definite"):
+        c.as_invertible_covariance(np.diag([1.0, 0.0]), "Q", 2, max_log_det=600.0)
+
+    k = c.as_kernel([0.25, 0.5, 0.25], "kernel", 1)
+    np.testing.assert_array_equal(k, [0.25, 0.5, 0.25])
+    with pytest.raises(ValueError, match=r"kernel must have an odd length along every axis.*\(3, 2\)"):
+        c.as_kernel(np.full((3, 2), 1 / 6), "kernel", 2)
+    with pytest.raises(ValueError, match="kernel must sum to 1"):
+        c.as_kernel([0.5, 0.5, 0.5], "kernel", 1)
+
+    mu = np.arange(7.0)
+    assert c.as_slam_mean(mu) is not mu and np.array_equal(c.as_slam_mean(mu), mu)
+    for bad in (np.zeros(2), np.zeros(4), np.zeros((1, 5))):
+        with pytest.raises(ValueError, match=r"mu must (have shape \(3\+2N,\)|have 1 dimensions)"):
+            c.as_slam_mean(bad)
+    m, S = c.as_slam_state(mu, np.eye(7), "mu_bar", "Sigma_bar")
+    assert np.array_equal(S, np.eye(7))
+    with pytest.raises(ValueError, match=r"Sigma_bar must have shape \(7, 7\).*\(to match mu_bar\)"):
+        c.as_slam_state(mu, np.eye(5), "mu_bar", "Sigma_bar")
+    with pytest.raises(ValueError, match="Sigma must be positive semi-definite"):
+        c.as_slam_state(mu, -np.eye(7))
+
+
+def test_rigid_transforms_and_index_sets():
+    th = 0.3
+    R = np.array([[np.cos(th), -np.sin(th)], [np.sin(th), np.cos(th)]])
+    R2, t2 = c.as_rigid_transform(R, [1.0, 2.0])
+    assert np.array_equal(R2, R) and np.array_equal(t2, [1.0, 2.0])
+    for bad in (2 * R, np.diag([1.0, -1.0])):  # not orthonormal; a reflection
+        with pytest.raises(ValueError, match=r"T\.R must be a rotation matrix"):
+            c.as_rigid_transform(bad, [0.0, 0.0], ("T.R", "T.t"))
+    with pytest.raises(ValueError, match=r"T\.t must have shape \(2,\)"):
+        c.as_rigid_transform(R, [0.0, 0.0, 0.0], ("T.R", "T.t"))
+
+    assert c.as_index_set([3, np.int64(0), 3], "fixed", 4) == (0, 3)
+    for value, exc, msg in [
+        (3, TypeError, "fixed must be a sequence of pose indices, got int"),
+        ([0, 1.0], TypeError, "fixed must hold integer pose indices, got 1.0"),
+        ([True], TypeError, "fixed must hold integer pose indices"),
+        ([0, 4], ValueError, r"fixed holds pose 4, outside 0\.\.3"),
+        ([-1], ValueError, r"fixed holds pose -1, outside 0\.\.3"),
+        ([], ValueError, "fixed must hold at least one pose: an anchor"),
+    ]:
+        with pytest.raises(exc, match=msg):
+            c.as_index_set(value, "fixed", 4, what="pose", why="an anchor")
+
+
+def test_edges_information_and_pose_graphs():
+    e = c.as_edges([[0, 1], [1.0, 2.0]], "edges", 3)
+    assert e.dtype == np.int64 and e.tolist() == [[0, 1], [1, 2]]
+    assert c.as_edges(np.zeros((0, 2)), "edges", 3).shape == (0, 2)
+    assert c.as_edges(np.zeros((0, 2), dtype=np.int32), "edges", 3).dtype == np.int64
+    for value, exc, msg in [
+        ([[0, 1.5]], TypeError, "edges must be an integer array of index pairs"),
+        ([[0, 1, 2]], ValueError, r"edges must have shape \(E, 2\)"),
+        ([[0, 1], [2, 3]], ValueError, r"edges\[1\] = \[2, 3\] refers to a pose outside 0\.\.2$"),
+        ([[0, 1], [-1, 0]], ValueError, r"edges\[1\] = \[-1, 0\] refers to a pose outside"),
+        ([[0, 1], [2, 2]], ValueError, r"edges\[1\] joins pose 2 to itself"),
+    ]:
+        with pytest.raises(exc, match=msg):
+            c.as_edges(value, "edges", 3)
+    # pairs of two kinds of node: the second bound is the second column's
+    assert c.as_edges([[2, 4], [1, 1]], "obs", 3, 5).tolist() == [[2, 4], [1, 1]]
+    with pytest.raises(ValueError, match=r"obs\[0\] = \[0, 5\] refers to a pose outside 0\.\.2 or a landmark outside 0\.\.4"):
+        c.as_edges([[0, 5]], "obs", 3, 5)
+    with pytest.raises(ValueError, match=r"obs\[1\] = \[3, 0\] refers to a pose outside"):
+        c.as_edges([[0, 0], [3, 0]], "obs", 3, 5)
+
+    W = np.stack([np.eye(3)] * 4)
+    assert np.array_equal(c.as_information(W, "Omega", 4, 3), W)
+    assert c.as_information(np.zeros((0, 2, 2)), "Omega", 0, 2).shape == (0, 2, 2)
+    bad = W.copy()
+    bad[2, 0, 1] = 0.5
+    with pytest.raises(ValueError, match=r"Omega\[2\] must be symmetric"):
+        c.as_information(bad, "Omega", 4, 3)
+    bad = W.copy()
+    bad[3] = np.diag([1.0, 1.0, 0.0])
+    with pytest.raises(ValueError, match=r"Omega\[3\] must be positive definite"):
+        c.as_information(bad, "Omega", 4, 3)
+    with pytest.raises(ValueError, match=r"Omega must have shape \(5, 3, 3\)"):
+        c.as_information(W, "Omega", 5, 3)
+
+    X = np.zeros((3, 3))
+    out = c.as_pose_graph(X, [[0, 1], [1, 2]], np.zeros((2, 3)), W[:2])
+    assert [a.shape for a in out] == [(3, 3), (2, 2), (2, 3), (2, 3, 3)]
+    with pytest.raises(ValueError, match="g.X must hold at least one pose"):
+        c.as_pose_graph(np.zeros((0, 3)), [], np.zeros((0, 3)), W[:0], ("g.X", "g.e", "g.Z", "g.W"))
+    with pytest.raises(ValueError, match=r"g\.Z must have shape \(2, 3\)"):
+        c.as_pose_graph(X, [[0, 1], [1, 2]], np.zeros((3, 3)), W[:2], ("g.X", "g.e", "g.Z", "g.W"))
+    with pytest.raises(ValueError, match=r"g\.e\[0\] = \[0, 3\]"):
+        c.as_pose_graph(X, [[0, 3]], np.zeros((1, 3)), W[:1], ("g.X", "g.e", "g.Z", "g.W"))
+
+
+def test_range_bearing_measurement():
+    np.testing.assert_array_equal(c.as_range_bearing([2.0, -0.5]), [2.0, -0.5])
+    for bad, msg in (([0.0, 0.1], r"z must have a positive range z\[0\], got 0.0"),
+                     ([-1.0, 0.1], "z must have a positive range"), ([1.0, np.nan], "z must be finite"),
+                     ([1.0, 0.1, 0.0], r"z must have shape \(2,\)")):
+        with pytest.raises(ValueError, match=msg):
+            c.as_range_bearing(bad)

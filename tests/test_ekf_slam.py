@@ -815,3 +815,80 @@ def test_gate_with_unknown_correspondences_rejects_the_band_between_gate_and_alp
     assert len(tight.landmarks) == len(plain.landmarks)
     used = sum(int(np.sum(s >= 0)) for s in tight.associations)
     assert used + tight.n_gated + tight.n_rejected == sum(len(z) for z in run.z)
+
+
+# --------------------------------------------------------------------------- the run's pluggable steps
+class Recorder:
+    """A contract function that records its calls and tampers with its arguments afterwards."""
+
+    def __init__(self, fn):
+        self.fn, self.calls = fn, 0
+
+    def __call__(self, *args):
+        self.calls += 1
+        out = self.fn(*args)
+        for a in args:  # a function that modifies its arguments must not change the filter
+            if isinstance(a, np.ndarray):
+                a[...] = 0.0
+        return out
+
+
+def test_run_with_the_contract_functions_plugged_in_is_the_teaching_run(run):
+    bad_run, _ = with_outliers(run, 37, np.random.default_rng(32))
+    own = sl.run_ekf_slam(bad_run, fast=False, gate=es.DEFAULT_ALPHA)
+    fns = {name: Recorder(getattr(sl, name)) for name in ("ekf_slam_predict", "ekf_slam_init_landmark",
+                                                          "ekf_slam_update")}
+    steps = []
+    plugged = sl.run_ekf_slam(bad_run, fast=False, gate=es.DEFAULT_ALPHA, on_step=steps.append, **fns)
+    for field in ("x", "Sigma_x", "mu", "Sigma", "landmark_ids"):
+        np.testing.assert_array_equal(getattr(plugged, field), getattr(own, field))
+    assert plugged.n_gated == own.n_gated > 0
+    assert steps == list(range(run.n_steps)) and fns["ekf_slam_predict"].calls == run.n_steps
+    assert fns["ekf_slam_init_landmark"].calls == len(own.landmark_ids)
+    assert fns["ekf_slam_update"].calls == sum(len(z) for z in run.z) - own.n_gated
+    # unknown correspondences, with clutter and the provisional list: the association is plugged in too
+    cluttered = sl.add_clutter(run, 0.3, rng=np.random.default_rng(10))
+    own = sl.run_ekf_slam(cluttered, known=False, confirm=3, window=6, fast=False)
+    associate = Recorder(sl.ekf_slam_associate)
+    plugged = sl.run_ekf_slam(cluttered, known=False, confirm=3, window=6, fast=False, ekf_slam_associate=associate)
+    np.testing.assert_array_equal(plugged.mu, own.mu)
+    np.testing.assert_array_equal(plugged.landmark_ids, own.landmark_ids)
+    assert plugged.n_rejected == own.n_rejected > 0 and associate.calls == sum(len(z) for z in cluttered.z)
+
+
+def test_run_uses_what_the_plugged_in_functions_return(run):
+    short = dataclasses.replace(run, u=run.u[:30], z=run.z[:30], ids=run.ids[:30], x_true=run.x_true[:31])
+
+    def origin(mu, z, j):  # a wrong initialisation: every landmark starts at the origin
+        out = mu.copy()
+        out[3 + 2 * j:5 + 2 * j] = 0.0
+        return out
+
+    seen = []
+    res = sl.run_ekf_slam(short, fast=False, prior_var=1e-12,
+                          ekf_slam_init_landmark=origin, ekf_slam_update=lambda mu, S, z, j, Q: (seen.append(
+                              mu[3 + 2 * j:5 + 2 * j].copy()) or mu, S))
+    assert len(res.landmark_ids) > 2 and np.all(np.array(seen) == 0.0)
+    np.testing.assert_array_equal(res.landmarks, 0.0)  # an update that changes nothing keeps them there
+    assert np.all(sl.run_ekf_slam(short, fast=False, known=False,
+                                  ekf_slam_associate=lambda mu, S, z, n, Q, a: n).n_landmarks[1:] > 0)
+
+
+def test_run_refuses_bad_plugged_in_functions_naming_them(run):
+    short = dataclasses.replace(run, u=run.u[:10], z=run.z[:10], ids=run.ids[:10], x_true=run.x_true[:11])
+    with pytest.raises(ValueError, match="ekf_slam_update needs fast=False"):
+        sl.run_ekf_slam(short, ekf_slam_update=sl.ekf_slam_update)
+    with pytest.raises(ValueError, match="ekf_slam_associate needs known=False"):
+        sl.run_ekf_slam(short, fast=False, ekf_slam_associate=sl.ekf_slam_associate)
+    with pytest.raises(TypeError, match="ekf_slam_predict must be a callable ekf_slam_predict"):
+        sl.run_ekf_slam(short, fast=False, ekf_slam_predict="predict")
+    with pytest.raises(TypeError, match="on_step"):
+        sl.run_ekf_slam(short, on_step=1)
+    with pytest.raises(ValueError, match=r"ekf_slam_predict\(\.\.\.\)\[1\] must have shape \(3, 3\)"):
+        sl.run_ekf_slam(short, fast=False, ekf_slam_predict=lambda mu, S, u, dt, M: (mu, np.eye(4)))
+    with pytest.raises(ValueError, match=r"ekf_slam_init_landmark\(\.\.\.\) must have shape \(5,\)"):
+        sl.run_ekf_slam(short, fast=False, ekf_slam_init_landmark=lambda mu, z, j: mu[:3])
+    with pytest.raises(ValueError, match=r"ekf_slam_update\(\.\.\.\)\[0\] must be finite"):
+        sl.run_ekf_slam(short, fast=False, ekf_slam_update=lambda mu, S, z, j, Q: (mu + np.inf, S))
+    with pytest.raises(ValueError, match=r"ekf_slam_associate\(\.\.\.\) must be in \[0, 1\)"):
+        sl.run_ekf_slam(short, fast=False, known=False, ekf_slam_associate=lambda mu, S, z, n, Q, a: n + 1)

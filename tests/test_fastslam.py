@@ -1118,3 +1118,105 @@ def test_fs2_fuzz_gives_finite_results_or_a_clear_error():
             assert np.all(np.isfinite(a))
 
     check()
+
+
+# --------------------------------------------------------------------------- the run's pluggable steps
+class _Recorder:
+    """A contract function that records the step of each call and tampers with its arguments afterwards."""
+
+    def __init__(self, fn, clock):
+        self.fn, self.clock, self.steps = fn, clock, []
+
+    def __call__(self, *args):
+        self.steps.append(self.clock[-1])
+        out = self.fn(*args)
+        for a in args:  # a function that modifies its arguments must not change the filter
+            if isinstance(a, np.ndarray):
+                a[...] = 0.0
+        return out
+
+
+def _short(run, n):
+    import dataclasses
+    return dataclasses.replace(run, u=run.u[:n], z=run.z[:n], ids=run.ids[:n], x_true=run.x_true[:n + 1])
+
+
+def test_run_with_the_contract_functions_plugged_in_is_the_same_run(world):
+    import dataclasses
+    run = _short(world, 120)
+    # a landmark measured twice in one step goes through a second round of the library's batched update
+    t2 = next(t for t in range(5, run.n_steps) if len(run.ids[t]))
+    run = dataclasses.replace(run, z=run.z[:t2] + (np.vstack([run.z[t2], run.z[t2][:1] + [0.05, 0.01]]),)
+                              + run.z[t2 + 1:], ids=run.ids[:t2] + (np.r_[run.ids[t2], run.ids[t2][:1]],)
+                              + run.ids[t2 + 1:])
+    own = sl.run_fastslam(run, n_particles=40, rng=np.random.default_rng(21))
+    clock = []
+    init = _Recorder(sl.fastslam_init_landmark, clock)
+    update = _Recorder(sl.fastslam_update_landmark, clock)
+    plugged = sl.run_fastslam(run, n_particles=40, rng=np.random.default_rng(21), fastslam_init_landmark=init,
+                              fastslam_update_landmark=update, on_step=clock.append)
+    assert clock == list(range(run.n_steps))
+    np.testing.assert_array_equal(plugged.resampled, own.resampled)
+    np.testing.assert_allclose(plugged.x_est, own.x_est, atol=1e-9)
+    np.testing.assert_allclose(plugged.ess, own.ess, rtol=1e-9)
+    np.testing.assert_allclose(plugged.landmarks[own.seen], own.landmarks[own.seen], atol=1e-9)
+    np.testing.assert_array_equal(plugged.state.counts, own.state.counts)
+    n_meas = sum(int(np.sum(z[:, 0] > 0)) for z in run.z)
+    assert len(init.steps) == own.seen.sum() and len(init.steps) + len(update.steps) == n_meas
+    assert init.steps.count(t2) + update.steps.count(t2) == int(np.sum(run.z[t2][:, 0] > 0))  # one call each
+    # the initialisation alone plugged in: the library's update still applies its gate
+    bad, _ = _with_blunders(run, 40, np.random.default_rng(0))
+    own = sl.run_fastslam(bad, n_particles=40, gate=sl.fastslam.DEFAULT_GATE, rng=np.random.default_rng(22))
+    plugged = sl.run_fastslam(bad, n_particles=40, gate=sl.fastslam.DEFAULT_GATE, rng=np.random.default_rng(22),
+                              fastslam_init_landmark=sl.fastslam_init_landmark)
+    assert own.rejected.sum() > 0
+    np.testing.assert_allclose(plugged.rejected, own.rejected, atol=1e-9)
+    np.testing.assert_allclose(plugged.x_est, own.x_est, atol=1e-9)
+
+
+def test_run_uses_what_the_plugged_in_functions_return(world):
+    run = _short(world, 15)
+    clock, updated = [], []
+
+    def half(x, mu, Sigma, z, Q):  # particles 0, 2, 4, ... keep their weight, the others lose it all
+        updated.append(clock[-1])
+        mu_new, Sigma_new, _ = sl.fastslam_update_landmark(x, mu, Sigma, z, Q)
+        return mu_new, Sigma_new, (np.arange(x.shape[0]) % 2 == 0) * 1.0
+
+    res = sl.run_fastslam(run, n_particles=10, resample_threshold=0.0, rng=np.random.default_rng(3),
+                          fastslam_update_landmark=half, on_step=clock.append)
+    assert len(set(updated)) > 5
+    np.testing.assert_allclose(res.ess[sorted(set(updated))], 5.0)
+    np.testing.assert_array_equal(res.state.log_weights[1::2], -np.inf)
+    with pytest.raises(ValueError, match="every log-weight is -inf"):
+        sl.run_fastslam(run, n_particles=10, rng=np.random.default_rng(3),
+                        fastslam_update_landmark=lambda x, mu, S, z, Q: (mu, S, np.zeros(x.shape[0])))
+
+    def corner(x, z, Q):  # a wrong initialisation: every landmark at (100, 100)
+        return np.full((x.shape[0], 2), 100.0), np.tile(np.eye(2), (x.shape[0], 1, 1))
+
+    res = sl.run_fastslam(run, n_particles=5, rng=np.random.default_rng(3), fastslam_init_landmark=corner,
+                          fastslam_update_landmark=lambda x, mu, S, z, Q: (mu, S, np.ones(x.shape[0])))
+    np.testing.assert_array_equal(res.landmarks[res.seen], 100.0)
+
+
+def test_run_refuses_bad_plugged_in_functions_naming_them(world):
+    run = _short(world, 10)
+    kw = dict(n_particles=4, rng=np.random.default_rng(0))
+    up = sl.fastslam_update_landmark
+    for bad in (dict(known=False), dict(version=2)):
+        with pytest.raises(ValueError, match="need known=True and version=1"):
+            sl.run_fastslam(run, **kw, **bad, fastslam_init_landmark=sl.fastslam_init_landmark)
+    for bad in (dict(weight_cov="text"), dict(gate=20.0)):
+        with pytest.raises(ValueError, match="fastslam_update_landmark needs weight_cov='S' and no gate"):
+            sl.run_fastslam(run, **kw, **bad, fastslam_update_landmark=up)
+    with pytest.raises(TypeError, match="fastslam_update_landmark must be a callable fastslam_update_landmark"):
+        sl.run_fastslam(run, **kw, fastslam_update_landmark=np.eye(2))
+    with pytest.raises(TypeError, match="on_step"):
+        sl.run_fastslam(run, **kw, on_step=0)
+    with pytest.raises(ValueError, match=r"fastslam_init_landmark\(\.\.\.\)\[1\] must have shape \(4, 2, 2\)"):
+        sl.run_fastslam(run, **kw, fastslam_init_landmark=lambda x, z, Q: (x[:, :2], np.eye(2)))
+    with pytest.raises(ValueError, match=r"fastslam_update_landmark\(\.\.\.\)\[2\] must be non-negative"):
+        sl.run_fastslam(run, **kw, fastslam_update_landmark=lambda x, mu, S, z, Q: (mu, S, -up(x, mu, S, z, Q)[2]))
+    with pytest.raises(ValueError, match="fastslam_update_landmark must return a tuple of 3 arrays"):
+        sl.run_fastslam(run, **kw, fastslam_update_landmark=lambda x, mu, S, z, Q: (mu, S))

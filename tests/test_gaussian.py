@@ -513,3 +513,80 @@ def test_gaussian_checks_its_fields():
     mean, cov = g  # still a NamedTuple
     assert g._replace(mean=np.ones(2)).mean[0] == 1.0
     assert isinstance(sl.kf_predict(np.zeros(2), np.eye(2), np.eye(2), np.eye(2)), sl.Gaussian)
+
+
+# --------------------------------------------------------------------------- the run's pluggable steps
+class _Recorder:
+    """A contract function that records its calls (and may tamper with its arguments)."""
+
+    def __init__(self, fn, tamper=False):
+        self.fn, self.tamper, self.calls = fn, tamper, 0
+
+    def __call__(self, *args):
+        self.calls += 1
+        out = self.fn(*args)
+        if self.tamper:  # a function that modifies its arguments must not change the filter
+            for a in args:
+                if isinstance(a, np.ndarray):
+                    a[...] = 0.0
+        return out
+
+
+@pytest.mark.parametrize("gate", [np.inf, 20.0])
+def test_run_with_slamlibs_own_functions_plugged_in_is_the_same_run(gate):
+    run, mu0 = _run(51)
+    bad_run, _ = _with_outliers(run, 25, 52)
+    own = sl.ekf_localization_run(bad_run, mu0=mu0, Sigma0=SIGMA0, gate=gate)
+    predict, update = _Recorder(sl.ekf_predict, tamper=True), _Recorder(sl.ekf_update, tamper=True)
+    steps = []
+    plugged = sl.ekf_localization_run(bad_run, mu0=mu0, Sigma0=SIGMA0, gate=gate, ekf_predict=predict,
+                                      ekf_update=update, on_step=steps.append)
+    np.testing.assert_array_equal(plugged.mu, own.mu)
+    np.testing.assert_array_equal(plugged.Sigma, own.Sigma)
+    assert plugged.n_gated == own.n_gated and (gate == np.inf) == (own.n_gated == 0)
+    assert steps == list(range(run.n_steps)) and predict.calls == run.n_steps
+    assert update.calls == sum(len(z) for z in run.z) - own.n_gated
+    # unknown correspondences: the association is plugged in too
+    own = sl.ekf_localization_run(bad_run, known=False, mu0=mu0, Sigma0=SIGMA0)
+    associate = _Recorder(sl.associate_ml, tamper=True)
+    plugged = sl.ekf_localization_run(bad_run, known=False, mu0=mu0, Sigma0=SIGMA0, ekf_update=update,
+                                      associate_ml=associate)
+    np.testing.assert_array_equal(plugged.mu, own.mu)
+    assert all(np.array_equal(a, b) for a, b in zip(plugged.ids, own.ids)) and own.n_gated > 0
+    assert associate.calls == sum(len(z) for z in run.z)
+
+
+def test_run_uses_what_the_plugged_in_functions_return():
+    run, mu0 = _run(53, n_steps=20)
+
+    def lazy_update(mu_bar, Sigma_bar, z, m, Q):  # a wrong update: the measurement changes nothing
+        return mu_bar, Sigma_bar
+
+    res = sl.ekf_localization_run(run, mu0=mu0, Sigma0=SIGMA0, ekf_update=lazy_update)
+    blind = sl.ekf_localization_run(dataclasses.replace(run, z=tuple(np.zeros((0, 2)) for _ in run.z),
+                                                        ids=tuple(np.zeros(0, int) for _ in run.ids)),
+                                    mu0=mu0, Sigma0=SIGMA0)
+    np.testing.assert_allclose(res.mu, blind.mu, atol=1e-12)
+    first = sl.ekf_localization_run(run, known=False, mu0=mu0, Sigma0=SIGMA0,
+                                    associate_ml=lambda mu, S, z, lm, Q, gate: 0)
+    assert all(np.all(i == 0) for i in first.ids)
+
+
+def test_run_refuses_bad_plugged_in_functions_naming_them():
+    run, mu0 = _run(54, n_steps=5)
+    with pytest.raises(TypeError, match="ekf_predict must be a callable ekf_predict"):
+        sl.ekf_localization_run(run, ekf_predict=3)
+    with pytest.raises(TypeError, match="on_step"):
+        sl.ekf_localization_run(run, on_step="x")
+    with pytest.raises(ValueError, match="associate_ml needs known=False"):
+        sl.ekf_localization_run(run, associate_ml=sl.associate_ml)
+    with pytest.raises(ValueError, match=r"ekf_predict\(\.\.\.\)\[1\] must have shape \(3, 3\)"):
+        sl.ekf_localization_run(run, ekf_predict=lambda mu, S, u, dt, M: (mu, S[:2]))
+    with pytest.raises(ValueError, match="ekf_update must return a tuple of 2 arrays"):
+        sl.ekf_localization_run(run, ekf_update=lambda mu, S, z, m, Q: mu)
+    with pytest.raises(ValueError, match=r"ekf_update\(\.\.\.\)\[0\] must be finite"):
+        sl.ekf_localization_run(run, ekf_update=lambda mu, S, z, m, Q: (mu * np.nan, S))
+    with pytest.raises(ValueError, match=r"associate_ml\(\.\.\.\) must be in \[-1, 15\)"):
+        sl.ekf_localization_run(run, known=False, associate_ml=lambda mu, S, z, lm, Q, gate: 15)
+    with pytest.raises(TypeError, match=r"associate_ml\(\.\.\.\) must be an integer"):
+        sl.ekf_localization_run(run, known=False, associate_ml=lambda mu, S, z, lm, Q, gate: 1.0)

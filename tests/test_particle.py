@@ -406,6 +406,101 @@ def test_particle_filter_tracks_simulated_robot():
     assert 0 < n_resampled < run.n_steps
 
 
+def test_run_particle_filter_is_the_step_over_the_run():
+    run = _pf_world()
+    parts = run.x0 + np.random.default_rng(12).normal(size=(400, 3)) * [0.1, 0.1, 0.03]
+    steps = []
+    res = sl.run_particle_filter(run, parts, rng=np.random.default_rng(13), on_step=steps.append)
+    assert steps == list(range(run.n_steps))
+    p, lw, rng = parts, np.full(len(parts), -np.log(len(parts))), np.random.default_rng(13)
+    np.testing.assert_allclose(res.x_est[0], sl.particle_gaussian(p, lw, angles=(2,)).mean, atol=1e-12)
+    for t in range(run.n_steps):
+        (p, lw), info = sl.particle_filter_step(p, lw, run.u[t], run.z[t], run.landmarks[run.ids[t]], run.dt, run.M,
+                                                run.Q, rng=rng)
+        assert (res.ess[t], res.resampled[t]) == (info.ess, info.resampled)
+        np.testing.assert_allclose(res.x_est[t + 1], sl.particle_gaussian(p, lw, angles=(2,)).mean, atol=1e-12)
+    np.testing.assert_array_equal(res.particles.poses, p)
+    np.testing.assert_array_equal(res.particles.log_weights, lw)
+    assert sl.ate_rmse(res.x_est, run.x_true) < 0.2 and 0 < res.resampled.sum() < run.n_steps
+
+
+def test_run_particle_filter_with_slamlibs_functions_plugged_in():
+    run = _pf_world()
+    parts = run.x0 + np.random.default_rng(14).normal(size=(300, 3)) * [0.1, 0.1, 0.03]
+    calls = {"lik": 0, "norm": 0, "ess": 0, "res": 0}
+
+    def counted(key, fn):
+        def f(*args, **kwargs):
+            calls[key] += 1
+            out = fn(*args, **kwargs)
+            for a in args:  # tampering with the arguments must not change the filter
+                if isinstance(a, np.ndarray) and a.flags.writeable:
+                    a[...] = 0.0
+            return out
+        return f
+
+    own = sl.run_particle_filter(run, parts, rng=np.random.default_rng(15), resample="low_variance")
+    plugged = sl.run_particle_filter(run, parts, rng=np.random.default_rng(15),
+                                     resample=counted("res", sl.low_variance_resample),
+                                     landmark_likelihood=counted("lik", sl.landmark_likelihood),
+                                     normalize_log_weights=counted("norm", sl.normalize_log_weights),
+                                     effective_sample_size=counted("ess", sl.effective_sample_size))
+    np.testing.assert_allclose(plugged.x_est, own.x_est, atol=1e-9)
+    np.testing.assert_array_equal(plugged.resampled, own.resampled)
+    np.testing.assert_allclose(plugged.ess, own.ess, rtol=1e-9)
+    assert calls == {"lik": sum(len(z) for z in run.z), "norm": run.n_steps, "ess": run.n_steps,
+                     "res": int(own.resampled.sum())}
+
+
+def test_particle_filter_step_uses_what_the_plugged_in_functions_return():
+    run = _pf_world()
+    t = int(np.argmax([len(z) for z in run.z]))
+    parts = run.x0 + np.random.default_rng(16).normal(size=(50, 3)) * [0.3, 0.3, 0.1]
+    lw = np.full(50, -np.log(50))
+    args = (run.u[t], run.z[t], run.landmarks[run.ids[t]], run.dt, run.M, run.Q)
+    # a likelihood of zero for half the particles: their weight is zero, the others share it equally
+    half = np.arange(50) % 2 == 0
+    (_, lw1), info = sl.particle_filter_step(parts, lw, *args, rng=np.random.default_rng(1), ess_threshold=0.0,
+                                             landmark_likelihood=lambda p, z, m, Q: half * 2.0)
+    np.testing.assert_allclose(np.exp(lw1), half / 25.0, atol=1e-12)
+    assert info.ess == pytest.approx(25.0)
+    # the plugged-in effective sample size decides whether to resample
+    for ess, resampled in ((49.0, False), (1.0, True)):
+        _, info = sl.particle_filter_step(parts, lw, *args, rng=np.random.default_rng(1),
+                                          effective_sample_size=lambda w, e=ess: e)
+        assert info == (ess, resampled)
+    # the plugged-in normalisation gives the weights
+    w = np.zeros(50)
+    w[3] = 1.0
+    (_, lw2), info = sl.particle_filter_step(parts, lw, *args, rng=np.random.default_rng(1), ess_threshold=0.0,
+                                             normalize_log_weights=lambda log_w: w)
+    np.testing.assert_array_equal(np.exp(lw2), w)
+    assert info.ess == 1.0
+
+
+def test_particle_filter_step_refuses_bad_plugged_in_results():
+    run = _pf_world()
+    t = int(np.argmax([len(z) for z in run.z]))
+    parts, lw = run.x0 + np.zeros((20, 3)), np.zeros(20)
+    args = (run.u[t], run.z[t], run.landmarks[run.ids[t]], run.dt, run.M, run.Q)
+    rng = np.random.default_rng(0)
+    with pytest.raises(ValueError, match=r"landmark_likelihood\(\.\.\.\) must be non-negative"):
+        sl.particle_filter_step(parts, lw, *args, rng=rng, landmark_likelihood=lambda p, z, m, Q: -np.ones(20))
+    with pytest.raises(ValueError, match=r"landmark_likelihood\(\.\.\.\) must have shape \(20,\)"):
+        sl.particle_filter_step(parts, lw, *args, rng=rng, landmark_likelihood=lambda p, z, m, Q: np.ones(3))
+    with pytest.raises(ValueError, match="every log-weight is -inf"):
+        sl.particle_filter_step(parts, lw, *args, rng=rng, landmark_likelihood=lambda p, z, m, Q: np.zeros(20))
+    with pytest.raises(ValueError, match=r"normalize_log_weights\(\.\.\.\) must sum to 1"):
+        sl.particle_filter_step(parts, lw, *args, rng=rng, normalize_log_weights=lambda log_w: np.exp(log_w))
+    with pytest.raises(ValueError, match=r"effective_sample_size\(\.\.\.\) must be non-negative"):
+        sl.particle_filter_step(parts, lw, *args, rng=rng, effective_sample_size=lambda w: -1.0)
+    with pytest.raises(ValueError, match="the indices resample returned must hold indices in"):
+        sl.particle_filter_step(parts, lw, *args, rng=rng, ess_threshold=1.0,
+                                resample=lambda w, rng: np.full(20, 20))
+    with pytest.raises(TypeError, match="normalize_log_weights must be a callable"):
+        sl.particle_filter_step(parts, lw, *args, rng=rng, normalize_log_weights=1)
+
+
 def test_particle_filter_step_bad_input():
     parts, lw = np.zeros((4, 3)), np.zeros(4)
     args = ([1.0, 0.0], np.ones((1, 2)), np.full((1, 2), 3.0), 0.1, np.eye(2) * 0.01, Q_NOISE)

@@ -119,7 +119,7 @@ def _(ctx):
         return _check_predict(ctx, mu, Sigma, u, dt, M, scaled=True)
 
     try:
-        traj, _ = loops.ekf_localization_loop(run, predict=predict, update=loops.ref_ekf_update)
+        traj, _ = loops.ekf_localization_loop(run, predict=predict)
     except loops.LoopError as exc:
         ctx.fail(str(exc))
     ctx.last_call = None
@@ -134,12 +134,17 @@ def _update(ctx, mu_bar, Sigma_bar, z, m, Q):
 
 
 def _meas_case(rng, mu_bar, behind=False):
-    if behind:
-        ang = mu_bar[2] + np.pi + rng.choice([-1, 1]) * rng.uniform(0.0, 0.02)
+    """A landmark and a noisy measurement of it; `behind`: z and z_hat on opposite sides of the +-pi cut."""
+    side = rng.choice([-1, 1])
+    if behind:  # z_hat's bearing within 0.02 rad of +-pi, on the side `side`
+        ang = mu_bar[2] + np.pi - side * rng.uniform(0.002, 0.02)
     else:
         ang = mu_bar[2] + rng.uniform(-2.5, 2.5)
     m = mu_bar[:2] + rng.uniform(1.0, 6.0) * np.array([np.cos(ang), np.sin(ang)])
-    z = sl.landmark_measurement(mu_bar, m)[0] + rng.normal(0.0, [0.2, 0.05])
+    z_hat = sl.landmark_measurement(mu_bar, m)[0]
+    z = z_hat + rng.normal(0.0, [0.2, 0.05])
+    if behind:  # the measured bearing just across the cut: z - z_hat is about -+2 pi before wrapping
+        z[1] = z_hat[1] + side * (np.pi - abs(z_hat[1]) + rng.uniform(0.002, 0.05))
     z[1] = sl.wrap_angle(z[1])
     return z, m
 
@@ -197,7 +202,7 @@ def _(ctx):
         return _check_update(ctx, mu, Sigma, z, m, Q, scaled=True)
 
     try:
-        traj, _ = loops.ekf_localization_loop(run, predict=loops.ref_ekf_predict, update=update)
+        traj, _ = loops.ekf_localization_loop(run, update=update)
     except loops.LoopError as exc:
         ctx.fail(str(exc))
     ctx.last_call = None
@@ -311,8 +316,7 @@ def _(ctx):
         return got
 
     try:
-        traj, ids = loops.ekf_localization_loop(run, predict=loops.ref_ekf_predict, update=loops.ref_ekf_update,
-                                                associate=associate, gate=loops.GATE)
+        traj, ids = loops.ekf_localization_loop(run, known=False, associate=associate)
     except loops.LoopError as exc:
         ctx.fail(str(exc))
     ctx.last_call = None

@@ -104,7 +104,7 @@ def _(ctx):
     _slam_e2e(ctx, run, predict=predict)
 
 
-def _slam_e2e(ctx, run, *, predict=loops.ref_slam_predict, init=loops.ref_slam_init, update=loops.ref_slam_update):
+def _slam_e2e(ctx, run, *, predict=None, init=None, update=None):
     try:
         traj, lm = loops.ekf_slam_loop(run, predict=predict, init=init, update=update)
     except loops.LoopError as exc:

@@ -97,7 +97,7 @@ def _(ctx):
     _fs_e2e(ctx, init=init)
 
 
-def _fs_e2e(ctx, *, init=loops.ref_fs_init, update=loops.ref_fs_update):
+def _fs_e2e(ctx, *, init=None, update=None):
     run = loops.scenario("slam")
     try:
         traj = loops.fastslam_loop(run, init=init, update=update)

@@ -203,8 +203,7 @@ def _(ctx):
         return _check_lvr(ctx, w, seed)
 
     try:
-        traj = loops.particle_filter_loop(run, likelihood=loops.ref_likelihood, normalize=loops.ref_normalize,
-                                          ess=loops.ref_ess, resample=resample)
+        traj = loops.particle_filter_loop(run, resample=resample)
     except loops.LoopError as exc:
         ctx.fail(str(exc))
     ctx.last_call = None
@@ -273,8 +272,7 @@ def _(ctx):
         return _check_lik(ctx, particles, z, m, Q)
 
     try:
-        traj = loops.particle_filter_loop(run, likelihood=likelihood, normalize=loops.ref_normalize,
-                                          ess=loops.ref_ess, resample=loops.ref_resample)
+        traj = loops.particle_filter_loop(run, likelihood=likelihood)
     except loops.LoopError as exc:
         ctx.fail(str(exc))
     ctx.last_call = None

@@ -3,13 +3,17 @@
 One home for what every loader in :mod:`slamlib.datasets` needs before it
 parses a line: open the file, decompress it when it is a gzip archive, decode
 it, and turn a truncated or corrupt archive or undecodable bytes into a
-``ValueError`` that names the file.
+``ValueError`` that names the file; and, once the rows are parsed, the
+file-level checks every log shares (:func:`fail_rows`, :func:`check_time_order`),
+whose messages name the file and the line.
 """
 
 from __future__ import annotations
 
 import gzip
 import zlib
+
+import numpy as np
 
 
 def open_text(path, *, encoding="ascii", compressed=None, corrupt="truncated or corrupt gzip file",
@@ -50,3 +54,27 @@ def open_text(path, *, encoding="ascii", compressed=None, corrupt="truncated or 
         raise ValueError(f"{path}: {corrupt} ({type(exc).__name__}: {exc})") from None
     except UnicodeDecodeError as exc:
         raise ValueError(f"{path}: {undecodable} (byte {exc.start} is not {exc.encoding.upper()})") from None
+
+
+def fail_rows(path, bad, lines, what):
+    """Raise ``ValueError("{path}, line {n}: {what}")`` for the first row where `bad` holds.
+
+    ``lines[k]`` is the file's line number of row ``k``.
+    """
+    bad = np.asarray(bad)
+    if bad.any():
+        raise ValueError(f"{path}, line {lines[int(np.argmax(bad))]}: {what}")
+
+
+def check_time_order(path, times, lines, *, wording="time runs backwards", unit=""):
+    """Time stamps in file order must not decrease (equal times are allowed).
+
+    ``lines[k]`` is the file's line number of ``times[k]``; the message names
+    the line where time first goes back, both times (with `unit`) and the line
+    before, in the loader's `wording`.
+    """
+    back = np.flatnonzero(np.diff(times) < 0)
+    if back.size:
+        k = int(back[0]) + 1
+        raise ValueError(f"{path}, line {lines[k]}: {wording} ({float(times[k])!r}{unit} after "
+                         f"{float(times[k - 1])!r}{unit} on line {lines[k - 1]})")

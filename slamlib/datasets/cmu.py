@@ -44,7 +44,7 @@ from .._checks import as_index
 from ..maps import OccupancyGrid
 from ..angles import wrap_angle
 from ..motion import odometry_from_poses
-from ._text import open_text
+from ._text import check_time_order, fail_rows, open_text
 
 __all__ = ["CmuLog", "load_cmu_map", "load_cmu_log", "CMU_SENSOR_OFFSET", "CMU_MAX_RANGE", "CMU_LOG_START",
            "CMU_LOG_STARTS"]
@@ -270,21 +270,12 @@ def _is_float(v):
 def _check_records(path, odo, las, line_o, line_l):
     """NaN/inf, negative ranges and time running backwards, reported with the file's line number."""
     for arr, lines in ((odo, line_o), (las, line_l)):
-        bad = ~np.all(np.isfinite(arr), axis=1)
-        if np.any(bad):
-            raise ValueError(f"{path}: line {lines[np.argmax(bad)]}: NaN or infinite value")
-    if las.shape[0]:
-        neg = np.any(las[:, 6:6 + _N_BEAMS] < 0, axis=1)
-        if np.any(neg):
-            raise ValueError(f"{path}: line {line_l[np.argmax(neg)]}: negative range")
+        fail_rows(path, ~np.all(np.isfinite(arr), axis=1), lines, "NaN or infinite value")
+    fail_rows(path, np.any(las[:, 6:6 + _N_BEAMS] < 0, axis=1), line_l, "negative range")
     # time stamps in file order (O and L records interleaved) must not decrease
-    t = np.concatenate([odo[:, -1], las[:, -1]])
-    order = np.argsort(np.concatenate([line_o, line_l]), kind="stable")
-    t, lines = t[order], np.concatenate([line_o, line_l])[order]
-    back = np.flatnonzero(np.diff(t) < 0)
-    if back.size:
-        k = back[0] + 1
-        raise ValueError(f"{path}: line {lines[k]}: time runs backwards ({t[k]} s after {t[k - 1]} s on line {lines[k - 1]})")
+    lines = np.concatenate([line_o, line_l])
+    order = np.argsort(lines, kind="stable")
+    check_time_order(path, np.concatenate([odo[:, -1], las[:, -1]])[order], lines[order], unit=" s")
 
 
 def load_cmu_log(path=None, *, log=1):

@@ -42,7 +42,7 @@ import numpy as np
 from .._checks import as_covariance, as_scalar
 from ..angles import wrap_angle
 from . import data_path
-from ._text import open_text
+from ._text import check_time_order, open_text
 
 __all__ = ["MRCLAMRun", "load_mrclam", "MRCLAM_ROBOTS", "MRCLAM_DT", "MRCLAM_M", "MRCLAM_Q", "MRCLAM_Q_SIGHTING", "MRCLAM_GATE"]
 
@@ -222,16 +222,6 @@ def _read_table(directory: Path, name: str, ncols: int) -> tuple:
     return arr, path, text
 
 
-def _check_time_order(arr, path, text):
-    """Times must not decrease (equal times are allowed: a later record overrides)."""
-    back = np.diff(arr[:, 0]) < 0
-    if np.any(back):
-        row = int(np.argmax(back)) + 1
-        line = _line_numbers(text)[row]
-        raise ValueError(f"{path}, line {line}: time runs backwards ({arr[row, 0]!r} after {arr[row - 1, 0]!r})")
-    return arr
-
-
 def _subject_of_barcode(directory: Path) -> dict:
     """``{barcode: subject}`` from ``Barcodes.dat``; a duplicate barcode or subject is an error."""
     arr, path, text = _read_table(directory, "Barcodes.dat.gz", 2)
@@ -384,10 +374,13 @@ def load_mrclam(robot=1, *, dt=MRCLAM_DT, t_max=None, M=None, Q=None, gate=MRCLA
     landmark_std = lm[order, 3:5].copy()
 
     # --- the robot's logs, each in time order
-    odo = _check_time_order(*_read_table(directory, f"Robot{robot}_Odometry.dat.gz", 3))
-    gt = _check_time_order(*_read_table(directory, f"Robot{robot}_Groundtruth.dat.gz", 4))
-    meas, meas_path, meas_text = _read_table(directory, f"Robot{robot}_Measurement.dat.gz", 4)
-    _check_time_order(meas, meas_path, meas_text)
+    # (times must not decrease; equal times are allowed: a later record overrides)
+    logs = []
+    for name, ncols in (("Odometry", 3), ("Groundtruth", 4), ("Measurement", 4)):
+        arr, path, text = _read_table(directory, f"Robot{robot}_{name}.dat.gz", ncols)
+        check_time_order(path, arr[:, 0], _line_numbers(text))
+        logs.append((arr, path, text))
+    (odo, _, _), (gt, _, _), (meas, meas_path, meas_text) = logs
     bad = (meas[:, 2] <= 0) | (meas[:, 1] != np.rint(meas[:, 1]))
     if np.any(bad):
         row = int(np.argmax(bad))

@@ -47,7 +47,7 @@ from .._checks import as_array, as_covariance, as_scalar
 from ..motion import AckermannModel
 from ..scoring import align_se2
 from . import data_path
-from ._text import open_text
+from ._text import check_time_order, fail_rows, open_text
 from .mrclam import _hold_average
 
 __all__ = ["VictoriaRun", "load_victoria_park", "read_victoria_table", "read_car_geometry", "car_model", "victoria_gps_ate",
@@ -213,18 +213,6 @@ def _parse(path, text, ncols):
     return rows, np.asarray(keep) + 1
 
 
-def _check_time(path, rows, lines):
-    back = np.diff(rows[:, 0]) < 0
-    if back.any():
-        k = int(np.argmax(back)) + 1
-        raise ValueError(f"{path}, line {lines[k]}: time goes backwards ({rows[k, 0]} after {rows[k - 1, 0]})")
-
-
-def _fail_rows(path, mask, lines, what):
-    if mask.any():
-        raise ValueError(f"{path}, line {lines[int(np.argmax(mask))]}: {what}")
-
-
 def read_car_geometry(path):
     """The car geometry ``a, b, H, L`` (metres) from the data set's ``info.txt``.
 
@@ -323,16 +311,16 @@ def load_victoria_park(*, dt=VICTORIA_DT, t_max=None, t_min=0.0, M=None, Q=None,
     for key, (name, ncols) in _FILES.items():
         path, text = _open_text(directory, name)
         rows, lines = _parse(path, text, ncols)
-        _check_time(path, rows, lines)
+        check_time_order(path, rows[:, 0], lines, wording="time goes backwards")
         tables[key] = (path, rows, lines)
 
     path, inp, lines = tables["inputs"]
-    _fail_rows(path, np.abs(np.tan(inp[:, 2])) * car["H"] >= car["L"], lines,
+    fail_rows(path, np.abs(np.tan(inp[:, 2])) * car["H"] >= car["L"], lines,
                f"steering angle beyond what the car model takes (tan(alpha) H / L >= 1, H={car['H']}, L={car['L']})")
     path, meas, lines = tables["measurements"]
-    _fail_rows(path, meas[:, 1] <= 0, lines, "non-positive range")
-    _fail_rows(path, (meas[:, 2] < 0) | (meas[:, 2] > np.pi), lines, "bearing outside [0, pi]")
-    _fail_rows(path, meas[:, 3] < 0, lines, "negative trunk diameter")
+    fail_rows(path, meas[:, 1] <= 0, lines, "non-positive range")
+    fail_rows(path, (meas[:, 2] < 0) | (meas[:, 2] > np.pi), lines, "bearing outside [0, pi]")
+    fail_rows(path, meas[:, 3] < 0, lines, "negative trunk diameter")
     gps = tables["gps"][1]
 
     first = int(np.searchsorted(inp[:, 0], inp[0, 0] + t_min, side="left"))

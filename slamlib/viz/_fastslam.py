@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._checks import as_array, as_scalar
+from .._checks import as_array, as_scalar, check_type
 from . import _core
 from ._core import TRUTH_COLOR, _axes
 
@@ -32,14 +32,6 @@ def _panels(axes, n, figsize):
     if axes is None:
         _, axes = plt.subplots(1, n, figsize=figsize, layout="constrained")
     return np.atleast_1d(axes)
-
-
-def _check_state(state):
-    from ..fastslam import FastSLAMState
-
-    if not isinstance(state, FastSLAMState):
-        raise TypeError(f"state must be a FastSLAMState, got {type(state).__name__}")
-    return state
 
 
 def _finish(ax, title, legend):
@@ -100,7 +92,9 @@ def plot_fastslam_particles(state, *, landmarks=None, x_true=None, n_std=2.0, ma
     Thrun, Burgard & Fox (2005), Chapter 13 (particles, each with its own
     map); course text, Eq. 17.4.
     """
-    state = _check_state(state)
+    from ..fastslam import FastSLAMState
+
+    state = check_type(state, FastSLAMState, "state")
     ax = _axes(ax, (6.0, 6.0))
     w = np.exp(state.log_weights - state.log_weights.max())
     order = np.argsort(-w)
