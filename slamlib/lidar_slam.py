@@ -443,13 +443,17 @@ def poses_at_scans(key_index, key_poses, odom_poses, scans):
 
 
 def cmu_reference_track(grid=None, log=None, *, rng, n_particles=2000, spread=(0.1, 0.1, np.deg2rad(2.0))):
-    """The MCL reference track of the Wean Hall log (chapter 5's reference).
+    """The MCL reference track of the Wean Hall log.
 
     There is no ground truth for the log. The reference is MCL that knows where
     it starts: `n_particles` particles in a small cloud around the scan-matched
-    start pose ``CMU_LOG_START``, filtered with the library's default
-    :class:`~slamlib.mcl.MCLParams` over the whole log, as in chapter 5 and
-    ``tests/test_mcl.py`` (whose tests check it against the map).
+    start pose ``CMU_LOG_START``, as in chapter 5 and ``tests/test_mcl.py``
+    (whose tests check such a track against the map). It is filtered over the
+    whole log with :func:`~slamlib.mcl.run_mcl`'s default variant (Augmented
+    MCL) and the default :class:`~slamlib.mcl.MCLParams`, except plain
+    low-variance resampling (``mode_particles=0``): a tracking run has one mode,
+    and keeping the modes of the few particles sensor resetting adds would only
+    spend particles on them.
 
     Parameters
     ----------
@@ -472,7 +476,7 @@ def cmu_reference_track(grid=None, log=None, *, rng, n_particles=2000, spread=(0
 
     References
     ----------
-    Thrun, Burgard & Fox (2005), Table 8.2 (MCL, position tracking).
+    Thrun, Burgard & Fox (2005), Tables 8.2 and 8.3 (MCL and Augmented MCL, position tracking).
     """
     from .datasets import cmu
 
@@ -480,7 +484,7 @@ def cmu_reference_track(grid=None, log=None, *, rng, n_particles=2000, spread=(0
     grid = cmu.load_cmu_map() if grid is None else grid
     log = cmu.load_cmu_log() if log is None else log
     n_particles = as_index(n_particles, "n_particles", lower=1)
-    model = prepare_mcl(grid, MCLParams(sensor_offset=log.sensor_offset, z_max=log.max_range))
+    model = prepare_mcl(grid, MCLParams(sensor_offset=log.sensor_offset, z_max=log.max_range, mode_particles=0))
     init = np.asarray(cmu.CMU_LOG_START) + rng.normal(size=(n_particles, 3)) * np.asarray(spread, dtype=float)
     return run_mcl(model, log.laser_pose, log.ranges, log.angles, rng=rng, init=init, times=log.laser_t)
 

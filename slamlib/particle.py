@@ -656,8 +656,8 @@ def particle_filter_step(particles, log_w, u, z, m, dt, M, Q, *, rng, resample="
     References
     ----------
     Thrun, Burgard & Fox (2005), Table 4.3 with the velocity motion model
-    (Sec. 5.3, control noise as in Table 7.2) and the landmark measurement
-    model (Table 6.4).
+    (Sec. 5.3, sampled as in Table 5.3, control noise as in Table 7.2) and the
+    landmark measurement model (Table 6.4).
     """
     particles = as_poses(particles, "particles")
     n = particles.shape[0]
