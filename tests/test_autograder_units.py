@@ -297,3 +297,18 @@ def test_ekf_update_wrapping_cases_cross_the_cut_for_every_seed():
             z, m = ex._meas_case(rng, mu_bar, behind=True)
             z_hat = sl.landmark_measurement(mu_bar, m)[0]
             assert abs(z[1] - z_hat[1]) > np.pi, (seed, th, z, z_hat)
+
+
+def test_gauss_newton_wrapping_cases_cross_the_cut_for_every_seed():
+    """The 'first pose unchanged and headings wrapped' test: the step takes a heading beyond +-pi whatever the seed."""
+    from autograder.context import wrap
+    from autograder.exercises import graph_slam as ex
+
+    for seed in range(100):
+        rng = np.random.default_rng(seed)
+        for th in (np.pi - 0.02, -np.pi + 0.02):
+            X0, edges, Z, Omega = ex._graph_across_cut(rng, th)
+            assert np.all((X0[:, 2] >= -np.pi) & (X0[:, 2] < np.pi)) and np.array_equal(X0[0], [3.0, -2.0, th])
+            ref = sl.gauss_newton_step(X0, edges, Z, Omega)
+            unwrapped = X0[:, 2] + wrap(ref[:, 2] - X0[:, 2])
+            assert np.abs(unwrapped[1:]).max() > np.pi + 0.05, (seed, th, unwrapped)
