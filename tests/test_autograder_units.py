@@ -380,3 +380,95 @@ def test_ekf_update_wrapping_cases_cross_the_cut_for_every_seed():
             z, m = ex._meas_case(rng, mu_bar, behind=True)
             z_hat = sl.landmark_measurement(mu_bar, m)[0]
             assert abs(z[1] - z_hat[1]) > np.pi, (seed, th, z, z_hat)
+
+
+def test_gauss_newton_wrapping_cases_cross_the_cut_for_every_seed():
+    """The 'first pose unchanged and headings wrapped' test: the step takes a heading beyond +-pi whatever the seed."""
+    from autograder.context import wrap
+    from autograder.exercises import graph_slam as ex
+
+    for seed in range(100):
+        rng = np.random.default_rng(seed)
+        for th in (np.pi - 0.02, -np.pi + 0.02):
+            X0, edges, Z, Omega = ex._graph_across_cut(rng, th)
+            assert np.all((X0[:, 2] >= -np.pi) & (X0[:, 2] < np.pi)) and np.array_equal(X0[0], [3.0, -2.0, th])
+            ref = sl.gauss_newton_step(X0, edges, Z, Omega)
+            unwrapped = X0[:, 2] + wrap(ref[:, 2] - X0[:, 2])
+            assert np.abs(unwrapped[1:]).max() > np.pi + 0.05, (seed, th, unwrapped)
+
+
+def test_measurement_wrapping_cases_need_the_wrap_for_every_seed():
+    """The z_hat tests of landmark_measurement and ekf_slam_measurement catch a missing bearing wrap whatever the seed."""
+    from autograder.exercises import ekf_slam, motion_sensor_models
+
+    def unwrapped(x, m):
+        return np.arctan2(m[1] - x[1], m[0] - x[0]) - x[2]
+
+    for seed in range(200):
+        rng = np.random.default_rng(seed)
+        raw = [unwrapped(x, m) for x, m in motion_sensor_models._across_cases(rng)]
+        for s in (1.0, -1.0):
+            mu, j = ekf_slam._across(rng, s)
+            raw.append(unwrapped(mu[:3], mu[3 + 2 * j:5 + 2 * j]))
+        raw = np.array(raw)
+        assert np.all(np.abs(raw) > np.pi + 0.5) and np.all(np.abs(raw) < 2 * np.pi - 0.2), (seed, raw)
+        assert np.all(np.sign(raw) == [-1, 1, -1, 1]), (seed, raw)
+
+
+def test_odometry_density_wrapping_cases_need_the_wrap_for_every_seed():
+    """'angle differences wrapped' (motion_model_odometry): u - rot_hat leaves [-pi, pi) for likely hypotheses."""
+    from autograder.context import wrap
+    from autograder.exercises import motion_sensor_models as ex
+
+    u = np.array([3.05, 1.0, -3.05])
+    alpha = np.array([0.05, 0.02, 0.05, 0.01])
+    for seed in range(200):
+        x, x_next = ex._hypotheses(np.random.default_rng(seed), 40, u, 0.1, beyond=8)
+        rot1 = wrap(np.arctan2(x_next[:, 1] - x[:, 1], x_next[:, 0] - x[:, 0]) - x[:, 2])
+        rot2 = wrap(x_next[:, 2] - x[:, 2] - rot1)
+        p = sl.motion_model_odometry(x_next, u, x, alpha)
+        likely = p > 1e-3 * p.max()
+        for d in (u[0] - rot1, u[2] - rot2):
+            assert np.any(likely & (np.abs(d) > np.pi + 1.0)), (seed, d, p)
+
+
+def test_prediction_sharp_turns_go_both_ways_for_every_seed():
+    """The V and Sigma_bar tests turn sharply left and right whatever the seed (beyond the small-turn series of V)."""
+    from autograder.exercises import ekf_localization, ekf_slam, motion_sensor_models
+
+    def series_error(a):  # relative error of d sinc(a) / da's small-turn series -a/3 + a^3/30
+        exact = (a * np.cos(a) - np.sin(a)) / a**2
+        return abs(-a / 3 + a**3 / 30 - exact) / abs(exact)
+
+    for seed in range(200):
+        rng = np.random.default_rng(seed)
+        controls = [(u, dt) for _, u, dt in motion_sensor_models._sharp_turns(rng)]
+        controls += ekf_localization._sharp_controls(rng) + ekf_slam._sharp_controls(rng)
+        for k, (u, dt) in enumerate(controls):
+            turn = u[1] * dt * (1 if k % 2 == 0 else -1)  # left (> 0) then right (< 0) in each pair
+            assert turn >= 1.2 and u[0] >= 0.5 and series_error(0.5 * u[1] * dt) > 1e-4, (seed, k, u, dt)
+
+
+def test_ekf_updates_near_the_cut_cross_it_for_every_seed():
+    """The 'bearing innovation wrapped' tests of ekf_update and ekf_slam_update move a heading across +-pi."""
+    from autograder.context import wrap
+    from autograder.exercises import ekf_localization, ekf_slam
+
+    Q = np.diag([0.05, 0.02])
+    for seed in range(200):
+        rng = np.random.default_rng(seed)
+        mu_bar, Sigma_bar, m = ekf_localization._near_cut(rng)
+        mu, Sigma, j = ekf_slam._near_cut(rng)
+        for db in (-0.3, 0.3):
+            z = sl.landmark_measurement(mu_bar, m)[0] + [0.0, db]
+            z[1] = sl.wrap_angle(z[1])
+            th = sl.ekf_update(mu_bar, Sigma_bar, z, m, Q)[0][2]
+            z = sl.ekf_slam_measurement(mu, j)[0] + [0.0, db]
+            z[1] = sl.wrap_angle(z[1])
+            th_slam = sl.ekf_slam_update(mu, Sigma, z, j, Q)[0][2]
+            for before, after in ((mu_bar[2], th), (mu[2], th_slam)):
+                unwrapped = before + wrap(after - before)
+                if db < 0:  # the heading rises past +pi
+                    assert unwrapped > np.pi + 0.1, (seed, db, unwrapped)
+                else:
+                    assert unwrapped < np.pi - 0.1, (seed, db, unwrapped)

@@ -36,6 +36,12 @@ def _control(rng, omega=None):
     return np.array([rng.uniform(-0.5, 2.0), w]), float(rng.uniform(0.05, 0.5))
 
 
+def _sharp_controls(rng):
+    """A left and a right sharp turn, ``|omega dt|`` in [1.8, 3.2] and ``v >= 0.5``: V far from its small-turn series."""
+    return [(np.array([rng.uniform(0.5, 2.0), s * rng.uniform(3.0, 4.0)]), float(rng.uniform(0.6, 0.8)))
+            for s in (1.0, -1.0)]
+
+
 # =========================================================================== ekf_predict
 def _predict(ctx, mu, Sigma, u, dt, M):
     mu_bar, S = ctx.expect(ctx.call(mu, Sigma, u, dt, M), MU_BAR, SIGMA_BAR)
@@ -62,6 +68,9 @@ def _(ctx):
         mu, Sigma = _belief(ctx.rng)
         u, dt = _control(ctx.rng)
         _check_predict(ctx, mu, Sigma, u, dt, spd(ctx.rng, 2, scale=0.05))
+    for u, dt in _sharp_controls(ctx.rng):
+        mu, Sigma = _belief(ctx.rng)
+        _check_predict(ctx, mu, Sigma, u, dt, spd(ctx.rng, 2, scale=0.5))
 
 
 @EX.test("ekf_predict", "straight-line motion (omega = 0)", weight=3,
@@ -176,6 +185,26 @@ def _(ctx):
         mu_bar, Sigma_bar = _belief(ctx.rng, heading=th)
         z, m = _meas_case(ctx.rng, mu_bar, behind=True)
         _check_update(ctx, mu_bar, Sigma_bar, z, m, np.diag([0.05, 0.02]))
+    # a heading at pi - 1e-4 corrected both ways: one of the two updated headings crosses +-pi
+    mu_bar, Sigma_bar, m = _near_cut(ctx.rng)
+    z_hat = sl.landmark_measurement(mu_bar, m)[0]
+    for db in (-0.3, 0.3):
+        z = z_hat + np.array([0.0, db])
+        z[1] = sl.wrap_angle(z[1])
+        _check_update(ctx, mu_bar, Sigma_bar, z, m, np.diag([0.05, 0.02]))
+
+
+def _near_cut(rng):
+    """A belief with heading ``pi - 1e-4`` whose heading variance dominates, and a landmark ``m``.
+
+    ``Sigma_bar`` is a small random covariance (scale 0.02) plus 0.3 on the heading, so
+    a bearing innovation of ``+-0.3`` moves the heading by about ``-+0.27``: one of the
+    two updates takes it across the cut.
+    """
+    mu_bar, Sigma_bar = random_pose(rng, heading=np.pi - 1e-4), spd(rng, 3, scale=0.02)
+    Sigma_bar[2, 2] += 0.3
+    ang = mu_bar[2] + rng.uniform(-2.5, 2.5)
+    return mu_bar, Sigma_bar, mu_bar[:2] + rng.uniform(1.0, 6.0) * np.array([np.cos(ang), np.sin(ang)])
 
 
 @EX.test("ekf_update", "covariance symmetric and not larger than the prior", weight=5, visibility="hidden",

@@ -43,6 +43,12 @@ def _control(rng, omega=None):
     return np.array([rng.uniform(-0.5, 2.0), w]), float(rng.uniform(0.05, 0.5))
 
 
+def _sharp_controls(rng):
+    """A left and a right sharp turn (``|omega dt|`` in [1.6, 2.4], ``v >= 0.5``): V far from its straight-line
+    limit and from the series of small turns."""
+    return [(np.array([rng.uniform(0.5, 2.0), s * rng.uniform(2.0, 3.0)]), 0.8) for s in (1.0, -1.0)]
+
+
 # =========================================================================== ekf_slam_predict
 def _predict(ctx, mu, Sigma, u, dt, M):
     n = mu.shape[0]
@@ -68,10 +74,9 @@ def _(ctx):
         mu, Sigma = _state(ctx.rng)
         u, dt = _control(ctx.rng)
         _check_predict(ctx, mu, Sigma, u, dt, spd(ctx.rng, 2, scale=0.05))
-    # a sharp turn (|omega dt| about 2): V far from its straight-line limit
-    mu, Sigma = _state(ctx.rng)
-    u = np.array([ctx.rng.uniform(0.5, 2.0), ctx.rng.choice([-1, 1]) * ctx.rng.uniform(2.0, 3.0)])
-    _check_predict(ctx, mu, Sigma, u, 0.8, spd(ctx.rng, 2, scale=0.5))
+    for u, dt in _sharp_controls(ctx.rng):
+        mu, Sigma = _state(ctx.rng)
+        _check_predict(ctx, mu, Sigma, u, dt, spd(ctx.rng, 2, scale=0.5))
 
 
 @EX.test("ekf_slam_predict", "any number of landmarks (N = 0, 1, 7)", weight=4,
@@ -133,15 +138,27 @@ def _behind(mu, j):
     return mu
 
 
+def _across(rng, s):
+    """A belief and a landmark j whose unwrapped bearing atan2(dy, dx) - theta is -s [4, 6] (beyond -+pi)."""
+    mu, _ = _state(rng, N=5, heading=s * rng.uniform(2.0, 3.0))
+    j = int(rng.integers(5))
+    a = -s * rng.uniform(2.0, 3.0)
+    mu[3 + 2 * j:5 + 2 * j] = mu[:2] + rng.uniform(1.0, 6.0) * np.array([np.cos(a), np.sin(a)])
+    return mu, j
+
+
 @EX.test("ekf_slam_measurement", "expected measurement z_hat", weight=6,
          hint="z_hat = [sqrt(q), wrap(atan2(dy, dx) - theta)] with (dx, dy) = m_j - (x, y) (Eq. 17.2); "
               "landmark j lives at mu[3 + 2j], mu[4 + 2j].")
 def _(ctx):
-    for k in range(6):
-        mu, _ = _state(ctx.rng, N=5)
-        j = int(ctx.rng.integers(5))
-        if k == 5:
-            mu = _behind(mu, j)
+    for k in range(8):
+        if k >= 6:  # unwrapped bearings below -pi, then above +pi
+            mu, j = _across(ctx.rng, 1.0 if k == 6 else -1.0)
+        else:
+            mu, _ = _state(ctx.rng, N=5)
+            j = int(ctx.rng.integers(5))
+            if k == 5:
+                mu = _behind(mu, j)
         z, _ = _meas(ctx, mu, j)
         ref = sl.ekf_slam_measurement(mu, j)
         ctx.wrapped("the bearing z_hat[1]", z[1])
@@ -263,12 +280,23 @@ def _(ctx):
         z[1] = sl.wrap_angle(z[1])  # just below +pi: z - z_hat is about -2 pi before wrapping
         _check_update(ctx, mu, Sigma, z, j, np.diag([0.05, 0.02]))
     # a heading at pi - 1e-4 corrected both ways: one of the two updates crosses +-pi
-    mu, Sigma = _state(ctx.rng, N=3, heading=np.pi - 1e-4)
-    j = int(ctx.rng.integers(3))
+    mu, Sigma, j = _near_cut(ctx.rng)
     for db in (-0.3, 0.3):
         z = sl.ekf_slam_measurement(mu, j)[0] + np.array([0.0, db])
         z[1] = sl.wrap_angle(z[1])
         _check_update(ctx, mu, Sigma, z, j, np.diag([0.05, 0.02]))
+
+
+def _near_cut(rng):
+    """A belief (3 landmarks) with heading ``pi - 1e-4`` whose heading variance dominates, and an index ``j``.
+
+    ``Sigma`` is a small random covariance (scale 0.02) plus 0.3 on the heading, so a
+    bearing innovation of ``+-0.3`` moves the heading by about ``-+0.27``: one of the
+    two updates takes it across the cut.
+    """
+    mu, Sigma = _state(rng, N=3, heading=np.pi - 1e-4, scale=0.02)
+    Sigma[2, 2] += 0.3
+    return mu, Sigma, int(rng.integers(3))
 
 
 @EX.test("ekf_slam_update", "covariance symmetric and not larger than the prior", weight=3, visibility="hidden",

@@ -39,17 +39,20 @@ def _pose(rng, extent=5.0, heading=None):
     return np.array([rng.uniform(-extent, extent), rng.uniform(-extent, extent), th])
 
 
-def _graph(rng, n=8, closures=4, init_noise=(0.3, 0.15), meas_noise=(0.05, 0.02), first=None):
+def _graph(rng, n=8, closures=4, init_noise=(0.3, 0.15), meas_noise=(0.05, 0.02), first=None, headings=None):
     """A random pose graph: ``(X0, edges, Z, Omega, X_true)``.
 
     Odometry edges ``(i, i+1)`` plus ``closures`` loop closures between poses at
-    least two apart, about half of them stored backwards (``i > j``).
+    least two apart, about half of them stored backwards (``i > j``). ``headings``
+    (shape ``(n,)``, NaN for "random"): true headings imposed on some poses.
     """
     steps = np.column_stack([rng.uniform(0.5, 1.5, n - 1), rng.normal(0.0, 0.2, n - 1), rng.uniform(-0.9, 0.9, n - 1)])
     X = np.empty((n, 3))
     X[0] = _pose(rng, extent=2.0) if first is None else first
     for k in range(n - 1):
         X[k + 1] = sl.compose(X[k], steps[k])
+        if headings is not None and np.isfinite(headings[k + 1]):
+            X[k + 1, 2] = headings[k + 1]
     pairs = [(k, k + 1) for k in range(n - 1)]
     while len(pairs) < n - 1 + closures:
         i, j = (int(v) for v in rng.choice(n, size=2, replace=False))
@@ -248,14 +251,29 @@ def _(ctx):
         _check_step(ctx, *_graph(ctx.rng, n=n, closures=c)[:4])
 
 
+def _graph_across_cut(rng, th, n=7):
+    """A graph whose step carries the odd poses' headings across the +-pi cut: ``(X0, edges, Z, Omega)``.
+
+    Pose 0 is ``[3, -2, th]``; the odd poses start at ``sign(th) (pi - 0.01)`` and their
+    true headings lie 0.15-0.35 rad further on, across the cut, so one Gauss-Newton
+    step takes them beyond ``+-pi`` unless they are wrapped.
+    """
+    s = np.sign(th)
+    odd = np.arange(n) % 2 == 1
+    start = s * (np.pi - 0.01)
+    headings = np.where(odd, wrap(start + s * rng.uniform(0.15, 0.35, n)), np.nan)
+    X0, edges, Z, Omega, _ = _graph(rng, n=n, closures=3, first=np.array([3.0, -2.0, th]), headings=headings)
+    X0[:, 2] = np.where(odd, start, X0[:, 2])
+    X0[0] = [3.0, -2.0, th]
+    return X0, edges, Z, Omega
+
+
 @EX.test("gauss_newton_step", "first pose unchanged and headings wrapped", weight=6,
          hint="Pose 0 keeps its values exactly (it is not at the origin here); every other heading is wrapped "
               "to [-pi, pi) after the update.")
 def _(ctx):
     for th in (np.pi - 0.02, -np.pi + 0.02):
-        X0, edges, Z, Omega, _ = _graph(ctx.rng, n=7, closures=3, first=np.array([3.0, -2.0, th]))
-        X0[:, 2] = wrap(np.where(np.arange(7) % 2 == 1, np.sign(th) * (np.pi - 0.01), X0[:, 2]))
-        X0[0] = [3.0, -2.0, th]
+        X0, edges, Z, Omega = _graph_across_cut(ctx.rng, th)
         got = _check_step(ctx, X0, edges, Z, Omega)
         ctx.close("X_new[0] (the fixed first pose)", got[0], X0[0], atol=1e-12, rtol=0.0, angles=[2])
 

@@ -37,6 +37,12 @@ def _vm_case(rng, *, omega=None, heading=None):
     return x, np.array([v, w]), float(dt)
 
 
+def _sharp_turns(rng):
+    """A left and a right sharp turn, ``|omega dt|`` in [1.2, 3] and ``v >= 0.5``: far from the series of small turns."""
+    return [(random_pose(rng), np.array([rng.uniform(0.5, 2.0), s * rng.uniform(2.0, 3.0)]),
+             float(rng.uniform(0.6, 1.0))) for s in (1.0, -1.0)]
+
+
 def _vm(ctx, x, u, dt):
     return ctx.expect(ctx.call(x, u, dt), X_NEXT, G_OUT, V_OUT)
 
@@ -88,8 +94,7 @@ def _(ctx):
          hint="V holds the derivatives of (x', y', theta') with respect to v and omega (Table 7.2 line 4); "
               "the omega column needs the quotient rule on v/omega.")
 def _(ctx):
-    for _ in range(6):
-        x, u, dt = _vm_case(ctx.rng)
+    for x, u, dt in [_vm_case(ctx.rng) for _ in range(6)] + _sharp_turns(ctx.rng):
         _, _, V = _vm(ctx, x, u, dt)
         ref = sl.velocity_motion(x, u, dt)
         ctx.close("V", V, ref[2], atol=1e-8, rtol=1e-6)
@@ -238,10 +243,19 @@ def _mmo(ctx, x_next, u, x, alpha):
     return ctx.expect(ctx.call(x_next, u, x, alpha), Out("p", (x.shape[0],)))
 
 
-def _hypotheses(rng, M, u, spread):
+def _hypotheses(rng, M, u, spread, beyond=0):
+    """M poses ``x`` and ``x_next`` reached by increments ``u + spread N(0, I)`` (translation kept positive).
+
+    ``beyond``: the first ``beyond`` hypotheses turn by ``rot1`` and ``rot2`` just beyond
+    ``+-pi`` on the sides of ``u[0]`` and ``u[2]``, so that ``u - [rot1_hat, rot2_hat]``
+    (the hats wrapped) needs the wrap too.
+    """
     x = np.stack([random_pose(rng) for _ in range(M)])
     inc = u + spread * rng.standard_normal((M, 3))
     inc[:, 1] = np.abs(inc[:, 1]) + 0.05
+    if beyond:
+        inc[:beyond, 0] = np.sign(u[0]) * (np.pi + rng.uniform(0.01, 0.15, beyond))
+        inc[:beyond, 2] = np.sign(u[2]) * (np.pi + rng.uniform(0.01, 0.15, beyond))
     x_next = np.empty_like(x)
     x_next[:, 0] = x[:, 0] + inc[:, 1] * np.cos(x[:, 2] + inc[:, 0])
     x_next[:, 1] = x[:, 1] + inc[:, 1] * np.sin(x[:, 2] + inc[:, 0])
@@ -267,7 +281,7 @@ def _(ctx):
 def _(ctx):
     u = np.array([3.05, 1.0, -3.05])
     alpha = np.array([0.05, 0.02, 0.05, 0.01])
-    x, x_next = _hypotheses(ctx.rng, 40, u, 0.1)
+    x, x_next = _hypotheses(ctx.rng, 40, u, 0.1, beyond=8)
     p = _mmo(ctx, x_next, u, x, alpha)
     ref = sl.motion_model_odometry(x_next, u, x, alpha)
     ctx.close("density", p, ref, atol=1e-12 * float(ref.max()), rtol=1e-6)
@@ -302,6 +316,21 @@ def _lm_cases(rng, n):
     return cases
 
 
+def _across_cases(rng):
+    """Two poses and landmarks whose unwrapped bearing atan2(dy, dx) - theta lies below -pi, then above +pi.
+
+    The heading and the landmark's direction have opposite signs and magnitudes in
+    [2, 3], so the unwrapped bearing is -+[4, 6]: it needs the wrap, and wraps to
+    +-[0.28, 2.28], far from the cut.
+    """
+    cases = []
+    for s in (1.0, -1.0):
+        x = random_pose(rng, heading=s * rng.uniform(2.0, 3.0))
+        a = -s * rng.uniform(2.0, 3.0)
+        cases.append((x, x[:2] + rng.uniform(0.5, 6.0) * np.array([np.cos(a), np.sin(a)])))
+    return cases
+
+
 def _lm(ctx, x, m):
     return ctx.expect(ctx.call(x, m), Z_HAT, HX_OUT, HM_OUT)
 
@@ -309,7 +338,7 @@ def _lm(ctx, x, m):
 @EX.test("landmark_measurement", "expected measurement z_hat", weight=5,
          hint="z_hat = [sqrt(q), wrap(atan2(m_y - y, m_x - x) - theta)] with q = dx^2 + dy^2 (Eq. 6.40).")
 def _(ctx):
-    for x, m in _lm_cases(ctx.rng, 8):
+    for x, m in _lm_cases(ctx.rng, 8) + _across_cases(ctx.rng):
         z, _, _ = _lm(ctx, x, m)
         ref = sl.landmark_measurement(x, m)
         ctx.wrapped("the bearing z_hat[1]", z[1])
