@@ -824,18 +824,16 @@ def _mode_preserving_resample(poses, w, rng, n_keep, floor, cell=_CLUSTER_CELL):
     order = member[np.argsort(r_of[member], kind="stable")]
     g = r_of[order]
     wg = w[order] / W[kept][g]
-    c = np.cumsum(wg) - np.repeat(np.r_[0.0, np.cumsum(np.bincount(g, weights=wg, minlength=kept.size))[:-1]], np.bincount(g, minlength=kept.size))
-    # pointers r_c + k / n_c of every mode (Table 4.4 within the mode), shifted to the mode's block
-    start = np.r_[0, np.cumsum(np.bincount(g, minlength=kept.size))[:-1]]
+    size = np.bincount(g, minlength=kept.size)  # particles of every kept mode
+    start = np.r_[0, np.cumsum(size)[:-1]]  # where each mode's block begins in `order`
+    c = np.cumsum(wg) - np.repeat(np.r_[0.0, np.cumsum(np.bincount(g, weights=wg, minlength=kept.size))[:-1]], size)
+    # pointers r_c + k / n_c of every mode (Table 4.4 within the mode)
     mode_of_ptr = np.repeat(np.arange(kept.size), n)
     k = np.arange(M) - np.repeat(np.r_[0, np.cumsum(n)[:-1]], n)
     ptr = rng.uniform(0.0, 1.0, size=kept.size)[mode_of_ptr] / n[mode_of_ptr] + k / n[mode_of_ptr]
-    # search inside each mode's block: add the mode index so blocks do not overlap
-    key_c = c + g * 2.0
-    key_p = np.minimum(ptr, 1.0 - 1e-12) + mode_of_ptr * 2.0
-    pos = np.searchsorted(key_c, key_p, side="left")
-    end = start + np.bincount(g, minlength=kept.size) - 1
-    pos = np.minimum(pos, end[mode_of_ptr])
+    # search inside each mode's block: add twice the mode index so blocks do not overlap
+    pos = np.searchsorted(c + g * 2.0, np.minimum(ptr, 1.0 - 1e-12) + mode_of_ptr * 2.0, side="left")
+    pos = np.minimum(pos, (start + size - 1)[mode_of_ptr])
     idx = order[pos]
     log_w = np.log(Wk[mode_of_ptr]) - np.log(n[mode_of_ptr])
     return idx, log_w
