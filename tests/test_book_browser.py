@@ -12,6 +12,13 @@ first frame drawn, no favicon request failing, a logo and exactly one search box
 nothing wider than the text column (see below); and the search page finds
 "particle". Screenshots of a few pages go to ``artifacts/screenshots``.
 
+Accessibility: axe-core (the npm package, installed by ``.ci/browser`` into ``.ci-node``, or the
+file named by ``SLAM_AXE_JS``) runs on every page with its default rules; no violation of impact
+"serious" or "critical" is allowed.
+
+The reader's copy: ``tools/book_pdf.py`` prints the single-page HTML build to a PDF, which must
+hold every chapter's title and at least as many images as the book has figures.
+
 Horizontal overflow, in a 1280 px wide window: the page itself never scrolls
 sideways; no element reaches outside the article's text column unless it sits in
 a box that scrolls horizontally (wide tables); a code cell or output never hides
@@ -44,6 +51,9 @@ SHOTS = ROOT / "artifacts" / "screenshots"
 REQUIRED = os.environ.get("SLAM_BOOK_BROWSER") == "1"
 SCREENSHOT_PAGES = {"chapters/00_intro", "chapters/02_motion_sensor_models", "chapters/05_mcl",
                     "chapters/07_ekf_slam", "chapters/09_real_data_mrclam", "chapters/algorithm_index"}
+
+AXE_JS = Path(os.environ.get("SLAM_AXE_JS") or ROOT / ".ci-node" / "node_modules" / "axe-core" / "axe.min.js")
+SINGLE = ROOT / "_build" / "singlehtml"
 
 pytestmark = pytest.mark.browser
 
@@ -267,3 +277,76 @@ def test_overflow_check_catches_overflow(server, driver):
     assert any(o.startswith("div: wide") for o in dirty["outside"]), dirty["outside"]
     assert len(dirty["clipped"]) == 1, f"a clipped equation was not reported: {dirty['clipped']}"
     assert len(dirty["wide"]) == 2, f"two equations wider than their box, reported: {dirty['wide']}"
+
+
+@pytest.fixture(scope="module")
+def axe_source():
+    if not AXE_JS.is_file():
+        _missing(f"axe-core not found at {AXE_JS}: npm install --prefix .ci-node axe-core@4 (or set SLAM_AXE_JS)")
+    return AXE_JS.read_text(encoding="utf-8")
+
+
+_AXE_RUN = """
+const done = arguments[arguments.length - 1];
+axe.run(document, {resultTypes: ['violations']})
+  .then(r => done(r.violations.map(v => ({id: v.id, impact: v.impact, help: v.help,
+                                          nodes: v.nodes.map(n => n.target.join(' ')).slice(0, 5)}))))
+  .catch(e => done([{id: 'axe-error', impact: 'critical', help: String(e), nodes: []}]));
+"""
+
+
+def axe_violations(drv, source, impacts=("serious", "critical")):
+    """axe-core's violations of the loaded page with one of ``impacts``."""
+    if not drv.execute_script("return typeof window.axe !== 'undefined';"):
+        drv.execute_script(source)
+    return [v for v in drv.execute_async_script(_AXE_RUN) if v["impact"] in impacts]
+
+
+def _load(drv, url):
+    drv.get(url)
+    state = drv.execute_async_script(_WAIT_MATHJAX)
+    assert state in ("ok", "no-mathjax"), f"{url}: MathJax did not finish ({state})"
+
+
+@pytest.mark.parametrize("page", toc_pages())
+def test_page_accessible(page, server, driver, axe_source):
+    _load(driver, f"{server}/{page}.html")
+    bad = axe_violations(driver, axe_source)
+    assert not bad, f"{page}: axe-core reports serious or critical violations: " + "; ".join(
+        f"{v['id']} ({v['impact']}: {v['help']}) at {v['nodes']}" for v in bad)
+
+
+def test_axe_check_catches_violations(server, driver, axe_source):
+    """The accessibility check sees an image without alt text and an unlabelled input, once they are
+    injected into a page that passes it."""
+    _load(driver, f"{server}/chapters/01_bayes_filters.html")
+    assert axe_violations(driver, axe_source) == []
+    driver.execute_script("""
+      const art = document.querySelector('article.bd-article');
+      const img = document.createElement('img'); img.src = art.querySelector('img') ? art.querySelector('img').src : '';
+      art.appendChild(img);
+      const inp = document.createElement('input'); inp.type = 'text'; art.appendChild(inp);
+    """)
+    ids = {v["id"] for v in axe_violations(driver, axe_source)}
+    assert {"image-alt", "label"} <= ids, ids
+
+
+def test_pdf_holds_every_chapter_and_figure():
+    """The PDF of the whole book (tools/book_pdf.py over the singlehtml build)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("book_pdf", ROOT / "tools" / "book_pdf.py")
+    book_pdf = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(book_pdf)
+    try:
+        book_pdf.single_page(SINGLE)
+    except FileNotFoundError:
+        _missing("no single-page build: run  jupyter-book build . --builder singlehtml  first")
+    out = ROOT / "_build" / "pdf" / "book.pdf"
+    info = book_pdf.print_pdf(SINGLE, out)
+    facts = book_pdf.check_pdf(out, SINGLE)
+    assert facts["missing_titles"] == [], f"chapters missing from the PDF: {facts['missing_titles']}"
+    assert facts["figures"] > 20, f"the single page holds only {facts['figures']} figures"
+    assert facts["images"] >= facts["figures"], (
+        f"the PDF holds {facts['images']} images for the book's {facts['figures']} figures")
+    assert info["images"] >= facts["figures"]

@@ -106,7 +106,7 @@ def test_animate_returns_html_with_controls():
         return (line,)
 
     n_before = len(plt.get_fignums())
-    html = viz.animate(fig, update, 4, interval=50)
+    html = viz.animate(fig, update, 4, alt="a line growing <from> the origin", interval=50)
     text = html.data
     assert "<script" in text
     assert 'class="anim-controls"' in text and "play_animation()" in text  # the jshtml player
@@ -117,8 +117,13 @@ def test_animate_returns_html_with_controls():
     assert "http://" not in text and "https://" not in text, "the animation links to a remote resource"
     assert '<i class="fa' not in text
     assert text.count('class="anim-glyph"') == text.count("<button") == 9
+    # accessible: the frame has its text alternative (escaped), the slider its label
+    assert 'alt="a line growing &lt;from&gt; the origin"' in text
+    assert 'type="range" aria-label="Frame"' in text
     with pytest.raises(TypeError, match="update"):
-        viz.animate(plt.figure(), None, 3)
+        viz.animate(plt.figure(), None, 3, alt="x")
+    with pytest.raises(ValueError, match="alt"):
+        viz.animate(plt.figure(), update, 3, alt=" ")
 
 
 def test_exported_through_viz():

@@ -1,9 +1,9 @@
-"""Strip notebook outputs except the text outputs of cells that nbval checks.
+"""Strip notebook outputs except the text outputs of cells that the notebook tests check.
 
 Usage: ``python tools/nbstrip.py [NOTEBOOK ...]`` (default: every notebook under
 ``chapters/`` and ``exercises/``). Cells whose source contains
 ``# NBVAL_CHECK_OUTPUT`` keep their ``stream`` and ``text/plain`` outputs (what
-nbval compares); every other output, every execution count and the per-cell
+the notebook test in chapters/conftest.py compares); every other output, every execution count and the per-cell
 execution metadata are dropped, so the repository holds no build products.
 Run with ``--check`` to only report notebooks that would change (exit 1).
 """

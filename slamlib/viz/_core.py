@@ -322,7 +322,21 @@ def _offline_controls(html):
     return re.sub(r'<i class="(fa [^"]*)"></i>', glyph, html)
 
 
-def animate(fig, update, frames, *, interval=100, embed_limit_mb=30.0, dpi=None):
+def _accessible_controls(html, alt):
+    """Give the frame its text alternative and the frame slider its label (axe-core's image-alt and
+    label rules)."""
+    import html as _html
+
+    html, n_img = re.subn(r'<img id="(_anim_img\w+)">', lambda m: f'<img id="{m.group(1)}" alt="{_html.escape(alt)}">',
+                          html)
+    html, n_slider = re.subn(r'<input id="(_anim_slider\w+)" type="range"',
+                             r'<input id="\1" type="range" aria-label="Frame"', html)
+    if n_img != 1 or n_slider != 1:
+        raise RuntimeError("matplotlib's to_jshtml markup changed: update slamlib.viz._core._accessible_controls")
+    return html
+
+
+def animate(fig, update, frames, *, alt, interval=100, embed_limit_mb=30.0, dpi=None):
     """Render a matplotlib animation to self-contained HTML for the static book.
 
     Parameters
@@ -335,6 +349,9 @@ def animate(fig, update, frames, *, interval=100, embed_limit_mb=30.0, dpi=None)
     frames : int or iterable
         Number of frames, or the frame values passed to `update`. Keep it
         small (tens of frames): every frame is embedded as an image.
+    alt : str, keyword-only
+        What the animation shows, in words: the text alternative of its
+        frames for readers who cannot see them.
     interval : float, keyword-only
         Milliseconds between frames.
     embed_limit_mb : float, keyword-only
@@ -362,6 +379,8 @@ def animate(fig, update, frames, *, interval=100, embed_limit_mb=30.0, dpi=None)
 
     if not callable(update):
         raise TypeError(f"update must be callable, got {type(update).__name__}")
+    if not isinstance(alt, str) or not alt.strip():
+        raise ValueError(f"alt must be a non-empty description of the animation, got {alt!r}")
     interval = as_scalar(interval, "interval", positive=True)
     embed_limit_mb = as_scalar(embed_limit_mb, "embed_limit_mb", positive=True)
     if dpi is None:
@@ -376,4 +395,4 @@ def animate(fig, update, frames, *, interval=100, embed_limit_mb=30.0, dpi=None)
     finally:
         fig.set_dpi(old_dpi)
         plt.close(fig)
-    return HTML(_offline_controls(html))
+    return HTML(_accessible_controls(_offline_controls(html), alt))

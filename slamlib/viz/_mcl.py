@@ -382,4 +382,7 @@ def animate_mcl(grid, result, *, scans=None, angles=None, sensor_offset=0.25, z_
                      f"spread = {result.spread[s]:.2f} m", fontsize=9)
 
     fig.tight_layout()
-    return animate(fig, update, len(steps), interval=interval, dpi=dpi)
+    alt = (f"Monte Carlo localization in {len(steps)} frames: the particles (dots) on the map, the mean pose"
+           + (" and the laser scan drawn from it" if scans is not None and angles is not None else "")
+           + "; each frame's title gives the time, the number of particles and their spread.")
+    return animate(fig, update, len(steps), alt=alt, interval=interval, dpi=dpi)

@@ -83,7 +83,9 @@ def animate_icp(source, target, result, *, truth=None, window=None, figsize=(6.0
 
     frames = np.unique(np.round(np.linspace(0, len(hist) - 1, min(len(hist), int(max_frames)))).astype(int))
     update(0)
-    return animate(fig, update, frames, interval=interval, dpi=dpi)
+    alt = (f"ICP in {len(frames)} rounds: the source scan (orange) moves onto the target scan (black); each "
+           "frame's title gives the round" + (" and the distance from the reference pose." if truth is not None else "."))
+    return animate(fig, update, frames, alt=alt, interval=interval, dpi=dpi)
 
 
 def plot_icp_convergence(results, truth, ax=None):
