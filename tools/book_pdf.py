@@ -26,6 +26,7 @@ import sys
 import tempfile
 import threading
 import time
+import unicodedata
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -103,13 +104,18 @@ def single_page(single: Path = SINGLE, root: Path = ROOT) -> Path:
 def print_pdf(single: Path = SINGLE, out: Path = OUT, *, timeout: float = 900.0) -> dict:
     """Print the single-page build to ``out``; returns what the page reported (image count)."""
     page = single_page(single)
+    # the single page's links are relative to the build's top folder, where Sphinx does not put it
+    top = single / "book.html"
+    shutil.copyfile(page, top)
     drv = chrome_driver()
     try:
         with serve(single) as url:
-            drv.get(f"{url}/{page.relative_to(single).as_posix()}")
+            drv.get(f"{url}/{top.name}")
             t0 = time.monotonic()
             while True:
                 state = drv.execute_script(_STATE)
+                if state["broken"]:
+                    raise RuntimeError(f"images that did not load: {state['broken'][:5]}")
                 if state["error"]:
                     raise RuntimeError(f"MathJax failed on the single page: {state['error']}")
                 if state["done"]:
@@ -160,8 +166,9 @@ def chapter_titles(root: Path = ROOT) -> dict[str, str]:
 
 
 def _words(text: str) -> str:
-    """Letters and digits only, lower case: PDF text extraction splits and joins words freely."""
-    return re.sub(r"[^0-9a-z]+", "", text.lower())
+    """Letters and digits only, lower case, ligatures undone: PDF text extraction splits and joins
+    words freely and keeps the typeface's ligatures ("ﬁ")."""
+    return re.sub(r"[^0-9a-z]+", "", unicodedata.normalize("NFKC", text).lower())
 
 
 def check_pdf(pdf: Path = OUT, single: Path = SINGLE, root: Path = ROOT) -> dict:
