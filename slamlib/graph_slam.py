@@ -1353,7 +1353,7 @@ def optimize_landmark_graph(graph, *, method="lm", max_iter=100, rtol=1e-9, robu
                                time=time.perf_counter() - start, method=method)
 
 
-def landmark_graph_from_run(run, *, position_floor=1e-3, motion=None, associations=None):
+def landmark_graph_from_run(run, *, position_floor=1e-3, heading_floor=0.0, motion=None, associations=None):
     """Build the full-SLAM graph of a landmark run (simulated, MRCLAM, or Victoria Park).
 
     By default the correspondences are the run's known ones (``run.ids``) and
@@ -1384,6 +1384,11 @@ def landmark_graph_from_run(run, *, position_floor=1e-3, motion=None, associatio
     position_floor : float, keyword-only
         Standard deviation (metres) added to the odometry edges' position
         noise, positive.
+    heading_floor : float, keyword-only
+        Standard deviation (radians) added to the odometry edges' heading
+        noise, non-negative. The velocity model always has heading noise; the
+        car model has none when the car stands still with straight wheels,
+        so a graph of a car's log needs a positive floor.
     motion : callable, keyword-only
         ``motion(x, u, dt) -> (x_next, G, V)`` for a batch of poses, like
         :func:`~slamlib.motion.velocity_motion` (the default); the odometry
@@ -1406,6 +1411,7 @@ def landmark_graph_from_run(run, *, position_floor=1e-3, motion=None, associatio
     measurement constraints), Table 5.3, Table 7.2 lines 3-6, Eq. 6.40.
     """
     floor = as_scalar(position_floor, "position_floor", positive=True)
+    h_floor = as_scalar(heading_floor, "heading_floor", nonnegative=True)
     x0 = as_array(run.x0, "run.x0", (3,))
     u = as_array(run.u, "run.u", (None, 2))
     dt = as_scalar(run.dt, "run.dt", positive=True)
@@ -1452,6 +1458,11 @@ def landmark_graph_from_run(run, *, position_floor=1e-3, motion=None, associatio
     R = V @ M @ np.swapaxes(V, 1, 2)
     R[:, 0, 0] += floor**2
     R[:, 1, 1] += floor**2
+    R[:, 2, 2] += h_floor**2
+    singular = np.flatnonzero(np.linalg.det(R) <= 0)
+    if singular.size:
+        raise ValueError(f"the odometry covariance of step {singular[0]} is singular (no heading noise when the "
+                         "model cannot turn, e.g. a car standing still): pass heading_floor > 0")
     odo = np.column_stack([np.arange(T), np.arange(1, T + 1)])
     # sightings: z[k] is taken at pose k + 1
     counts = np.array([len(i) for i in ids_per_step])

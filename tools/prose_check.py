@@ -51,16 +51,27 @@ ALLOWED: tuple[tuple[str, str], ...] = (
      "textbook or of this book, not a quantity"),
     (r"\b(?:1[89]|20)\d\d\b",
      "a year (of a publication or of a data set's recording)"),
-    (r"\b(?:FastSLAM|GraphSLAM|iSAM|SE|SO|g2o)\s*\(?\d(?:\.\d)?\)?|\b\d-D\b|\bchi2_\d|[A-Za-z_]+\d+\w*",
-     "part of a name: FastSLAM 1.0 and 2.0, the groups SE(2), SO(3), '2-D', data sets like M3500"),
-    (r"\b(?:robots?|[Rr]obot)\s+\d+(?:\s*(?:,|and|or|-|to)\s*\d+)*",
-     "a robot's number in the MRCLAM data set (an identifier)"),
+    (r"\b(?:FastSLAM|GraphSLAM|iSAM|SE|SO|g2o)\s*\(?\d(?:\.\d)?\)?|\b\d-D\b|\brank-\d\b|[A-Za-z_]+\d+\w*",
+     "part of a name: FastSLAM 1.0 and 2.0, the groups SE(2), SO(3), '2-D', 'rank-2', data sets like M3500"),
+    (r"\b(?:[Rr]obots?|[Dd]ataset|[Bb]ox(?:es)?)\s+\d+(?:\s*(?:,|and|or|-|to)\s*\d+)*",
+     "the number of a robot, a data set or a box within a collection (an identifier, as in MRCLAM)"),
     (r"(?m)^\s*\d+\.\s",
      "the number of a numbered list item"),
     (r"\b\d+\s*(?:x|×)\s*\d+\b",
      "the size of a matrix block, '3 x 3'"),
     (r"(?m)^\|\s*\d+\s*\|",
      "the line number in the first column of an algorithm written as a table"),
+)
+
+# Development history has no place in the student text (it belongs in chapters/instructors.md):
+# phrases that tell the story of the code rather than the method. (pattern, what it signals)
+HISTORY: tuple[tuple[str, str], ...] = (
+    (r"(?i)\b(?:an |the )?(?:earlier|older|previous|former|old) (?:version|default|release|implementation)s?\b",
+     "a previous state of the library"),
+    (r"(?i)\bthe book's (?:former|old|earlier|previous)\b", "a previous state of the book"),
+    (r"(?i)\b(?:during|in) (?:the )?development\b", "how the book was written"),
+    (r"(?i)\bon the loaded machine\b|\bbusy machine\b", "the circumstances of one measurement"),
+    (r"(?i)\bused to (?:be|give|take|fail|diverge)\b", "a previous state of the code"),
 )
 
 _UNITS = {  # unit -> factor to SI (matched case-sensitively after the number)
@@ -170,7 +181,8 @@ def _matches(value: float, unit: str | None, literals: set[float]) -> bool:
         candidates.add(value * _UNITS[unit])
     if unit in ("deg", "degrees", "degree", "°"):
         candidates.add(math.radians(value))
-    return any(math.isclose(c, v, rel_tol=1e-9, abs_tol=1e-12) for c in candidates for v in literals)
+    # code writes a negative number as unary minus and a literal, so signs are not compared
+    return any(math.isclose(abs(c), v, rel_tol=1e-9, abs_tol=1e-12) for c in candidates for v in literals)
 
 
 def _allowed_spans(text: str) -> list[tuple[int, int]]:
@@ -180,13 +192,29 @@ def _allowed_spans(text: str) -> list[tuple[int, int]]:
     return spans
 
 
+def _glue_names(code: str) -> tuple[set[str], list[re.Pattern]]:
+    """Names glued by ``glue("name", ...)``; f-string names become patterns."""
+    names, patterns = set(), []
+    for m in re.finditer(r"\bglue\(\s*(f?)([\"'])(.*?)\2", code):
+        if m.group(1):
+            patterns.append(re.compile("^" + re.sub(r"\\\{[^}]*\\\}", ".+", re.escape(m.group(3))) + "$"))
+        else:
+            names.add(m.group(3))
+    return names, patterns
+
+
 def check_notebook(path: str | Path) -> list[Finding]:
-    """The numbers in the prose of one notebook that no glue, code literal, default or rule backs."""
+    """The numbers in the prose of one notebook that no glue, code literal, default or rule backs.
+
+    Also reported: a ``{glue}`` role whose name no code cell glues, and development history
+    (:data:`HISTORY`) in the prose.
+    """
     path = Path(path)
     nb = nbformat.read(path, as_version=4)
     cells = nb.cells
     all_code = "\n".join(c.source for c in cells if c.cell_type == "code")
     defaults = _library_defaults(all_code)
+    glued, glued_patterns = _glue_names(all_code)
     findings = []
     for k, cell in enumerate(cells):
         if cell.cell_type != "markdown":
@@ -194,6 +222,13 @@ def check_notebook(path: str | Path) -> list[Finding]:
         prev_code = next((c.source for c in reversed(cells[:k]) if c.cell_type == "code"), "")
         next_code = next((c.source for c in cells[k + 1:] if c.cell_type == "code"), "")
         literals = _code_literals(prev_code) | _code_literals(next_code) | defaults
+        for m in re.finditer(r"\{glue(?::\w+)?\}`([^`:]+)", cell.source):
+            name = m.group(1).strip()
+            if name not in glued and not any(p.match(name) for p in glued_patterns):
+                findings.append(Finding(path.name, k, name, "a glue role whose name no code cell glues"))
+        for pattern, why in HISTORY:
+            for m in re.finditer(pattern, cell.source):
+                findings.append(Finding(path.name, k, m.group(0), f"development history ({why})"))
         text, _ = clean_prose(cell.source)
         spans = _allowed_spans(text)
         for m in _NUMBER.finditer(text):
