@@ -56,9 +56,10 @@ def _numbers(findings):
 
 
 def test_checker_flags_a_typed_result(tmp_path):
-    p = _nb(("code", "x = run()"), ("md", "The filter ends 0.63 m from the truth, 4.5 times better."),
+    p = _nb(("code", "x = run()"), ("md", "The filter ends 0.63 m from the truth, 4.5 times better; "
+                                          "the loop closes at step 470 (Step 2 of the derivation)."),
             path=tmp_path / "a.ipynb")
-    assert _numbers(check_notebook(p)) == ["0.63", "4.5"]
+    assert _numbers(check_notebook(p)) == ["0.63", "4.5", "470"]
 
 
 def test_checker_accepts_glue_literals_beside_and_allowed_kinds(tmp_path):

@@ -45,10 +45,10 @@ import nbformat
 # cleaned prose that contains it. Keep this list short: each entry is a kind of number, not a number.
 ALLOWED: tuple[tuple[str, str], ...] = (
     (r"\b(?:Tables?|Eqs?\.|Equations?|Chapters?|Ch\.|Sections?|Sec\.|Figures?|Fig\.|Algorithms?|Parts?|"
-     r"Exercises?|exercises?|[Ll]ines?|pp?\.|chapters?|questions?|Questions?|answers?|Answers?|"
-     r"steps?|Steps?)\s+\d+(?:\.\d+)*(?:\s*(?:-|–|,|and|or|to)\s*\d+(?:\.\d+)*)*",
-     "a reference to a numbered table, equation, chapter, section, figure, algorithm or line of a "
-     "textbook or of this book, not a quantity"),
+     r"Exercises?|exercises?|[Ll]ines?|pp?\.|chapters?|questions?|Questions?|answers?|Answers?|Steps?)"
+     r"\s+\d+(?:\.\d+)*(?:\s*(?:-|–|,|and|or|to)\s*\d+(?:\.\d+)*)*",
+     "a reference to a numbered table, equation, chapter, section, figure, algorithm, line or "
+     "derivation Step of a textbook or of this book, not a quantity"),
     (r"\b(?:1[89]|20)\d\d\b",
      "a year (of a publication or of a data set's recording)"),
     (r"\b(?:FastSLAM|GraphSLAM|iSAM|SE|SO|g2o)\s*\(?\d(?:\.\d)?\)?|\b\d-D\b|\brank-\d\b|[A-Za-z_]+\d+\w*",
