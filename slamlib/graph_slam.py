@@ -29,8 +29,10 @@ pose, one off-diagonal block per edge. The edge errors and Jacobians of all
 edges are computed at once (arrays over edges, no Python loop), ``H`` and ``b``
 are assembled in coordinate (COO) form into a compressed-column matrix whose
 pattern is computed once per graph, and the system is solved by a sparse LU
-factorisation (SuperLU) with a fill-reducing column ordering (COLAMD), which
-on ``H`` (symmetric positive definite) is effectively a sparse Cholesky.
+factorisation (SuperLU, no pivoting) in a fill-reducing order computed once per
+graph (minimum degree on the graph of variable blocks, SuperLU's
+``MMD_AT_PLUS_A``), which on ``H`` (symmetric positive definite) is
+effectively a sparse Cholesky.
 
 Gauge freedom: ``F`` depends only on relative quantities, so moving all poses
 and landmarks together by one rigid transform leaves it unchanged and ``H`` is
@@ -1351,8 +1353,14 @@ def optimize_landmark_graph(graph, *, method="lm", max_iter=100, rtol=1e-9, robu
                                time=time.perf_counter() - start, method=method)
 
 
-def landmark_graph_from_run(run, *, position_floor=1e-3):
-    """Build the full-SLAM graph of a landmark run (simulated, or MRCLAM) with known correspondences.
+def landmark_graph_from_run(run, *, position_floor=1e-3, heading_floor=0.0, motion=None, associations=None):
+    """Build the full-SLAM graph of a landmark run (simulated, MRCLAM, or Victoria Park).
+
+    By default the correspondences are the run's known ones (``run.ids``) and
+    the motion is the velocity model; `associations` takes those of a front end
+    instead (for example an EKF SLAM run's ``associations``, when the
+    landmarks have no identities), and `motion` another motion model (the
+    car's, :class:`~slamlib.motion.AckermannModel`).
 
     * Poses ``x_0 .. x_T`` (``T = run.n_steps``), initial guess from dead
       reckoning (:func:`~slamlib.scoring.dead_reckoning`), pose 0 at ``run.x0``.
@@ -1376,6 +1384,21 @@ def landmark_graph_from_run(run, *, position_floor=1e-3):
     position_floor : float, keyword-only
         Standard deviation (metres) added to the odometry edges' position
         noise, positive.
+    heading_floor : float, keyword-only
+        Standard deviation (radians) added to the odometry edges' heading
+        noise, non-negative. The velocity model always has heading noise; the
+        car model has none when the car stands still with straight wheels,
+        so a graph of a car's log needs a positive floor.
+    motion : callable, keyword-only
+        ``motion(x, u, dt) -> (x_next, G, V)`` for a batch of poses, like
+        :func:`~slamlib.motion.velocity_motion` (the default); the odometry
+        edge of step ``k`` is ``motion(0, u_k, dt)``, which is pose ``k + 1``
+        seen from pose ``k`` for any model that turns with the pose (both of
+        the library's do), and the initial path is that model's dead reckoning.
+    associations : sequence of T int arrays, keyword-only
+        For each step, the landmark each measurement of ``run.z[k]`` belongs
+        to, ``-1`` for a measurement to leave out; default ``run.ids``
+        (known correspondences). Landmarks are numbered ``0 .. max + 1``.
 
     Returns
     -------
@@ -1388,31 +1411,73 @@ def landmark_graph_from_run(run, *, position_floor=1e-3):
     measurement constraints), Table 5.3, Table 7.2 lines 3-6, Eq. 6.40.
     """
     floor = as_scalar(position_floor, "position_floor", positive=True)
+    h_floor = as_scalar(heading_floor, "heading_floor", nonnegative=True)
     x0 = as_array(run.x0, "run.x0", (3,))
     u = as_array(run.u, "run.u", (None, 2))
     dt = as_scalar(run.dt, "run.dt", positive=True)
     M = as_covariance(run.M, "run.M", 2)
     Q = as_covariance(run.Q, "run.Q", 2)
     T = u.shape[0]
-    if len(run.z) != T or len(run.ids) != T:
-        raise ValueError(f"run.z and run.ids must hold one entry per step ({T})")
-    n_lm = int(np.asarray(run.landmarks).shape[0])
-    X0 = dead_reckoning(x0, u, dt)
-    # odometry edges: z_k = g(u_k, 0), covariance V M V^T + floor  (Table 5.3, Table 7.2 line 6)
-    z_odo, _, V = velocity_motion(np.zeros((T, 3)), u, dt)
+    if motion is not None and not callable(motion):
+        raise TypeError(f"motion must be callable (x, u, dt) -> (x_next, G, V), got {type(motion).__name__}")
+    if associations is None:
+        if len(run.z) != T or len(run.ids) != T:
+            raise ValueError(f"run.z and run.ids must hold one entry per step ({T})")
+        ids_per_step = run.ids
+        n_lm = int(np.asarray(run.landmarks).shape[0])
+    else:
+        if len(associations) != T or len(run.z) != T:
+            raise ValueError(f"associations and run.z must hold one entry per step ({T}), got {len(associations)} "
+                             f"and {len(run.z)}")
+        ids_per_step = []
+        for k, (a, zk) in enumerate(zip(associations, run.z)):
+            a = np.asarray(a).reshape(-1)
+            if a.size and a.dtype.kind not in "iu":
+                raise TypeError(f"associations[{k}] must be an integer array, got dtype {a.dtype}")
+            if a.size != np.reshape(zk, (-1, 2)).shape[0]:
+                raise ValueError(f"associations[{k}] must hold one entry per measurement of run.z[{k}] "
+                                 f"({np.reshape(zk, (-1, 2)).shape[0]}), got {a.size}")
+            if a.size and a.min() < -1:
+                raise ValueError(f"associations[{k}] must hold landmark indices or -1, got {a.min()}")
+            ids_per_step.append(a.astype(np.int64))
+        n_lm = 1 + max((int(a.max()) for a in ids_per_step if a.size), default=-1)
+    if motion is None:
+        X0 = dead_reckoning(x0, u, dt)
+        # odometry edges: z_k = g(u_k, 0), covariance V M V^T + floor  (Table 5.3, Table 7.2 line 6)
+        z_odo, _, V = velocity_motion(np.zeros((T, 3)), u, dt)
+    else:
+        z_odo, _, V = motion(np.zeros((T, 3)), u, dt)
+        z_odo, V = np.asarray(z_odo, dtype=np.float64), np.asarray(V, dtype=np.float64)
+        if z_odo.shape != (T, 3) or V.shape != (T, 3, 2):
+            raise ValueError(f"motion must return x_next of shape ({T}, 3) and V of shape ({T}, 3, 2) for {T} "
+                             f"controls, got {z_odo.shape} and {V.shape}")
+        X0 = np.empty((T + 1, 3))
+        X0[0] = x0
+        for k in range(T):  # dead reckoning with the model: x_{k+1} = x_k (+) z_k
+            X0[k + 1] = _compose(X0[k], z_odo[k])
     R = V @ M @ np.swapaxes(V, 1, 2)
     R[:, 0, 0] += floor**2
     R[:, 1, 1] += floor**2
+    R[:, 2, 2] += h_floor**2
+    singular = np.flatnonzero(np.linalg.det(R) <= 0)
+    if singular.size:
+        raise ValueError(f"the odometry covariance of step {singular[0]} is singular (no heading noise when the "
+                         "model cannot turn, e.g. a car standing still): pass heading_floor > 0")
     odo = np.column_stack([np.arange(T), np.arange(1, T + 1)])
     # sightings: z[k] is taken at pose k + 1
-    counts = np.array([len(i) for i in run.ids])
+    counts = np.array([len(i) for i in ids_per_step])
     if counts.sum() == 0:
         raise ValueError("the run has no landmark sighting: nothing to map")
     Z = np.concatenate([np.reshape(zk, (-1, 2)) for zk, c in zip(run.z, counts) if c]).astype(np.float64)
-    ids = np.concatenate([np.asarray(i, dtype=np.int64).reshape(-1) for i in run.ids if len(i)])
+    ids = np.concatenate([np.asarray(i, dtype=np.int64).reshape(-1) for i in ids_per_step if len(i)])
+    pose = np.repeat(np.arange(1, T + 1), counts)
+    if associations is not None:  # measurements left out by the front end
+        used = ids >= 0
+        Z, ids, pose = Z[used], ids[used], pose[used]
+        if ids.size == 0:
+            raise ValueError("associations leave no landmark sighting: nothing to map")
     if ids.min() < 0 or ids.max() >= n_lm:
         raise ValueError(f"run.ids must index landmarks 0..{n_lm - 1} (known correspondences; no clutter)")
-    pose = np.repeat(np.arange(1, T + 1), counts)
     seen, first_idx, row = np.unique(ids, return_index=True, return_inverse=True)
     L0 = landmark_from_measurement(X0[pose[first_idx]], Z[first_idx])  # (Table 10.1 line 10)
     Wl = np.broadcast_to(np.linalg.inv(Q), (Z.shape[0], 2, 2)).copy()

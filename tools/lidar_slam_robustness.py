@@ -4,10 +4,13 @@ Runs :func:`slamlib.lidar_slam.run_lidar_slam` with the default settings and wit
 time (beam subsampling, keyframe spacing, start of the log, loop-closure radius, noise on every ICP
 initial guess over several seeds) and prints, per run, the ATE against the MCL reference track and
 the agreement of the map with the shipped Wean Hall map for raw odometry, ICP odometry and ICP with
-loop closures. Usage: ``python tools/lidar_slam_robustness.py`` (about a minute on 2 cores).
+loop closures. Usage: ``python tools/lidar_slam_robustness.py`` (about a minute on 2 cores). It writes
+every run to ``chapters/data/lidar_slam_robustness.json``, which chapter 11 reads.
 """
 
+import json
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -16,6 +19,7 @@ from slamlib import lidar_slam as ls
 from slamlib.datasets import cmu
 
 MAP_THRESHOLD = 0.80  # occupied-cell agreement a run must reach (see tests/test_lidar_slam.py)
+OUT = Path(__file__).resolve().parents[1] / "chapters" / "data" / "lidar_slam_robustness.json"
 
 
 def main():
@@ -33,6 +37,7 @@ def main():
                                                        "init_noise": (0.1, np.deg2rad(3.0))}) for s in range(2)]
     print(f"{'run':32s} {'odometry':>15s} {'ICP odometry':>15s} {'ICP + loops':>15s} {'loops':>7s} {'time':>6s}  verdict")
     print(f"{'':32s} {'ATE m / map':>15s} {'ATE m / map':>15s} {'ATE m / map':>15s}")
+    records = []
     for name, change, kw in runs:
         params = sl.lidar_slam.LidarSlamParams(**{**base.__dict__, **change})
         t0 = time.perf_counter()
@@ -41,6 +46,7 @@ def main():
                                     sensor_offset=log.sensor_offset, params=params, **kw)
         except Exception as exc:  # a failure is a result too
             print(f"{name:32s} FAILED: {type(exc).__name__}: {exc}")
+            records.append({"name": name, "error": f"{type(exc).__name__}: {exc}"})
             continue
         dt = time.perf_counter() - t0
         rows = ls.score_lidar_slam(res, ref.scan_index, ref.mean, log.laser_pose, log.ranges, log.angles, grid,
@@ -50,6 +56,12 @@ def main():
         slam = rows[2]
         ok = slam.occupied >= MAP_THRESHOLD and slam.ate <= rows[0].ate
         print(f"{name:32s} {cells} {n_loops:4d}/{res.loop_tried:<3d} {dt:5.1f}s  {'ok' if ok else 'FAIL'}")
+        records.append({"name": name, "ate": {r.name: float(r.ate) for r in rows},
+                        "occupied": {r.name: float(r.occupied) for r in rows}, "loops": int(n_loops),
+                        "loop_tried": int(res.loop_tried), "ok": bool(ok)})
+    OUT.write_text(json.dumps({"command": "python tools/lidar_slam_robustness.py", "threshold": MAP_THRESHOLD,
+                               "runs": records}, indent=1) + "\n")
+    print(f"wrote {OUT}")
 
 
 if __name__ == "__main__":
