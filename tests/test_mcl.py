@@ -520,14 +520,47 @@ def test_estimate_is_the_heaviest_cluster():
     b = np.array([14.0, 3.0, -2.0]) + rng.normal(0, 0.1, (400, 3))
     poses = np.vstack([a, b])
     lw = np.full(1000, -np.log(1000))
-    mean, _, _, est = mcl._summary(poses, lw)
+    mean, _, _, est, mass, n_modes = mcl._summary(poses, lw)
     assert abs(mean[0] - 6.8) < 0.2  # the mean lies between the clusters
     np.testing.assert_allclose(est[:2], a[:, :2].mean(axis=0), atol=1e-9)
     assert abs(sl.angle_diff(est[2], 0.5)) < 0.05
+    # the estimate reports its ambiguity: the heaviest mode holds 60 %, and there are two modes
+    assert mass == pytest.approx(0.6) and n_modes == 2
     # weight, not the number of particles, decides
     lw2 = np.log(np.r_[np.full(600, 0.2 / 600), np.full(400, 0.8 / 400)])
-    est2 = mcl._summary(poses, lw2)[3]
+    est2, mass2 = mcl._summary(poses, lw2)[3:5]
     np.testing.assert_allclose(est2[:2], b[:, :2].mean(axis=0), atol=1e-9)
+    assert mass2 == pytest.approx(0.8)
+
+
+def test_a_uniform_cloud_is_not_a_confident_mode(sim):
+    grid, *_ = sim
+    poses = sl.sample_free_poses(grid, 5000, rng=np.random.default_rng(0))
+    _, _, _, _, mass, n_modes = mcl._summary(poses, np.full(5000, -np.log(5000)))
+    assert mass < 0.2 and n_modes == 8  # spread over the map: no mode holds much
+
+
+def test_estimate_hysteresis_keeps_the_previous_mode_until_another_clearly_wins():
+    rng = np.random.default_rng(5)
+    a = np.array([2.0, 3.0, 0.5]) + rng.normal(0, 0.1, (500, 3))
+    b = np.array([14.0, 3.0, -2.0]) + rng.normal(0, 0.1, (500, 3))
+    poses = np.vstack([a, b])
+    for share_b, h, expect in ((0.6, 1.0, b), (0.6, 2.0, a), (0.7, 2.0, b)):
+        lw = np.log(np.r_[np.full(500, (1 - share_b) / 500), np.full(500, share_b / 500)])
+        est = mcl._summary(poses, lw, previous=np.array([2.0, 3.0, 0.5]), hysteresis=h)[3]
+        np.testing.assert_allclose(est[:2], expect[:, :2].mean(axis=0), atol=1e-9)
+    with pytest.raises(ValueError, match="estimate_hysteresis"):
+        mcl.MCLParams(estimate_hysteresis=0.5)
+
+
+def test_run_mcl_reports_its_ambiguity(sim):
+    grid, truth, odom, z = sim
+    model = mcl.prepare_mcl(grid, mcl.MCLParams(**SIM_PARAMS))
+    res = mcl.run_mcl(model, odom, z, ANGLES, rng=np.random.default_rng(0), variant="mcl")
+    mass, n_modes = res.ambiguity()
+    assert mass.shape == n_modes.shape == (len(res),)
+    assert mass[0] < 0.9 and n_modes[0] > 1  # the start: spread over several modes
+    assert mass[-1] > 0.95 and n_modes[-1] == 1  # converged on the truth: one mode
 
 
 # --------------------------------------------------------------------------- mode-preserving resampling
