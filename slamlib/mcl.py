@@ -94,6 +94,7 @@ __all__ = [
     "kld_sample_size",
     "kld_mcl_step",
     "particle_summary",
+    "particle_modes",
     "scan_endpoints",
     "endpoint_distances",
     "run_mcl",
@@ -1234,7 +1235,8 @@ def _summary(poses, log_w, previous=None, hysteresis=1.0):
     spread = float(np.sqrt(max(np.dot(w, np.sum((poses[:, :2] - xy) ** 2, axis=1)), 0.0)))
     r = min(float(np.hypot(c, s)), 1.0)
     heading_spread = float(np.sqrt(-2.0 * np.log(r))) if r > 0 else np.inf
-    estimate, masses = _modes(poses, w)
+    centres, masses = _modes(poses, w)
+    estimate = centres[0]
     if previous is not None and hysteresis > 1.0:
         # keep to the previous estimate's mode while it holds at least 1/hysteresis of the heaviest mode's mass
         kept, kept_mass, _ = _mean_shift(poses, w, previous[:2])
@@ -1246,21 +1248,67 @@ def _summary(poses, log_w, previous=None, hysteresis=1.0):
 
 
 def _modes(poses, w, max_modes=8):
-    """The heaviest mode's pose and the masses of up to `max_modes` modes, heaviest first.
+    """Poses ``(K, 3)`` and masses ``(K,)`` of up to `max_modes` modes, heaviest first.
 
     Modes are found greedily: the heaviest mode (:func:`_cluster_mean`), then the heaviest
     among the particles not yet assigned, and so on, until less than ``_MODE_REPORT`` of the mass is left.
     """
-    estimate, mass, near = _cluster_mean(poses, w, with_mass=True)
-    masses = [mass]
+    centre, mass, near = _cluster_mean(poses, w, with_mass=True)
+    centres, masses = [centre], [mass]
     rest = w.copy()
     for _ in range(max_modes - 1):
         rest[near] = 0.0
         if rest.sum() < _MODE_REPORT:
             break
-        _, mass, near = _cluster_mean(poses, rest, with_mass=True)
+        centre, mass, near = _cluster_mean(poses, rest, with_mass=True)
+        centres.append(centre)
         masses.append(mass)
-    return estimate, np.array(masses)
+    return np.array(centres), np.array(masses)
+
+
+def particle_modes(poses, log_weights=None, *, max_modes=8):
+    """The modes of a particle set: where each one is and how much of the belief it holds.
+
+    The heaviest mode is the particles within 1.5 m of the weighted mean of
+    the heaviest 3 m x 3 m block of a 1 m position histogram, after two
+    mean-shift steps (the filter's estimate); the next mode is found the same
+    way among the remaining particles, and so on, until less than 1 % of the
+    mass is left or `max_modes` modes are found.
+
+    Parameters
+    ----------
+    poses : ndarray, shape (M, 3)
+        Particles.
+    log_weights : ndarray, shape (M,), optional
+        Log-weights (normalised or not); equal weights if omitted.
+    max_modes : int, keyword-only
+        Largest number of modes returned.
+
+    Returns
+    -------
+    centres : ndarray, shape (K, 3)
+        Weighted mean pose of every mode (circular mean heading), heaviest first.
+    masses : ndarray, shape (K,)
+        Posterior mass of every mode; ``masses[0]`` is the filter's confidence
+        in its estimate (``MCLStepInfo.mode_mass``).
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Sec. 8.3.3 (multi-modal beliefs of global
+    localization); the estimate as the heaviest cluster follows ROS ``amcl``.
+    """
+    poses = as_array(poses, "poses", (None, 3))
+    if poses.shape[0] == 0:
+        raise ValueError("poses must hold at least one particle")
+    if log_weights is None:
+        lw = np.full(poses.shape[0], -np.log(poses.shape[0]))
+    else:
+        lw = as_array(log_weights, "log_weights", (poses.shape[0],), finite=False)
+        if np.any(np.isnan(lw)) or np.any(lw == np.inf):
+            raise ValueError("log_weights must not hold NaN or +inf")
+        lw = _safe_normalize(lw)
+    k = as_index(max_modes, "max_modes", lower=1)
+    return _modes(poses, np.exp(lw), k)
 
 
 def _cluster_mean(poses, w, cell=_CLUSTER_CELL, with_mass=False):

@@ -533,6 +533,21 @@ def test_estimate_is_the_heaviest_cluster():
     assert mass2 == pytest.approx(0.8)
 
 
+def test_particle_modes_lists_every_mode_with_its_mass():
+    rng = np.random.default_rng(2)
+    centres = np.array([[2.0, 3.0, 0.5], [14.0, 3.0, -2.0], [8.0, 9.0, 1.0]])
+    poses = np.vstack([c + rng.normal(0, 0.1, (n, 3)) for c, n in zip(centres, (500, 300, 200))])
+    got, mass = sl.particle_modes(poses)
+    np.testing.assert_allclose(mass, [0.5, 0.3, 0.2])
+    np.testing.assert_allclose(got[:, :2], centres[:, :2], atol=0.02)
+    got, mass = sl.particle_modes(poses, np.log(np.r_[np.full(500, 0.1 / 500), np.full(300, 0.895 / 300),
+                                                      np.full(200, 0.005 / 200)]))
+    np.testing.assert_allclose(mass, [0.895, 0.1])  # the third, under 1 %, is not a mode
+    assert sl.particle_modes(poses, max_modes=1)[1].shape == (1,)
+    with pytest.raises(ValueError, match="max_modes"):
+        sl.particle_modes(poses, max_modes=0)
+
+
 def test_a_uniform_cloud_is_not_a_confident_mode(sim):
     grid, *_ = sim
     poses = sl.sample_free_poses(grid, 5000, rng=np.random.default_rng(0))
