@@ -163,7 +163,7 @@ def mcl_figures():
     duration = float(log.laser_t[-1] - log.laser_t[0])
     out = {}
     # the library default (Augmented MCL with sensor resetting), plain MCL (Table 8.2) with the same
-    # particles as its baseline in the same run, plain MCL with the earlier default of 20 000, the beam model
+    # particles as its baseline in the same run, plain MCL with twice the particles, the beam model
     cases = (("default", "likelihood_field", None, "augmented", None), ("plain", "likelihood_field", None, "mcl", None),
              ("plain20k", "likelihood_field", None, "mcl", 20_000), ("beam", "beam", 100, "mcl", None))
     for key, name, max_steps, variant, n in cases:

@@ -240,7 +240,7 @@ def summarize(runs):
 
 def choose(table, configs, on):
     """The configuration with the best strict success on set `on` (then fewer confidently wrong, less CPU)."""
-    return max(configs, key=lambda c: (table[c][on]["strict"] / table[c][on]["trials"],
+    return max(configs, key=lambda c: (table[c][on]["strict"] / max(table[c][on]["trials"], 1),
                                        -table[c][on]["confidently_wrong_updates"], -table[c][on]["cpu_s"]))
 
 
@@ -266,6 +266,7 @@ def main(argv=None):
     ap.add_argument("--cache", default=os.path.join(tempfile.gettempdir(), "mcl_study_runs.jsonl"),
                     help="every finished run is appended here; runs already in it are not repeated")
     ap.add_argument("--json", help="write the summary and every trial to this file")
+    ap.add_argument("--cached-only", action="store_true", help="summarise the cached runs, run nothing")
     args = ap.parse_args(argv)
     screen = [c for c in CONFIGS if c not in args.configs] if args.screen == ["all"] else args.screen
     for c in list(args.configs) + list(screen):
@@ -306,6 +307,8 @@ def main(argv=None):
                 r = json.loads(line)
                 done[_key((r["config"], r["set"], r["trial"] if r["set"] == "sim" else tuple(r["trial"]), r["seed"]))] = r
     todo = [j for j in jobs if _key(j) not in done]
+    if args.cached_only:
+        jobs, todo = [j for j in jobs if _key(j) in done], []
     print(f"{len(jobs)} runs, {len(jobs) - len(todo)} of them cached in {cache_path}", flush=True)
     data = dict(sims=sims, logs=logs, refs=refs, angles=angles, updates=args.updates)
     t1 = time.perf_counter()

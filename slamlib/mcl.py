@@ -152,6 +152,11 @@ class AugmentedParams:
     p_min : float
         Smallest prior probability, per update, that the robot is somewhere
         else than the belief says: ``p = max(p_min, 1 - w_fast / w_slow)``.
+    average_start : {"first", "zero"}
+        Where ``w_slow`` and ``w_fast`` start. ``"zero"`` is Table 8.3: both
+        start at 0, so ``w_slow`` lags ``w_fast`` and nothing is injected for
+        about ``1 / alpha_slow`` updates. ``"first"`` starts both at the first
+        update's ``w_avg``, so the test works from the first update.
     """
 
     alpha_slow: float = 0.0
@@ -159,6 +164,7 @@ class AugmentedParams:
     proposal: str = "sensor"
     candidates: int = 10_000
     p_min: float = 0.01
+    average_start: str = "first"
 
     def __post_init__(self):
         a_s = as_scalar(self.alpha_slow, "alpha_slow", nonnegative=True)
@@ -170,6 +176,8 @@ class AugmentedParams:
             raise ValueError(f"p_min must be in [0, 1), got {pm}")
         if self.proposal not in _PROPOSALS:
             raise ValueError(f"proposal must be one of {_PROPOSALS}, got {self.proposal!r}")
+        if self.average_start not in ("first", "zero"):
+            raise ValueError(f"average_start must be 'first' or 'zero', got {self.average_start!r}")
         as_index(self.candidates, "candidates", lower=1)
 
 
@@ -783,8 +791,12 @@ def _averages(state, log_w_avg, aug):
     if not np.isfinite(log_w_avg):
         return state.log_w_slow, state.log_w_fast  # nothing measured: keep the averages
     if not (np.isfinite(state.log_w_slow) and np.isfinite(state.log_w_fast)):
-        # first update: start both averages at w_avg (Table 8.3 starts them at 0,
-        # which leaves w_slow lagging w_fast, and injection off, for ~1/alpha_slow steps)
+        if aug.average_start == "zero":
+            # Table 8.3: w_slow = w_fast = 0 before the first update, so w += alpha (w_avg - 0)
+            ls = np.log(aug.alpha_slow) + log_w_avg if aug.alpha_slow > 0 else -np.inf
+            lf = np.log(aug.alpha_fast) + log_w_avg if aug.alpha_fast > 0 else -np.inf
+            return float(ls), float(lf)
+        # first update: start both averages at w_avg, so that the test works from the first update
         return log_w_avg, log_w_avg
     # w_slow += alpha_slow (w_avg - w_slow); w_fast += alpha_fast (w_avg - w_fast)  (Table 8.3)
     return _log_mix(state.log_w_slow, log_w_avg, aug.alpha_slow), _log_mix(state.log_w_fast, log_w_avg, aug.alpha_fast)
