@@ -73,6 +73,7 @@ CONFIGS = {
     "estimate hysteresis 3": ("augmented", {"estimate_hysteresis": 3.0}),
     "KLD-sampling": ("kld", {}),
     "5000 particles": ("augmented", {"n_particles": 5000, "augmented.candidates": 5000}),
+    "20 000 particles": ("augmented", {"n_particles": 20_000, "augmented.candidates": 20_000}),
 }
 
 _WORK = {}

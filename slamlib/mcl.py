@@ -38,7 +38,11 @@ posterior; only the number of particles per mode changes.
 
 The step's estimate is the weighted mean of the heaviest cluster of particles
 (as ROS ``amcl`` reports), not the mean of all particles, which lies between the
-clusters while the belief is multi-modal.
+clusters while the belief is multi-modal. The estimate reports its own ambiguity:
+the mass of the heaviest mode and the number of modes (:func:`particle_modes`,
+``MCLStepInfo.mode_mass`` / ``n_modes``, ``MCLResult.ambiguity``). That mass is a
+posterior given the particles: it says nothing about poses no particle covers, so
+early in global localization a look-alike place can hold nearly all of it.
 
 Scans of a log are turned into filter steps by :func:`odometry_steps`: the
 control of a step is the odometry increment since the last *used* scan, and a
