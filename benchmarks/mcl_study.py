@@ -370,7 +370,8 @@ def main(argv=None):
                            configs={c: dict(variant=CONFIGS[c][0], overrides=CONFIGS[c][1])
                                     for c in list(args.configs) + list(screen)},
                            table=table, screen=screen_table, cross_validation=cv,
-                           runs=[{k: v for k, v in r.items()} for r in runs]), f, indent=None)
+                           runs=[{k: round(v, 4) if isinstance(v, float) else v for k, v in r.items()} for r in runs]),
+                      f, indent=None)
     return table, runs
 
 
