@@ -1042,11 +1042,11 @@ def augmented_mcl_step(state, u, ranges, angles, model, *, rng):
 
     Notes
     -----
-    Earlier versions averaged the per-beam geometric mean ``p(z | x)^(1/K)``
-    instead of the likelihood. That is not a change of scale: the ratio
+    Averaging the per-beam geometric mean ``p(z | x)^(1/K)`` instead of the
+    likelihood would not be a change of scale: the ratio
     ``w_fast / w_slow`` of per-beam averages is roughly the ``K``-th root of
     Table 8.3's ratio of scan likelihoods, so a drop of the fit that Table 8.3
-    would answer with ``p_inject = 0.9`` gave ``1 - 0.1^(1/18) = 0.12`` with 18
+    would answer with ``p_inject = 0.9`` would give ``1 - 0.1^(1/18) = 0.12`` with 18
     beams. Here ``w_avg`` is the average of the tempered likelihood
     ``p(z | x)^tau`` the filter weights with, kept in log space.
 
