@@ -297,7 +297,10 @@ class MCLParams:
         fifty modes with the defaults), because a corridor whose doors repeat
         every few metres has dozens of look-alike places; on Wean Hall log 2,
         keeping ten modes found the robot in 14 of 20 seeds, 25 modes in 19,
-        50 in 20 (``benchmarks/mcl_success.py``).
+        50 in 20 (``benchmarks/mcl_success.py``). That budget was chosen on
+        log 2; over the broader study of ``benchmarks/mcl_study.py``
+        (simulated drives and many start offsets on both logs) turning
+        mode-preserving resampling off made no measurable difference.
     mode_floor : float
         Modes with posterior mass below this are resampled as usual (they get
         ``M W_c`` particles, usually none): one in a million.
