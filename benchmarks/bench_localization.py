@@ -162,8 +162,9 @@ def mcl_figures():
     grid, log = cmu.load_cmu_map(), cmu.load_cmu_log()
     duration = float(log.laser_t[-1] - log.laser_t[0])
     out = {}
+    cpu = {}
     # the library default (Augmented MCL with sensor resetting), plain MCL (Table 8.2) with the same
-    # particles as its baseline in the same run, plain MCL with the earlier default of 20 000, the beam model
+    # particles as its baseline in the same run, plain MCL with twice the particles, the beam model
     cases = (("default", "likelihood_field", None, "augmented", None), ("plain", "likelihood_field", None, "mcl", None),
              ("plain20k", "likelihood_field", None, "mcl", 20_000), ("beam", "beam", 100, "mcl", None))
     for key, name, max_steps, variant, n in cases:
@@ -171,11 +172,13 @@ def mcl_figures():
         if n is not None:
             params = dataclasses.replace(params, n_particles=n)
         model = sl.prepare_mcl(grid, params)
+        cpu0 = time.process_time()
         res = sl.run_mcl(model, log.laser_pose, log.ranges, log.angles, rng=np.random.default_rng(0),
                          times=log.laser_t, max_steps=max_steps, variant=variant)
+        cpu[key] = time.process_time() - cpu0  # CPU time of this process: what the run costs on an idle core
         covered = float(res.t[-1] - log.laser_t[0]) if max_steps else duration
         out[key] = (params, len(res), res.runtime, covered)
-    return duration, out
+    return duration, out, cpu
 
 
 def main():
@@ -202,7 +205,7 @@ def main():
     factor = t_loop / REFERENCE_LOOP_US
     print(f"\nThe Python loop ran at {t_loop:.1f} us/particle here, {factor:.2f}x the reference figure: on the "
           f"reference machine the vectorised step would take about {t_vec / factor:.2f} us/particle.")
-    duration, mcl = mcl_figures()
+    duration, mcl, cpu = mcl_figures()
     p, steps, runtime, covered = mcl["default"]
     n_beams = len(range(0, 180, p.beam_step))
     factor = duration / runtime
@@ -212,7 +215,8 @@ def main():
           f"{p.augmented.candidates:,} candidates), likelihood field, {n_beams} of 180 beams, CMU Wean Hall log 1 "
           f"({duration:.0f} s, {steps} filter steps):")
     print(f"    {runtime:.2f} s for the whole log = {factor:.0f}x real time (baseline: the log's own duration); "
-          f"target >= 10x  {'PASS' if factor >= 10 else 'MISS'}")
+          f"target >= 10x  {'PASS' if factor >= 10 else 'MISS'}; by the process's CPU time "
+          f"{duration / cpu['default']:.0f}x (what an idle core would give)")
     print(f"    plain MCL (Table 8.2), same particles, same run: {t_plain:.2f} s = {duration / t_plain:.0f}x real time; "
           f"the default costs {runtime / t_plain:.2f}x plain MCL and {runtime / t_20k:.2f}x plain MCL with 20 000 "
           f"particles ({t_20k:.2f} s)")

@@ -38,7 +38,11 @@ posterior; only the number of particles per mode changes.
 
 The step's estimate is the weighted mean of the heaviest cluster of particles
 (as ROS ``amcl`` reports), not the mean of all particles, which lies between the
-clusters while the belief is multi-modal.
+clusters while the belief is multi-modal. The estimate reports its own ambiguity:
+the mass of the heaviest mode and the number of modes (:func:`particle_modes`,
+``MCLStepInfo.mode_mass`` / ``n_modes``, ``MCLResult.ambiguity``). That mass is a
+posterior given the particles: it says nothing about poses no particle covers, so
+early in global localization a look-alike place can hold nearly all of it.
 
 Scans of a log are turned into filter steps by :func:`odometry_steps`: the
 control of a step is the odometry increment since the last *used* scan, and a
@@ -94,6 +98,7 @@ __all__ = [
     "kld_sample_size",
     "kld_mcl_step",
     "particle_summary",
+    "particle_modes",
     "scan_endpoints",
     "endpoint_distances",
     "run_mcl",
@@ -103,6 +108,7 @@ _MODELS = ("likelihood_field", "beam")
 _VARIANTS = ("mcl", "augmented", "kld")
 _PROPOSALS = ("sensor", "uniform")
 _MODE_BUDGET = 0.5  # at most this share of the particles goes to the minimum shares of modes
+_MODE_REPORT = 0.01  # modes with less mass are not counted in MCLStepInfo.n_modes
 _CLUSTER_CELL = 1.0  # [m] cells of the position histogram that finds the clusters (modes) of the belief
 
 
@@ -150,6 +156,11 @@ class AugmentedParams:
     p_min : float
         Smallest prior probability, per update, that the robot is somewhere
         else than the belief says: ``p = max(p_min, 1 - w_fast / w_slow)``.
+    average_start : {"first", "zero"}
+        Where ``w_slow`` and ``w_fast`` start. ``"zero"`` is Table 8.3: both
+        start at 0, so ``w_slow`` lags ``w_fast`` and nothing is injected for
+        about ``1 / alpha_slow`` updates. ``"first"`` starts both at the first
+        update's ``w_avg``, so the test works from the first update.
     """
 
     alpha_slow: float = 0.0
@@ -157,6 +168,7 @@ class AugmentedParams:
     proposal: str = "sensor"
     candidates: int = 10_000
     p_min: float = 0.01
+    average_start: str = "first"
 
     def __post_init__(self):
         a_s = as_scalar(self.alpha_slow, "alpha_slow", nonnegative=True)
@@ -168,6 +180,8 @@ class AugmentedParams:
             raise ValueError(f"p_min must be in [0, 1), got {pm}")
         if self.proposal not in _PROPOSALS:
             raise ValueError(f"proposal must be one of {_PROPOSALS}, got {self.proposal!r}")
+        if self.average_start not in ("first", "zero"):
+            raise ValueError(f"average_start must be 'first' or 'zero', got {self.average_start!r}")
         as_index(self.candidates, "candidates", lower=1)
 
 
@@ -283,10 +297,19 @@ class MCLParams:
         fifty modes with the defaults), because a corridor whose doors repeat
         every few metres has dozens of look-alike places; on Wean Hall log 2,
         keeping ten modes found the robot in 14 of 20 seeds, 25 modes in 19,
-        50 in 20 (``benchmarks/mcl_success.py``).
+        50 in 20 (``benchmarks/mcl_success.py``). That budget was chosen on
+        log 2; over the broader study of ``benchmarks/mcl_study.py``
+        (simulated drives and many start offsets on both logs) turning
+        mode-preserving resampling off made no measurable difference.
     mode_floor : float
         Modes with posterior mass below this are resampled as usual (they get
         ``M W_c`` particles, usually none): one in a million.
+    estimate_hysteresis : float
+        The estimate stays with the mode of the previous estimate (the
+        particles within 1.5 m of it, after two mean-shift steps) as long as
+        that mode's mass is at least ``1 / estimate_hysteresis`` of the
+        heaviest mode's; otherwise it moves to the heaviest mode. ``1`` always
+        takes the heaviest.
     augmented : AugmentedParams
         Used by :func:`augmented_mcl_step` (the default variant of
         :func:`run_mcl`).
@@ -316,6 +339,7 @@ class MCLParams:
     reject_unknown: bool = True
     mode_particles: int = 100
     mode_floor: float = 1e-6
+    estimate_hysteresis: float = 1.0
     augmented: AugmentedParams = field(default_factory=AugmentedParams)
     kld: KLDParams = field(default_factory=KLDParams)
 
@@ -339,6 +363,9 @@ class MCLParams:
         if thr > 1.0:
             raise ValueError(f"resample_threshold must be in [0, 1], got {thr}")
         as_index(self.mode_particles, "mode_particles")
+        h = as_scalar(self.estimate_hysteresis, "estimate_hysteresis", positive=True)
+        if h < 1.0:
+            raise ValueError(f"estimate_hysteresis must be >= 1, got {h}")
         mf = as_scalar(self.mode_floor, "mode_floor", positive=True)
         if mf >= 1.0:
             raise ValueError(f"mode_floor must be in (0, 1), got {mf}")
@@ -384,12 +411,16 @@ class MCLState:
         Logarithms of the long- and short-term averages of the measurement
         likelihood (Augmented MCL, Table 8.3); ``-inf`` until the first update,
         which sets both to its average likelihood.
+    estimate : ndarray, shape (3,), optional
+        The last step's pose estimate (``None`` before the first step); the
+        next step's estimate keeps to its mode (``estimate_hysteresis``).
     """
 
     poses: np.ndarray
     log_weights: np.ndarray
     log_w_slow: float = -np.inf
     log_w_fast: float = -np.inf
+    estimate: np.ndarray | None = None
 
     @property
     def weights(self):
@@ -439,6 +470,13 @@ class MCLStepInfo(NamedTuple):
         Weighted mean of the heaviest cluster of those particles (see
         :func:`particle_estimate`): the pose estimate, which stays in one place
         when the particles form several clusters.
+    mode_mass : float
+        Posterior mass of the heaviest mode (the particles within 1.5 m of
+        the estimate): the filter's own measure of how sure it is.
+    n_modes : int
+        Number of modes holding at least 1 % of the mass (found greedily:
+        the heaviest mode, then the heaviest among the remaining particles,
+        ...; at most 8).
     """
 
     ess: float
@@ -450,6 +488,8 @@ class MCLStepInfo(NamedTuple):
     spread: float
     heading_spread: float
     estimate: np.ndarray
+    mode_mass: float = 1.0
+    n_modes: int = 1
 
 
 @dataclass(frozen=True)
@@ -489,6 +529,10 @@ class MCLResult:
         Particle set after the last step.
     runtime : float
         Wall time of the filter loop [s].
+    mode_mass : ndarray, shape (S,)
+        Mass of the heaviest mode after every update (:class:`MCLStepInfo`).
+    n_modes : ndarray of int, shape (S,)
+        Number of modes holding at least 1 % of the mass.
     """
 
     scan_index: np.ndarray
@@ -507,9 +551,15 @@ class MCLResult:
     snapshots: list
     final: MCLState
     runtime: float
+    mode_mass: np.ndarray = None
+    n_modes: np.ndarray = None
 
     def __len__(self):
         return self.scan_index.shape[0]
+
+    def ambiguity(self):
+        """Per update: mass of the heaviest mode and number of modes (>= 1 % of the mass)."""
+        return self.mode_mass, self.n_modes
 
 
 # --------------------------------------------------------------------------- checks
@@ -748,8 +798,12 @@ def _averages(state, log_w_avg, aug):
     if not np.isfinite(log_w_avg):
         return state.log_w_slow, state.log_w_fast  # nothing measured: keep the averages
     if not (np.isfinite(state.log_w_slow) and np.isfinite(state.log_w_fast)):
-        # first update: start both averages at w_avg (Table 8.3 starts them at 0,
-        # which leaves w_slow lagging w_fast, and injection off, for ~1/alpha_slow steps)
+        if aug.average_start == "zero":
+            # Table 8.3: w_slow = w_fast = 0 before the first update, so w += alpha (w_avg - 0)
+            ls = np.log(aug.alpha_slow) + log_w_avg if aug.alpha_slow > 0 else -np.inf
+            lf = np.log(aug.alpha_fast) + log_w_avg if aug.alpha_fast > 0 else -np.inf
+            return float(ls), float(lf)
+        # first update: start both averages at w_avg, so that the test works from the first update
         return log_w_avg, log_w_avg
     # w_slow += alpha_slow (w_avg - w_slow); w_fast += alpha_fast (w_avg - w_fast)  (Table 8.3)
     return _log_mix(state.log_w_slow, log_w_avg, aug.alpha_slow), _log_mix(state.log_w_fast, log_w_avg, aug.alpha_fast)
@@ -920,14 +974,14 @@ def mcl_step(state, u, ranges, angles, model, *, rng):
     state, u, ranges, angles, model = _check_step_args(state, u, ranges, angles, model, rng)
     poses, ll = _predict_and_weight(state, u, ranges, angles, model, rng)
     log_w, log_w_avg = _update(state, poses, ll, model)
-    summary = _summary(poses, log_w)
+    summary = _summary(poses, log_w, state.estimate, model.params.estimate_hysteresis)
     w, ess, do = _resample_mask(log_w, model.params.resample_threshold)
     if do:
         # draw i with probability proportional to w_t^[i]  (Table 8.2 lines 8-11)
         idx = particle.low_variance_resample(w, rng=rng)
         poses, log_w = poses[idx], np.full(idx.size, -np.log(idx.size))
     log_slow, log_fast = _averages(state, log_w_avg, model.params.augmented)  # tracked, not used
-    new = MCLState(poses=poses, log_weights=log_w, log_w_slow=log_slow, log_w_fast=log_fast)
+    new = MCLState(poses=poses, log_weights=log_w, log_w_slow=log_slow, log_w_fast=log_fast, estimate=summary[3])
     return new, MCLStepInfo(ess, poses.shape[0], bool(do), 0, log_w_avg, *summary)
 
 
@@ -991,11 +1045,11 @@ def augmented_mcl_step(state, u, ranges, angles, model, *, rng):
 
     Notes
     -----
-    Earlier versions averaged the per-beam geometric mean ``p(z | x)^(1/K)``
-    instead of the likelihood. That is not a change of scale: the ratio
+    Averaging the per-beam geometric mean ``p(z | x)^(1/K)`` instead of the
+    likelihood would not be a change of scale: the ratio
     ``w_fast / w_slow`` of per-beam averages is roughly the ``K``-th root of
     Table 8.3's ratio of scan likelihoods, so a drop of the fit that Table 8.3
-    would answer with ``p_inject = 0.9`` gave ``1 - 0.1^(1/18) = 0.12`` with 18
+    would answer with ``p_inject = 0.9`` would give ``1 - 0.1^(1/18) = 0.12`` with 18
     beams. Here ``w_avg`` is the average of the tempered likelihood
     ``p(z | x)^tau`` the filter weights with, kept in log space.
 
@@ -1010,7 +1064,7 @@ def augmented_mcl_step(state, u, ranges, angles, model, *, rng):
     aug = p.augmented
     poses, ll = _predict_and_weight(state, u, ranges, angles, model, rng)
     log_w, log_w_avg = _update(state, poses, ll, model)
-    summary = _summary(poses, log_w)
+    summary = _summary(poses, log_w, state.estimate, p.estimate_hysteresis)
     log_slow, log_fast = _averages(state, log_w_avg, aug)
     # prior probability of a new pose: max(0, 1 - w_fast / w_slow)  (Table 8.3); 1 if no particle fits at all
     p_inject = 1.0 if not np.isfinite(log_w_avg) else max(aug.p_min, _injection_probability(log_slow, log_fast))
@@ -1048,7 +1102,7 @@ def augmented_mcl_step(state, u, ranges, angles, model, *, rng):
             log_w[slots] = np.log(frac) - np.log(n_inj)
         else:
             log_w = np.full(m, -np.log(m))
-    new = MCLState(poses=poses, log_weights=log_w, log_w_slow=log_slow, log_w_fast=log_fast)
+    new = MCLState(poses=poses, log_weights=log_w, log_w_slow=log_slow, log_w_fast=log_fast, estimate=summary[3])
     return new, MCLStepInfo(ess, m, bool(do), n_inj, log_w_avg, *summary)
 
 
@@ -1186,23 +1240,97 @@ def kld_mcl_step(state, u, ranges, angles, model, *, rng):
     log_w_avg = float(logsumexp(tll[finite]) - np.log(tll.size)) if np.any(finite) else -np.inf
     ess = float(particle.effective_sample_size(np.exp(log_w)))
     log_slow, log_fast = _averages(state, log_w_avg, p.augmented)  # tracked, not used
-    new = MCLState(poses=poses, log_weights=log_w, log_w_slow=log_slow, log_w_fast=log_fast)
-    return new, MCLStepInfo(ess, poses.shape[0], True, 0, log_w_avg, *_summary(poses, log_w))
+    summary = _summary(poses, log_w, state.estimate, p.estimate_hysteresis)
+    new = MCLState(poses=poses, log_weights=log_w, log_w_slow=log_slow, log_w_fast=log_fast, estimate=summary[3])
+    return new, MCLStepInfo(ess, poses.shape[0], True, 0, log_w_avg, *summary)
 
 
 # --------------------------------------------------------------------------- summaries
-def _summary(poses, log_w):
+def _summary(poses, log_w, previous=None, hysteresis=1.0):
+    """Mean, spread, heading spread, estimate, mass of the heaviest mode, number of modes (>= 1 %)."""
     w = np.exp(log_w)
     xy = w @ poses[:, :2]
     c, s = np.dot(w, np.cos(poses[:, 2])), np.dot(w, np.sin(poses[:, 2]))
     spread = float(np.sqrt(max(np.dot(w, np.sum((poses[:, :2] - xy) ** 2, axis=1)), 0.0)))
     r = min(float(np.hypot(c, s)), 1.0)
     heading_spread = float(np.sqrt(-2.0 * np.log(r))) if r > 0 else np.inf
+    centres, masses = _modes(poses, w)
+    estimate = centres[0]
+    if previous is not None and hysteresis > 1.0:
+        # keep to the previous estimate's mode while it holds at least 1/hysteresis of the heaviest mode's mass
+        kept, kept_mass, _ = _mean_shift(poses, w, previous[:2])
+        if kept_mass * hysteresis >= masses[0]:
+            estimate = kept
     # circular mean heading atan2(sum w sin, sum w cos); R = |sum w e^{i theta}|
-    return np.array([xy[0], xy[1], circular_mean(poses[:, 2], w)]), spread, heading_spread, _cluster_mean(poses, w)
+    return (np.array([xy[0], xy[1], circular_mean(poses[:, 2], w)]), spread, heading_spread, estimate,
+            float(masses[0]), int(np.count_nonzero(masses >= _MODE_REPORT)))
 
 
-def _cluster_mean(poses, w, cell=_CLUSTER_CELL):
+def _modes(poses, w, max_modes=8):
+    """Poses ``(K, 3)`` and masses ``(K,)`` of up to `max_modes` modes, heaviest first.
+
+    Modes are found greedily: the heaviest mode (:func:`_cluster_mean`), then the heaviest
+    among the particles not yet assigned, and so on, until less than ``_MODE_REPORT`` of the mass is left.
+    """
+    centre, mass, near = _cluster_mean(poses, w, with_mass=True)
+    centres, masses = [centre], [mass]
+    rest = w.copy()
+    for _ in range(max_modes - 1):
+        rest[near] = 0.0
+        if rest.sum() < _MODE_REPORT:
+            break
+        centre, mass, near = _cluster_mean(poses, rest, with_mass=True)
+        centres.append(centre)
+        masses.append(mass)
+    return np.array(centres), np.array(masses)
+
+
+def particle_modes(poses, log_weights=None, *, max_modes=8):
+    """The modes of a particle set: where each one is and how much of the belief it holds.
+
+    The heaviest mode is the particles within 1.5 m of the weighted mean of
+    the heaviest 3 m x 3 m block of a 1 m position histogram, after two
+    mean-shift steps (the filter's estimate); the next mode is found the same
+    way among the remaining particles, and so on, until less than 1 % of the
+    mass is left or `max_modes` modes are found.
+
+    Parameters
+    ----------
+    poses : ndarray, shape (M, 3)
+        Particles.
+    log_weights : ndarray, shape (M,), optional
+        Log-weights (normalised or not); equal weights if omitted.
+    max_modes : int, keyword-only
+        Largest number of modes returned.
+
+    Returns
+    -------
+    centres : ndarray, shape (K, 3)
+        Weighted mean pose of every mode (circular mean heading), heaviest first.
+    masses : ndarray, shape (K,)
+        Posterior mass of every mode; ``masses[0]`` is the filter's confidence
+        in its estimate (``MCLStepInfo.mode_mass``).
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Sec. 8.3.3 (multi-modal beliefs of global
+    localization); the estimate as the heaviest cluster follows ROS ``amcl``.
+    """
+    poses = as_array(poses, "poses", (None, 3))
+    if poses.shape[0] == 0:
+        raise ValueError("poses must hold at least one particle")
+    if log_weights is None:
+        lw = np.full(poses.shape[0], -np.log(poses.shape[0]))
+    else:
+        lw = as_array(log_weights, "log_weights", (poses.shape[0],), finite=False)
+        if np.any(np.isnan(lw)) or np.any(lw == np.inf):
+            raise ValueError("log_weights must not hold NaN or +inf")
+        lw = _safe_normalize(lw)
+    k = as_index(max_modes, "max_modes", lower=1)
+    return _modes(poses, np.exp(lw), k)
+
+
+def _cluster_mean(poses, w, cell=_CLUSTER_CELL, with_mass=False):
     """Weighted mean of the heaviest cluster: the particles near the heaviest 3 x 3 block of a position histogram."""
     ij = np.floor(poses[:, :2] / cell).astype(np.int64)
     base = ij.min(axis=0) - 1  # one empty cell of margin on every side
@@ -1211,15 +1339,20 @@ def _cluster_mean(poses, w, cell=_CLUSTER_CELL):
     hist = np.bincount(ij[:, 0] * ny + ij[:, 1], weights=w, minlength=nx * ny).reshape(nx, ny)
     block = sum(hist[1 + di:nx - 1 + di, 1 + dj:ny - 1 + dj] for di in (-1, 0, 1) for dj in (-1, 0, 1))
     bi, bj = np.unravel_index(np.argmax(block), block.shape)
-    centre = (base + [bi + 1, bj + 1] + 0.5) * cell
+    out = _mean_shift(poses, w, (base + [bi + 1, bj + 1] + 0.5) * cell, cell)
+    return out if with_mass else out[0]
+
+
+def _mean_shift(poses, w, centre, cell=_CLUSTER_CELL):
+    """Two mean-shift steps (radius 1.5 cells) from `centre`: the mode's pose, its mass and its particles."""
     near, wn = np.ones(w.size, dtype=bool), w
-    for _ in range(2):  # two mean-shift steps from the block's centre, radius 1.5 cells
+    for _ in range(2):
         inside = np.sum((poses[:, :2] - centre) ** 2, axis=1) <= (1.5 * cell) ** 2
         if not np.any(w[inside] > 0):
             break
         near, wn = inside, w[inside]
         centre = (wn / wn.sum()) @ poses[near, :2]
-    return np.array([centre[0], centre[1], circular_mean(poses[near, 2], wn)])
+    return np.array([centre[0], centre[1], circular_mean(poses[near, 2], wn)]), float(wn.sum()), near
 
 
 def particle_summary(poses, log_weights=None):
@@ -1414,6 +1547,8 @@ def run_mcl(model, odom_poses, ranges, angles, *, rng, variant="augmented", init
     log_w_avg = np.empty(S)
     log_w_slow = np.empty(S)
     log_w_fast = np.empty(S)
+    mode_mass = np.empty(S)
+    n_modes = np.empty(S, dtype=np.intp)
     shots = []
     snap_set = set(snap.tolist())
     t0 = time.perf_counter()
@@ -1422,10 +1557,11 @@ def run_mcl(model, odom_poses, ranges, angles, *, rng, variant="augmented", init
         mean[s], estimate[s], spread[s], hspread[s] = info.mean, info.estimate, info.spread, info.heading_spread
         ess[s], count[s], injected[s] = info.ess, info.n_particles, info.n_injected
         log_w_avg[s], log_w_slow[s], log_w_fast[s] = info.log_w_avg, state.log_w_slow, state.log_w_fast
+        mode_mass[s], n_modes[s] = info.mode_mass, info.n_modes
         if s in snap_set:
             shots.append(state)
     runtime = time.perf_counter() - t0
     return MCLResult(scan_index=index, t=t_all[index], mean=mean, estimate=estimate, spread=spread, heading_spread=hspread, ess=ess,
                      n_particles=count, n_injected=injected, log_w_avg=log_w_avg, log_w_slow=log_w_slow,
                      log_w_fast=log_w_fast, snapshot_steps=snap,
-                     snapshots=shots, final=state, runtime=runtime)
+                     snapshots=shots, final=state, runtime=runtime, mode_mass=mode_mass, n_modes=n_modes)

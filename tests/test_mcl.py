@@ -467,6 +467,21 @@ def test_log_space_averages_follow_table_8_3():
     assert mcl._injection_probability(ls, lf) == pytest.approx(1 - np.exp(lf - ls))
 
 
+def test_averages_can_start_at_zero_as_table_8_3_prints():
+    aug = mcl.AugmentedParams(alpha_slow=0.05, alpha_fast=0.5, average_start="zero")
+    state = mcl.MCLState(np.zeros((1, 3)), np.zeros(1))
+    slow = fast = 0.0
+    for w in (0.3, 0.2, 0.25, 0.01):
+        ls, lf = mcl._averages(state, np.log(w), aug)
+        slow, fast = slow + 0.05 * (w - slow), fast + 0.5 * (w - fast)
+        np.testing.assert_allclose([np.exp(ls), np.exp(lf)], [slow, fast], rtol=1e-12)
+        state = mcl.MCLState(np.zeros((1, 3)), np.zeros(1), log_w_slow=ls, log_w_fast=lf)
+    # w_slow lags w_fast at the start: no injection until the fit drops
+    assert mcl._injection_probability(*mcl._averages(mcl.MCLState(np.zeros((1, 3)), np.zeros(1)), np.log(0.3), aug)) == 0
+    with pytest.raises(ValueError, match="average_start"):
+        mcl.AugmentedParams(average_start="one")
+
+
 def test_injected_fraction_is_bayes_rule_for_the_mixture_prior():
     # p Z_U / (p Z_U + (1 - p) w_avg)
     for p, w_avg, z_u in ((0.01, 1e-2, 1e-3), (0.3, 1e-5, 1e-3), (0.5, 1.0, 1.0)):
@@ -520,14 +535,62 @@ def test_estimate_is_the_heaviest_cluster():
     b = np.array([14.0, 3.0, -2.0]) + rng.normal(0, 0.1, (400, 3))
     poses = np.vstack([a, b])
     lw = np.full(1000, -np.log(1000))
-    mean, _, _, est = mcl._summary(poses, lw)
+    mean, _, _, est, mass, n_modes = mcl._summary(poses, lw)
     assert abs(mean[0] - 6.8) < 0.2  # the mean lies between the clusters
     np.testing.assert_allclose(est[:2], a[:, :2].mean(axis=0), atol=1e-9)
     assert abs(sl.angle_diff(est[2], 0.5)) < 0.05
+    # the estimate reports its ambiguity: the heaviest mode holds 60 %, and there are two modes
+    assert mass == pytest.approx(0.6) and n_modes == 2
     # weight, not the number of particles, decides
     lw2 = np.log(np.r_[np.full(600, 0.2 / 600), np.full(400, 0.8 / 400)])
-    est2 = mcl._summary(poses, lw2)[3]
+    est2, mass2 = mcl._summary(poses, lw2)[3:5]
     np.testing.assert_allclose(est2[:2], b[:, :2].mean(axis=0), atol=1e-9)
+    assert mass2 == pytest.approx(0.8)
+
+
+def test_particle_modes_lists_every_mode_with_its_mass():
+    rng = np.random.default_rng(2)
+    centres = np.array([[2.0, 3.0, 0.5], [14.0, 3.0, -2.0], [8.0, 9.0, 1.0]])
+    poses = np.vstack([c + rng.normal(0, 0.1, (n, 3)) for c, n in zip(centres, (500, 300, 200))])
+    got, mass = sl.particle_modes(poses)
+    np.testing.assert_allclose(mass, [0.5, 0.3, 0.2])
+    np.testing.assert_allclose(got[:, :2], centres[:, :2], atol=0.02)
+    got, mass = sl.particle_modes(poses, np.log(np.r_[np.full(500, 0.1 / 500), np.full(300, 0.895 / 300),
+                                                      np.full(200, 0.005 / 200)]))
+    np.testing.assert_allclose(mass, [0.895, 0.1])  # the third, under 1 %, is not a mode
+    assert sl.particle_modes(poses, max_modes=1)[1].shape == (1,)
+    with pytest.raises(ValueError, match="max_modes"):
+        sl.particle_modes(poses, max_modes=0)
+
+
+def test_a_uniform_cloud_is_not_a_confident_mode(sim):
+    grid, *_ = sim
+    poses = sl.sample_free_poses(grid, 5000, rng=np.random.default_rng(0))
+    _, _, _, _, mass, n_modes = mcl._summary(poses, np.full(5000, -np.log(5000)))
+    assert mass < 0.2 and n_modes == 8  # spread over the map: no mode holds much
+
+
+def test_estimate_hysteresis_keeps_the_previous_mode_until_another_clearly_wins():
+    rng = np.random.default_rng(5)
+    a = np.array([2.0, 3.0, 0.5]) + rng.normal(0, 0.1, (500, 3))
+    b = np.array([14.0, 3.0, -2.0]) + rng.normal(0, 0.1, (500, 3))
+    poses = np.vstack([a, b])
+    for share_b, h, expect in ((0.6, 1.0, b), (0.6, 2.0, a), (0.7, 2.0, b)):
+        lw = np.log(np.r_[np.full(500, (1 - share_b) / 500), np.full(500, share_b / 500)])
+        est = mcl._summary(poses, lw, previous=np.array([2.0, 3.0, 0.5]), hysteresis=h)[3]
+        np.testing.assert_allclose(est[:2], expect[:, :2].mean(axis=0), atol=1e-9)
+    with pytest.raises(ValueError, match="estimate_hysteresis"):
+        mcl.MCLParams(estimate_hysteresis=0.5)
+
+
+def test_run_mcl_reports_its_ambiguity(sim):
+    grid, truth, odom, z = sim
+    model = mcl.prepare_mcl(grid, mcl.MCLParams(**SIM_PARAMS))
+    res = mcl.run_mcl(model, odom, z, ANGLES, rng=np.random.default_rng(0), variant="mcl")
+    mass, n_modes = res.ambiguity()
+    assert mass.shape == n_modes.shape == (len(res),)
+    assert mass[0] < 0.9 and n_modes[0] > 1  # the start: spread over several modes
+    assert mass[-1] > 0.95 and n_modes[-1] == 1  # converged on the truth: one mode
 
 
 # --------------------------------------------------------------------------- mode-preserving resampling
@@ -634,3 +697,67 @@ def test_wean_log_2_the_right_mode_survives_scans_that_favour_a_look_alike():
             assert np.hypot(*(res.estimate[-1, :2] - end)) < 0.5, res.estimate[-1]
     assert min(near[100]) >= 100, near
     assert min(near[0]) < 20, near
+
+
+# --------------------------------------------------------------------------- the study harness (benchmarks/mcl_study.py)
+def _study_module():
+    import importlib.util
+    from pathlib import Path
+
+    bench = Path(__file__).resolve().parents[1] / "benchmarks"
+    import sys
+
+    sys.path.insert(0, str(bench))
+    spec = importlib.util.spec_from_file_location("mcl_study", bench / "mcl_study.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_study_wilson_interval_matches_known_values():
+    study = _study_module()
+    np.testing.assert_allclose(study.wilson(5, 10), (0.2366, 0.7634), atol=1e-4)
+    np.testing.assert_allclose(study.wilson(0, 10), (0.0, 0.2775), atol=1e-4)
+    np.testing.assert_allclose(study.wilson(20, 20), (0.8389, 1.0), atol=1e-4)
+
+
+def test_study_simulated_trial_is_collision_free_and_noisy_as_the_models_say():
+    from slamlib.datasets import cmu
+
+    study = _study_module()
+    grid = cmu.load_cmu_map()
+    params = study.make_params({})
+    field = sl.likelihood_field(grid, max_dist=params.max_dist, threshold=params.occupied_threshold)
+    roadmap = study._roadmap(grid, field, params.free_threshold)
+    angles = np.linspace(-np.pi / 2, np.pi / 2, 180, endpoint=False)
+    trial = study.simulate_trial(grid, field, roadmap, params, angles, 40, np.random.default_rng(0))
+    truth = trial["truth"]
+    assert truth.shape == (40, 3) and trial["ranges"].shape == (40, 180)
+    assert grid.is_free(truth[:, :2], params.free_threshold).all() and field.distance_at(truth[:, :2]).min() >= 0.25
+    step = np.hypot(*np.diff(truth[:, :2], axis=0).T)
+    np.testing.assert_allclose(step, study.SIM_STEP, atol=0.02)
+    # odometry: the true increments plus the motion model's noise (not the truth itself, not far from it)
+    u_true = sl.odometry_from_poses(truth[:-1], truth[1:])
+    u_odom = sl.odometry_from_poses(trial["odom"][:-1], trial["odom"][1:])
+    d_trans = u_odom[:, 1] - u_true[:, 1]
+    assert 0 < np.std(d_trans) < 3 * np.sqrt(params.alpha[2]) * study.SIM_STEP
+    # scans: most beams within 3 sigma_hit of the ray-cast range
+    z_star = sl.ray_cast(grid, truth, angles, params.z_max, sensor_offset=params.sensor_offset,
+                         threshold=params.occupied_threshold)
+    hit = np.abs(trial["ranges"] - z_star) < 3 * params.sigma_hit
+    assert 0.8 < hit.mean() < 0.97
+
+
+def test_study_truth_between_updates_follows_the_odometry():
+    study = _study_module()
+
+    class Ref:
+        scan_index = np.array([0, 3])
+        mean = np.array([[1.0, 2.0, 0.5], [5.0, 5.0, 1.0]])
+
+    odom = np.array([[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.2, 0.0, 0.1], [0.3, 0.0, 0.1], [0.5, 0.0, 0.1]])
+    got = study.truth_at(Ref, odom, np.array([0, 2, 3, 4]))
+    np.testing.assert_allclose(got[0], Ref.mean[0])
+    np.testing.assert_allclose(got[2], Ref.mean[1])
+    np.testing.assert_allclose(got[1], sl.odometry_motion(Ref.mean[0], sl.odometry_from_poses(odom[0], odom[2])))
+    np.testing.assert_allclose(got[3], sl.odometry_motion(Ref.mean[1], sl.odometry_from_poses(odom[3], odom[4])))

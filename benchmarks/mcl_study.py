@@ -1,0 +1,379 @@
+"""Global localization over a distribution of trials: success rates with confidence intervals.
+
+Two sets of trials, each judged against its truth:
+
+* **logs**: the two shipped CMU Wean Hall logs, the filter started from a uniform cloud at many
+  start offsets (update ``j`` of the log's reference track, evenly spaced), each run for
+  ``--updates`` filter updates; the truth is the reference track of ``benchmarks/mcl_success.py``
+  (plain MCL started around the scan-matched start pose, checked against the map there);
+* **sim**: random collision-free trajectories in the Wean Hall map (shortest paths between random
+  free places with 0.5 m clearance, smoothed), scans ray-cast from the true poses with the beam
+  model's noise (``MCLParams``' mixture: hit, short, max, random), odometry drawn from the odometry
+  motion model with the filter's ``alpha`` around the true increments.
+
+Per trial, over the second half of its updates: *strict* success (the estimate within 0.5 m at
+every update), the share of updates within 0.5 m; over all updates: *confidently wrong* updates
+(the estimate more than 0.5 m off while the heaviest mode holds more than 90 % of the mass,
+``MCLResult.mode_mass``). Rates come with Wilson 95 % intervals (log trials from overlapping
+windows of two logs are not independent: their interval is optimistic).
+
+Configurations differ from the library defaults in one mechanism each (``CONFIGS``). Cross-
+validation: the configuration with the best strict success (ties: fewer confidently-wrong updates,
+then fewer CPU seconds) is chosen on one set and reported on the other, both ways.
+
+    python benchmarks/mcl_study.py                        # defaults and plain MCL on the full study
+    python benchmarks/mcl_study.py --screen all           # ... and every mechanism on a development subset
+    python benchmarks/mcl_study.py --screen all --json chapters/data/mcl_study.json   # the chapter's data
+
+Finished runs are appended to a cache file (``--cache``), so an interrupted study resumes.
+
+Run it under ``nice -n 10`` with one BLAS thread (set below).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import sys
+import tempfile
+import time
+from multiprocessing import get_context
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+from scipy import sparse  # noqa: E402
+from scipy.sparse import csgraph  # noqa: E402
+from scipy.stats import norm  # noqa: E402
+
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), ".."))
+sys.path.insert(0, os.path.dirname(__file__))
+
+import slamlib as sl  # noqa: E402
+from slamlib.datasets import cmu  # noqa: E402
+from mcl_success import reference_track  # noqa: E402
+
+RADIUS = 0.5  # [m] an update is right when the estimate is within this distance of the truth
+CONFIDENT = 0.9  # an update is confidently wrong when it is wrong and the heaviest mode holds more than this
+SIM_STEP = 0.3  # [m] between simulated scans (one filter update each: the filter updates every 0.2 m)
+SIM_SPEED = 0.3  # [m/s] (the robot's speed on log 1: 41 m in 135 s)
+CLEARANCE = 0.5  # [m] from the nearest wall, for the simulated paths
+
+# name -> (run_mcl variant, MCLParams overrides): the defaults, plain MCL, and one mechanism changed at a time
+CONFIGS = {
+    "defaults": ("augmented", {}),
+    "plain MCL": ("mcl", {}),
+    "no mode-preserving resampling": ("augmented", {"mode_particles": 0}),
+    "no sensor resetting (p_min 0)": ("augmented", {"augmented.p_min": 0.0}),
+    "tempering tau 0.1": ("augmented", {"likelihood_exponent": 0.1}),
+    "every 20th beam": ("augmented", {"beam_step": 20}),
+    "estimate hysteresis 3": ("augmented", {"estimate_hysteresis": 3.0}),
+    "KLD-sampling": ("kld", {}),
+    "5000 particles": ("augmented", {"n_particles": 5000, "augmented.candidates": 5000}),
+    "20 000 particles": ("augmented", {"n_particles": 20_000, "augmented.candidates": 20_000}),
+}
+
+_WORK = {}
+
+
+def wilson(k, n, z=1.96):
+    """Wilson score interval of a binomial proportion k / n."""
+    if n == 0:
+        return (0.0, 1.0)
+    p = k / n
+    den = 1 + z * z / n
+    centre = (p + z * z / (2 * n)) / den
+    half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
+    return (max(0.0, centre - half), min(1.0, centre + half))
+
+
+def make_params(overrides, sensor_offset=cmu.CMU_SENSOR_OFFSET, z_max=cmu.CMU_MAX_RANGE):
+    top, aug = {}, {}
+    for key, value in overrides.items():
+        if key.startswith("augmented."):
+            aug[key.split(".", 1)[1]] = value
+        else:
+            top[key] = value
+    params = sl.MCLParams(sensor_offset=sensor_offset, z_max=z_max, **top)
+    return dataclasses.replace(params, augmented=dataclasses.replace(params.augmented, **aug)) if aug else params
+
+
+# --------------------------------------------------------------------------- simulated trials
+def _roadmap(grid, field, free_threshold):
+    """Nodes of a 0.5 m lattice with clearance, their 8-connected graph."""
+    step = 5  # cells of 0.1 m
+    rows, cols = np.mgrid[step // 2:grid.shape[0]:step, step // 2:grid.shape[1]:step]
+    xy = np.column_stack([grid.origin[0] + (cols.ravel() + 0.5) * grid.resolution,
+                          grid.origin[1] + (rows.ravel() + 0.5) * grid.resolution])
+    ok = grid.is_free(xy, free_threshold) & (field.distance_at(xy) >= CLEARANCE)
+    ok = ok & np.isfinite(field.distance_at(xy))
+    node = -np.ones(xy.shape[0], dtype=np.intp)
+    node[ok] = np.arange(ok.sum())
+    node = node.reshape(rows.shape)
+    i, j, d = [], [], []
+    H, W = node.shape
+    for dr, dc in ((0, 1), (1, 0), (1, 1), (1, -1)):
+        c0, c1 = max(0, -dc), W - max(0, dc)
+        a, b = node[0:H - dr, c0:c1], node[dr:H, c0 + dc:c1 + dc]
+        both = (a >= 0) & (b >= 0)
+        i.append(a[both]), j.append(b[both]), d.append(np.full(both.sum(), 0.5 * np.hypot(dr, dc)))
+    i, j, d = np.concatenate(i), np.concatenate(j), np.concatenate(d)
+    n = int(ok.sum())
+    g = sparse.coo_matrix((np.r_[d, d], (np.r_[i, j], np.r_[j, i])), shape=(n, n)).tocsr()
+    return xy[ok], g
+
+
+def simulate_trial(grid, field, roadmap, params, angles, n_updates, rng):
+    """A random collision-free drive, its scans (beam-model noise) and its odometry (motion-model noise)."""
+    nodes, g = roadmap
+    length = SIM_STEP * (n_updates - 1)
+    for _ in range(100):
+        a = int(rng.integers(nodes.shape[0]))
+        dist, pred = csgraph.dijkstra(g, indices=a, return_predecessors=True)
+        far = np.flatnonzero((dist > length + 2.0) & np.isfinite(dist))
+        if far.size == 0:
+            continue
+        b = int(far[rng.integers(far.size)])
+        path = [b]
+        while path[-1] != a:
+            path.append(pred[path[-1]])
+        wp = nodes[path[::-1]]
+        seg = np.r_[0.0, np.cumsum(np.hypot(*np.diff(wp, axis=0).T))]
+        s = np.arange(0.0, seg[-1], 0.05)
+        xy = np.column_stack([np.interp(s, seg, wp[:, 0]), np.interp(s, seg, wp[:, 1])])
+        k = 15  # smooth the lattice's corners over 0.75 m
+        pad = np.r_[np.repeat(xy[:1], k, 0), xy, np.repeat(xy[-1:], k, 0)]
+        xy = np.column_stack([np.convolve(pad[:, c], np.ones(2 * k + 1) / (2 * k + 1), "valid") for c in (0, 1)])
+        seg = np.r_[0.0, np.cumsum(np.hypot(*np.diff(xy, axis=0).T))]
+        if seg[-1] < length + 0.5:
+            continue
+        s = np.arange(n_updates) * SIM_STEP + 0.25
+        pos = np.column_stack([np.interp(s, seg, xy[:, 0]), np.interp(s, seg, xy[:, 1])])
+        ahead = np.column_stack([np.interp(s + 0.1, seg, xy[:, 0]), np.interp(s + 0.1, seg, xy[:, 1])])
+        truth = np.column_stack([pos, np.arctan2(*(ahead - pos)[:, ::-1].T)])
+        if not (grid.is_free(truth[:, :2], params.free_threshold).all() and field.distance_at(truth[:, :2]).min() >= 0.25):
+            continue
+        break
+    else:
+        raise RuntimeError("no collision-free trajectory found")
+    z_star = sl.ray_cast(grid, truth, angles, params.z_max, sensor_offset=params.sensor_offset,
+                         threshold=params.occupied_threshold)
+    w = np.array([params.w_hit, params.w_short, params.w_max, params.w_rand])
+    kind = rng.choice(4, size=z_star.shape, p=w / w.sum())
+    hit = z_star + params.sigma_hit * rng.standard_normal(z_star.shape)
+    # short: exponential with rate lambda_short truncated to [0, z*] (inverse CDF)
+    e = rng.uniform(size=z_star.shape)
+    short = -np.log1p(-e * (1.0 - np.exp(-params.lambda_short * z_star))) / params.lambda_short
+    rand = rng.uniform(0.0, params.z_max, z_star.shape)
+    z = np.choose(kind, [hit, short, np.full(z_star.shape, params.z_max), rand])
+    z = np.clip(z, 0.0, params.z_max)
+    u = sl.odometry_from_poses(truth[:-1], truth[1:])
+    odom = np.zeros_like(truth)
+    for t in range(1, n_updates):  # odometry = the true increment with the motion model's noise
+        odom[t] = sl.sample_motion_model_odometry(odom[t - 1], u[t - 1], params.alpha, rng=rng)
+    times = np.arange(n_updates) * SIM_STEP / SIM_SPEED
+    return dict(odom=odom, ranges=z, truth=truth, times=times)
+
+
+# --------------------------------------------------------------------------- log trials
+def truth_at(ref, odom, scans):
+    """Reference pose at any scan: the last update's pose moved by the odometry since it."""
+    k = np.searchsorted(ref.scan_index, scans, side="right") - 1
+    i = ref.scan_index[k]
+    return sl.odometry_motion(ref.mean[k], sl.odometry_from_poses(odom[i], odom[scans]))
+
+
+# --------------------------------------------------------------------------- running
+def judge(res, truth):
+    err = np.hypot(*(res.estimate[:, :2] - truth[:, :2]).T)
+    half = err[len(err) // 2:]
+    wrong_sure = (err > RADIUS) & (res.mode_mass > CONFIDENT)
+    return dict(strict=bool(np.all(half < RADIUS)), share=float(np.mean(half < RADIUS)),
+                confidently_wrong=int(wrong_sure.sum()), updates=len(res), runtime=float(res.runtime),
+                final_error=float(err[-1]), final_mode_mass=float(res.mode_mass[-1]),
+                median_n_modes_2nd_half=float(np.median(res.n_modes[len(err) // 2:])))
+
+
+def _init(data):
+    _WORK.update(data)
+    _WORK["grid"] = cmu.load_cmu_map()
+
+
+def _run(job):
+    config, kind, key, seed = job
+    variant, overrides = CONFIGS[config]
+    grid = _WORK["grid"]
+    rng = np.random.default_rng(seed)
+    if kind == "sim":
+        trial = _WORK["sims"][key]
+        model = sl.prepare_mcl(grid, make_params(overrides))
+        res = sl.run_mcl(model, trial["odom"], trial["ranges"], _WORK["angles"], rng=rng, variant=variant,
+                         times=trial["times"])
+        truth = trial["truth"][res.scan_index]
+    else:
+        n, j = key
+        log, ref = _WORK["logs"][n], _WORK["refs"][n]
+        model = sl.prepare_mcl(grid, make_params(overrides, log.sensor_offset, log.max_range))
+        a = ref.scan_index[j]
+        res = sl.run_mcl(model, log.laser_pose[a:], log.ranges[a:], log.angles, rng=rng, variant=variant,
+                         times=log.laser_t[a:], max_steps=_WORK["updates"])
+        truth = truth_at(ref, log.laser_pose, res.scan_index + a)
+    out = judge(res, truth)
+    out.update(config=config, set=kind, trial=key if kind == "sim" else list(key), seed=seed,
+               duration=float(res.t[-1] - res.t[0]))
+    return out
+
+
+def summarize(runs):
+    n = len(runs)
+    k = sum(r["strict"] for r in runs)
+    lo, hi = wilson(k, n)
+    cw = sum(r["confidently_wrong"] for r in runs)
+    return dict(trials=n, strict=k, strict_rate=k / n if n else float("nan"), strict_ci=[lo, hi],
+                share_within=float(np.mean([r["share"] for r in runs])) if n else float("nan"),
+                confidently_wrong_updates=cw, confidently_wrong_trials=sum(r["confidently_wrong"] > 0 for r in runs),
+                updates=sum(r["updates"] for r in runs), cpu_s=float(sum(r["runtime"] for r in runs)),
+                real_time_factor=float(sum(r["duration"] for r in runs) / max(sum(r["runtime"] for r in runs), 1e-9)))
+
+
+def choose(table, configs, on):
+    """The configuration with the best strict success on set `on` (then fewer confidently wrong, less CPU)."""
+    return max(configs, key=lambda c: (table[c][on]["strict"] / max(table[c][on]["trials"], 1),
+                                       -table[c][on]["confidently_wrong_updates"], -table[c][on]["cpu_s"]))
+
+
+def _key(job):
+    config, kind, key, seed = job
+    return json.dumps([config, kind, key if kind == "sim" else list(key), seed])
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--configs", nargs="+", default=["defaults", "plain MCL"],
+                    help="configurations run on every trial (default: the defaults and plain MCL)")
+    ap.add_argument("--screen", nargs="*", default=[], metavar="CONFIG",
+                    help="configurations run on the development subset only (the first --screen-sim simulated "
+                         "trials and --screen-offsets offsets per log); 'all' for every other configuration")
+    ap.add_argument("--sim-trials", type=int, default=100)
+    ap.add_argument("--offsets", type=int, default=10, help="start offsets per log")
+    ap.add_argument("--screen-sim", type=int, default=12)
+    ap.add_argument("--screen-offsets", type=int, default=2)
+    ap.add_argument("--updates", type=int, default=40, help="filter updates per trial")
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--seed", type=int, default=2026)
+    ap.add_argument("--cache", default=os.path.join(tempfile.gettempdir(), "mcl_study_runs.jsonl"),
+                    help="every finished run is appended here; runs already in it are not repeated")
+    ap.add_argument("--json", help="write the summary and every trial to this file")
+    ap.add_argument("--cached-only", action="store_true", help="summarise the cached runs, run nothing")
+    args = ap.parse_args(argv)
+    screen = [c for c in CONFIGS if c not in args.configs] if args.screen == ["all"] else args.screen
+    for c in list(args.configs) + list(screen):
+        if c not in CONFIGS:
+            raise SystemExit(f"unknown configuration {c!r}; one of {list(CONFIGS)}")
+
+    t0 = time.perf_counter()
+    grid = cmu.load_cmu_map()
+    base = make_params({})
+    field = sl.likelihood_field(grid, max_dist=base.max_dist, threshold=base.occupied_threshold)
+    logs = {n: cmu.load_cmu_log(log=n) for n in (1, 2)}
+    angles = logs[1].angles
+    refs = {n: reference_track(grid, lg, n)[0] for n, lg in logs.items()}
+    ss = np.random.SeedSequence(args.seed)
+    sim_ss, run_ss = ss.spawn(2)
+    roadmap = _roadmap(grid, field, base.free_threshold)
+    sims = [simulate_trial(grid, field, roadmap, base, angles, args.updates, np.random.default_rng(s))
+            for s in sim_ss.spawn(args.sim_trials)]
+    log_keys = [(n, int(j)) for n in (1, 2)
+                for j in np.linspace(0, len(refs[n]) - args.updates - 1, args.offsets).round().astype(int)]
+    seeds = [int(s.generate_state(1)[0]) for s in run_ss.spawn(len(sims) + len(log_keys))]
+    trials = [("sim", i, seeds[i]) for i in range(len(sims))] + \
+             [("logs", key, seeds[len(sims) + i]) for i, key in enumerate(log_keys)]
+    sub_logs = set(log_keys[n * args.offsets + i] for n in range(2)
+                   for i in np.linspace(0, args.offsets - 1, args.screen_offsets).round().astype(int))
+    subset = [t for t in trials if (t[0] == "sim" and t[1] < args.screen_sim) or (t[0] == "logs" and t[1] in sub_logs)]
+    print(f"{len(sims)} simulated trials ({args.updates} updates, {(args.updates - 1) * SIM_STEP:.1f} m, "
+          f"{(args.updates - 1) * SIM_STEP / SIM_SPEED:.0f} s each), {len(log_keys)} log trials "
+          f"({args.offsets} start offsets per log, {args.updates} updates each); development subset "
+          f"{len(subset)} trials; set-up {time.perf_counter() - t0:.0f} s", flush=True)
+    jobs = [(c, kind, key, seed) for c in args.configs for kind, key, seed in trials] + \
+           [(c, kind, key, seed) for c in screen for kind, key, seed in subset]
+    cache_path = args.cache + f".u{args.updates}"
+    done = {}
+    if os.path.exists(cache_path):
+        with open(cache_path) as f:
+            for line in f:
+                r = json.loads(line)
+                done[_key((r["config"], r["set"], r["trial"] if r["set"] == "sim" else tuple(r["trial"]), r["seed"]))] = r
+    todo = [j for j in jobs if _key(j) not in done]
+    if args.cached_only:
+        jobs, todo = [j for j in jobs if _key(j) in done], []
+    print(f"{len(jobs)} runs, {len(jobs) - len(todo)} of them cached in {cache_path}", flush=True)
+    data = dict(sims=sims, logs=logs, refs=refs, angles=angles, updates=args.updates)
+    t1 = time.perf_counter()
+    if todo:
+        with open(cache_path, "a") as f, get_context("fork").Pool(args.jobs, initializer=_init, initargs=(data,)) as pool:
+            for i, r in enumerate(pool.imap_unordered(_run, todo, chunksize=1)):
+                f.write(json.dumps(r) + "\n")
+                f.flush()
+                done[_key((r["config"], r["set"], r["trial"] if r["set"] == "sim" else tuple(r["trial"]), r["seed"]))] = r
+                if (i + 1) % 20 == 0:
+                    print(f"  {i + 1}/{len(todo)} runs, {time.perf_counter() - t1:.0f} s", flush=True)
+    wall = time.perf_counter() - t1
+    runs = [done[_key(j)] for j in jobs]
+
+    def table_for(configs, trial_list):
+        keys = {(k, json.dumps(key if k == "sim" else list(key))) for k, key, _ in trial_list}
+        return {c: {s: summarize([r for r in runs if r["config"] == c and r["set"] == s
+                                  and (s, json.dumps(r["trial"])) in keys]) for s in ("sim", "logs")}
+                for c in configs}
+
+    def show(table, title):
+        print(f"\n{title}")
+        print(f"{'configuration':32s} {'set':5s} {'strict success (95 % CI)':>28s} {'share within':>12s} "
+              f"{'conf. wrong upd (trials)':>25s} {'CPU [s]':>8s} {'x real time':>11s}")
+        for c, row in table.items():
+            for s in ("sim", "logs"):
+                t = row[s]
+                print(f"{c:32s} {s:5s} {t['strict']:4d}/{t['trials']:<4d} = {t['strict_rate']:5.0%} "
+                      f"[{t['strict_ci'][0]:4.0%}, {t['strict_ci'][1]:4.0%}]   {t['share_within']:10.0%} "
+                      f"{t['confidently_wrong_updates']:17d} ({t['confidently_wrong_trials']:3d}) {t['cpu_s']:8.0f} "
+                      f"{t['real_time_factor']:10.1f}x")
+
+    table = table_for(args.configs, trials)
+    show(table, "the full study")
+    screen_table = table_for(list(args.configs) + list(screen), subset) if screen else {}
+    if screen:
+        show(screen_table, f"the development subset ({args.screen_sim} simulated trials, {args.screen_offsets} offsets per log): "
+                           "one mechanism changed at a time")
+    cv = {}
+    candidates = screen_table or table
+    if len(candidates) > 1:
+        print("\ncross-validation: chosen on one set (development subset), reported on the other")
+        for tune, report in (("sim", "logs"), ("logs", "sim")):
+            c = choose(candidates, list(candidates), tune)
+            t = table[c][report] if c in table else candidates[c][report]
+            cv[f"tuned on {tune}"] = dict(chosen=c, reported_on=report, **t)
+            print(f"  tuned on {tune:4s}: {c!r}; on {report}: strict {t['strict']}/{t['trials']} = {t['strict_rate']:.0%} "
+                  f"[{t['strict_ci'][0]:.0%}, {t['strict_ci'][1]:.0%}], confidently wrong {t['confidently_wrong_updates']}")
+    print(f"\nthe defaults: {make_params({})}")
+    print(f"wall time {wall:.0f} s with {args.jobs} process(es), {len(todo)} new runs, "
+          f"CPU in the filters (all {len(runs)} runs) {sum(r['runtime'] for r in runs):.0f} s")
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(dict(settings=dict(updates=args.updates, sim_trials=len(sims), offsets_per_log=args.offsets,
+                                         screen_sim=args.screen_sim, screen_offsets=args.screen_offsets,
+                                         radius=RADIUS, confident=CONFIDENT, sim_step=SIM_STEP, sim_speed=SIM_SPEED,
+                                         seed=args.seed, log_updates={n: len(r) for n, r in refs.items()}),
+                           configs={c: dict(variant=CONFIGS[c][0], overrides=CONFIGS[c][1])
+                                    for c in list(args.configs) + list(screen)},
+                           table=table, screen=screen_table, cross_validation=cv,
+                           runs=[{k: round(v, 4) if isinstance(v, float) else v for k, v in r.items()} for r in runs]),
+                      f, indent=None)
+    return table, runs
+
+
+if __name__ == "__main__":
+    main()
