@@ -73,6 +73,31 @@ def test_hidden_panels_are_skipped_and_long_legends_counted(fig):
     assert "Panel" not in text
 
 
+def test_spacer_panels_are_not_counted(fig):
+    a, spacer, c = fig.subplots(1, 3)
+    spacer.axis("off")
+    a.plot([0, 1])
+    c.set_title("Right")
+    assert viz.describe_figure(fig) == "Figure with 2 panels. Panel 1: draws 1 line. Panel 2, 'Right'."
+    c.remove()
+    assert viz.describe_figure(fig) == "Untitled plot: draws 1 line."
+
+
+@pytest.mark.parametrize("label, plain", [
+    (r"$\overline{bel}(x)$", "bel-bar(x)"),
+    (r"$y = \sin\theta$", "y = sin theta"),
+    (r"mixture $p(z \mid z^*)$", "mixture p(z | z^*)"),
+    (r"bound $\sqrt{f(1-f)}$", "bound sqrt(f(1-f))"),
+    (r"$\frac{a}{b}$ and $\mathrm{N}(0, 1)$", "(a)/(b) and N(0, 1)"),
+    (r"heading [$^\circ$]", "heading [degrees]"),
+    (r"$\hat{x}_t$, $2\sigma$ ellipse", "x-hat_t, 2sigma ellipse"),
+    ("50% of runs", "50% of runs"),
+])
+def test_mathtext_is_read_as_plain_text(fig, label, plain):
+    fig.subplots().set_title(label)
+    assert viz.describe_figure(fig) == f"Plot '{plain}'."
+
+
 def test_figure_legend_and_empty_figure(fig):
     assert viz.describe_figure(fig) == "Empty figure."
     a, b = fig.subplots(1, 2)
@@ -107,7 +132,8 @@ def test_install_does_nothing_outside_ipython():
 
 def _kernel_env(monkeypatch):
     monkeypatch.setenv("PYTHONPATH", str(ROOT))  # the kernel imports this tree's slamlib
-    monkeypatch.delenv("MPLBACKEND", raising=False)  # conftest's Agg would hide the inline backend
+    # the kernel draws with the inline backend, as in the book (conftest's Agg would draw nothing)
+    monkeypatch.setenv("MPLBACKEND", "module://matplotlib_inline.backend_inline")
 
 
 @pytest.mark.slow

@@ -30,21 +30,33 @@ _FIGURE = ("matplotlib.figure", "Figure")
 _IMAGE_MIMES = ("image/png", "image/jpeg", "image/svg+xml")
 _WRAPPED = "_slamlib_alt_wrapped"
 
-# mathtext commands read aloud as words (the rest lose their backslash)
+# mathtext commands read aloud as words or plain symbols (other commands lose their backslash)
 _TEX_WORDS = {r"\cdot": " times ", r"\times": " times ", r"\leq": " <= ", r"\geq": " >= ", r"\le": " <= ",
-              r"\ge": " >= ", r"\pm": " +/- ", r"\circ": " degrees", r"^\circ": " degrees", r"\,": " ", r"\;": " ",
-              r"\ ": " ", r"\%": "%"}
+              r"\ge": " >= ", r"\pm": " +/- ", r"^\circ": " degrees", r"\circ": " degrees", r"\mid": " | ",
+              r"\sim": " ~ ", r"\approx": " approx. ", r"\propto": " proportional to ", r"\infty": "infinity",
+              r"\to": " to ", r"\rightarrow": " to ", r"\ldots": "...", r"\dots": "...", r"\,": " ",
+              r"\;": " ", r"\!": "", r"\ ": " ", r"\%": "%", r"\{": "{", r"\}": "}"}
+_TEX_PATTERNS = [
+    (re.compile(r"\\(?:d|t)?frac\s*\{([^{}]*)\}\s*\{([^{}]*)\}"), r"(\1)/(\2)"),
+    (re.compile(r"\\sqrt\s*\{([^{}]*)\}"), r"sqrt(\1)"),
+    (re.compile(r"\\(?:overline|bar)\s*\{([^{}]*)\}"), r"\1-bar"),
+    (re.compile(r"\\(hat|tilde|dot)\s*\{([^{}]*)\}"), r"\2-\1"),
+    (re.compile(r"\\(?:mathrm|mathbf|mathit|mathcal|mathsf|text|textrm|operatorname|boldsymbol|left|right)\b\s*"), ""),
+    (re.compile(r"\\([A-Za-z]+)(?=\\[A-Za-z])"), r"\1 "),  # \sin\theta -> sin theta
+    (re.compile(r"\\([A-Za-z]+)"), r"\1"),
+]
 
 
 def _plain(text):
-    """Label text without mathtext markup: ``$\\sigma_x$ [m]`` -> ``sigma_x [m]``."""
+    """Label text without mathtext markup: ``$\\sigma_x \\leq \\sqrt{2}$ [m]`` -> ``sigma_x <= sqrt(2) [m]``."""
     text = str(text)
     if "$" in text:
         for tex, word in sorted(_TEX_WORDS.items(), key=lambda kv: -len(kv[0])):
-            text = text.replace(tex, word)
-        text = re.sub(r"\\(?:mathrm|mathbf|mathit|mathcal|text|operatorname|boldsymbol|hat|bar|tilde)\s*", "", text)
-        text = text.replace("$", "").replace("\\", "")
-        text = re.sub(r"[{}]", "", text)
+            text = re.sub(re.escape(tex) + r"(?![A-Za-z])", lambda m, w=word: w, text)
+        for pattern, repl in _TEX_PATTERNS:
+            text = pattern.sub(repl, text)
+        text = re.sub(r"[{}$]", "", text)
+        text = re.sub(r"([\[(])\s+", r"\1", re.sub(r"\s+([\])])", r"\1", text))
     return re.sub(r"\s+", " ", text).strip()
 
 
@@ -148,7 +160,9 @@ def describe_figure(fig):
         panel reads ``"Plot 'title': ..."``. Each visible panel gives its title, its axis labels
         (y against x), its legend entries (at most `MAX_LEGEND_ENTRIES`), the labels of the colour
         scales drawn for it and what it draws (an image, lines, scatter points, shapes);
-        colour-bar axes are not counted as panels. The suptitle and figure legends come first.
+        colour-bar axes and empty panels (no title, no labels, nothing drawn) are not counted as
+        panels. The suptitle and figure legends come first; mathtext is read as plain text
+        (``$\\sigma_x$`` -> ``sigma_x``).
 
     Raises
     ------
@@ -168,18 +182,20 @@ def describe_figure(fig):
         owner = getattr(getattr(cb, "mappable", None), "axes", None)
         (by_panel[id(owner)] if id(owner) in by_panel else loose).append(cb)
 
+    # a panel with no title, no labels and nothing drawn (a spacer) is not described
+    said = [(title, details) for title, details in (_panel_sentence(ax, by_panel[id(ax)]) for ax in panels)
+            if title or details]
     suptitle = _plain(fig.get_suptitle())
     fig_legend = _legend_phrase([e for lg in fig.legends for e in _legend_entries(lg)])
     loose_scales = [label for label in (_colorbar_label(cb) for cb in loose) if label]
 
-    if len(panels) == 1 and not loose:
-        title, details = _panel_sentence(panels[0], by_panel[id(panels[0])])
+    if len(said) == 1 and not loose:
+        title, details = said[0]
         details = "; ".join(p for p in (details, fig_legend) if p)
         text = (f"Plot {title}" if title else "Untitled plot") + (f": {details}" if details else "") + "."
         return (f"{_quoted(suptitle)}. " if suptitle else "") + text
 
-    n = len(panels)
-    head = "Empty figure" if n == 0 else f"Figure with {_count(n, 'panel')}"
+    head = "Empty figure" if not said else f"Figure with {_count(len(said), 'panel')}"
     if suptitle:
         head += f", {_quoted(suptitle)}"
     sentences = [head]
@@ -187,8 +203,7 @@ def describe_figure(fig):
         sentences.append(fig_legend[0].upper() + fig_legend[1:])
     if loose_scales:
         sentences.append("Colour scale: " + ", ".join(loose_scales))
-    for k, ax in enumerate(panels, start=1):
-        title, details = _panel_sentence(ax, by_panel[id(ax)])
+    for k, (title, details) in enumerate(said, start=1):
         sentences.append(f"Panel {k}" + (f", {title}" if title else "") + (f": {details}" if details else ""))
     return ". ".join(sentences) + "."
 
