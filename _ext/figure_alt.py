@@ -7,7 +7,8 @@ sha256 of the image's bytes (``myst_nb/core/render.py``, ``render_image``). In t
 output metadata, ``{"image/png": {"alt": "..."}}``. After a document is read, this extension maps
 sha256 -> alt over the outputs of the executed notebook MyST-NB wrote
 (``_build/jupyter_execute/<docname>.ipynb``; for images glued from elsewhere, over every executed
-notebook) and sets the ``alt`` of each image node whose ``alt`` is missing or is its own path.
+notebook) and sets the ``alt`` of each image node whose ``alt`` is missing or is its own path;
+once more when the document is resolved, for images pasted after reading.
 An alt an author set (cell metadata ``mystnb: image: alt:``) is kept; an image whose output has
 no alt metadata is left as it is (the browser test reports it).
 """
@@ -112,12 +113,10 @@ def _executed_folder(app):
     return Path(folder) if folder else Path(app.outdir).parent / "jupyter_execute"
 
 
-def _doctree_read(app, doctree):
+def _fill(app, doctree, docname):
     folder = _executed_folder(app)
-    own = folder.joinpath(*(app.env.docname + ".ipynb").split("/"))
-    if not own.is_file():
-        return
-    alts = _read_alts(own)
+    own = folder.joinpath(*(docname + ".ipynb").split("/"))
+    alts = _read_alts(own) if own.is_file() else {}
 
     def everywhere():
         found = {}
@@ -128,9 +127,19 @@ def _doctree_read(app, doctree):
 
     done, needed = set_alts(doctree, alts, more=everywhere)
     if needed:
-        logger.verbose(f"figure_alt: {app.env.docname}: {done} of {needed} images got a text alternative")
+        logger.verbose(f"figure_alt: {docname}: {done} of {needed} images got a text alternative")
+
+
+def _doctree_read(app, doctree):
+    _fill(app, doctree, app.env.docname)
+
+
+def _doctree_resolved(app, doctree, docname):
+    # images pasted after reading (glued figures from another document) get theirs here
+    _fill(app, doctree, docname)
 
 
 def setup(app):
     app.connect("doctree-read", _doctree_read)
+    app.connect("doctree-resolved", _doctree_resolved)
     return {"version": "1.0", "parallel_read_safe": True, "parallel_write_safe": True}

@@ -224,3 +224,27 @@ def test_extension_maps_image_hashes_to_alt():
     assert [i.get("alt") for i in images] == ["Plot 'A'.", "Set by the author.", None, "Plot 'Glued'.", None,
                                              "From another page."]
     assert calls == [1]
+
+
+def test_extension_reads_the_executed_notebook_of_the_document(tmp_path):
+    """As wired into Sphinx: the document's executed notebook first, then the other notebooks
+    (a figure glued in one chapter and pasted in another page)."""
+    from types import SimpleNamespace
+
+    ext = _load_extension()
+    own, other = b"\x89PNG own", b"\x89PNG other"
+    for name, png, alt in (("chapters/01_x.ipynb", own, "Plot 'Own'."), ("chapters/02_y.ipynb", other, "Plot 'Other'.")):
+        cell = nbformat.v4.new_code_cell("...")
+        cell.outputs = [_image_output(png, alt)]
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        nbformat.write(nbformat.v4.new_notebook(cells=[cell]), tmp_path / name)
+    app = SimpleNamespace(env=SimpleNamespace(mystnb_config=SimpleNamespace(output_folder=str(tmp_path)),
+                                              docname="chapters/01_x"), outdir=str(tmp_path / "html"))
+    uri = lambda data: f"/_build/jupyter_execute/{hashlib.sha256(data).hexdigest()}.png"  # noqa: E731
+    for docname in ("chapters/01_x", "index"):  # a notebook page, a page without a notebook
+        doc = nodes.document(None, None)
+        doc += nodes.image(uri=uri(own))
+        doc += nodes.image(uri=uri(other))
+        app.env.docname = docname
+        ext._doctree_read(app, doc)
+        assert [i["alt"] for i in doc.findall(nodes.image)] == ["Plot 'Own'.", "Plot 'Other'."]
