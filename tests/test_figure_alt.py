@@ -233,7 +233,8 @@ def test_extension_reads_the_executed_notebook_of_the_document(tmp_path):
 
     ext = _load_extension()
     own, other = b"\x89PNG own", b"\x89PNG other"
-    for name, png, alt in (("chapters/01_x.ipynb", own, "Plot 'Own'."), ("chapters/02_y.ipynb", other, "Plot 'Other'.")):
+    for name, png, alt in (("chapters/01_x.ipynb", own, "Plot 'Own'."),
+                           ("chapters/02_y.ipynb", other, "Plot 'Other'.")):
         cell = nbformat.v4.new_code_cell("...")
         cell.outputs = [_image_output(png, alt)]
         (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
