@@ -90,7 +90,10 @@ def test_spacer_panels_are_not_counted(fig):
     (r"bound $\sqrt{f(1-f)}$", "bound sqrt(f(1-f))"),
     (r"$\frac{a}{b}$ and $\mathrm{N}(0, 1)$", "(a)/(b) and N(0, 1)"),
     (r"heading [$^\circ$]", "heading [degrees]"),
-    (r"$\hat{x}_t$, $2\sigma$ ellipse", "x-hat_t, 2sigma ellipse"),
+    (r"$\hat{x}_t$, $2\sigma$ ellipse", "x-hat_t, 2 sigma ellipse"),
+    (r"std $\sqrt{\mathrm{Var}\,m_x + \mathrm{Var}\,m_y}$ [m]", "std sqrt(Var m_x + Var m_y) [m]"),
+    (r"$S = H\Sigma H^T + Q$, $\exp(-d^2 / 2\sigma_{hit}^2)$", "S = H Sigma H^T + Q, exp(-d^2 / 2 sigma_hit^2)"),
+    (r"$|2\pi S|^{-1/2} e^{-\nu^T Q^{-1} \nu / 2}$", "|2 pi S|^-1/2 e^-nu^T Q^-1 nu / 2"),
     ("50% of runs", "50% of runs"),
 ])
 def test_mathtext_is_read_as_plain_text(fig, label, plain):

@@ -36,14 +36,13 @@ _TEX_WORDS = {r"\cdot": " times ", r"\times": " times ", r"\leq": " <= ", r"\geq
               r"\sim": " ~ ", r"\approx": " approx. ", r"\propto": " proportional to ", r"\infty": "infinity",
               r"\to": " to ", r"\rightarrow": " to ", r"\ldots": "...", r"\dots": "...", r"\,": " ",
               r"\;": " ", r"\!": "", r"\ ": " ", r"\%": "%", r"\{": "{", r"\}": "}"}
-_TEX_PATTERNS = [
+_FONT = re.compile(r"\\(?:mathrm|mathbf|mathit|mathcal|mathsf|mathbb|text|textrm|operatorname|boldsymbol|left|right)\b\s*")
+_TEX_PATTERNS = [  # applied until nothing changes, innermost groups first
+    (re.compile(r"(?<![A-Za-z}])\{([^{}]*)\}"), r"\1"),  # a bare group: x_{hit} -> x_hit
     (re.compile(r"\\(?:d|t)?frac\s*\{([^{}]*)\}\s*\{([^{}]*)\}"), r"(\1)/(\2)"),
     (re.compile(r"\\sqrt\s*\{([^{}]*)\}"), r"sqrt(\1)"),
     (re.compile(r"\\(?:overline|bar)\s*\{([^{}]*)\}"), r"\1-bar"),
     (re.compile(r"\\(hat|tilde|dot)\s*\{([^{}]*)\}"), r"\2-\1"),
-    (re.compile(r"\\(?:mathrm|mathbf|mathit|mathcal|mathsf|text|textrm|operatorname|boldsymbol|left|right)\b\s*"), ""),
-    (re.compile(r"\\([A-Za-z]+)(?=\\[A-Za-z])"), r"\1 "),  # \sin\theta -> sin theta
-    (re.compile(r"\\([A-Za-z]+)"), r"\1"),
 ]
 
 
@@ -52,9 +51,17 @@ def _plain(text):
     text = str(text)
     if "$" in text:
         for tex, word in sorted(_TEX_WORDS.items(), key=lambda kv: -len(kv[0])):
-            text = re.sub(re.escape(tex) + r"(?![A-Za-z])", lambda m, w=word: w, text)
-        for pattern, repl in _TEX_PATTERNS:
-            text = pattern.sub(repl, text)
+            end = r"(?![A-Za-z])" if tex[-1].isalpha() else ""  # \le is not the start of \left
+            text = re.sub(re.escape(tex) + end, lambda m, w=word: w, text)
+        text = _FONT.sub("", text)
+        for _ in range(10):
+            before = text
+            for pattern, repl in _TEX_PATTERNS:
+                text = pattern.sub(repl, text)
+            if text == before:
+                break
+        text = re.sub(r"(?<=[A-Za-z0-9])\\([A-Za-z]+)", r" \1", text)  # H\Sigma -> H Sigma
+        text = re.sub(r"\\([A-Za-z]+)", r"\1", text)
         text = re.sub(r"[{}$]", "", text)
         text = re.sub(r"([\[(])\s+", r"\1", re.sub(r"\s+([\])])", r"\1", text))
     return re.sub(r"\s+", " ", text).strip()
