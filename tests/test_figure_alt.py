@@ -129,6 +129,15 @@ def test_wrapped_printer_adds_alt_and_keeps_given_metadata(fig):
     assert _describe._with_alt(lambda f: None)(fig) is None
 
 
+def test_a_figure_that_cannot_be_described_is_shown_without_alt(fig, monkeypatch):
+    def broken(f):
+        raise ValueError("unexpected artist")
+
+    monkeypatch.setattr(_describe, "describe_figure", broken)
+    with pytest.warns(RuntimeWarning, match="could not describe the figure .ValueError: unexpected artist"):
+        assert _describe._with_alt(lambda f: ("PNGDATA", {"width": 3}))(fig) == ("PNGDATA", {"width": 3})
+
+
 def test_install_does_nothing_outside_ipython():
     assert _describe.install() is False
 

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import re
 import sys
+import warnings
 
 __all__ = ["describe_figure"]
 
@@ -227,7 +228,11 @@ def _with_alt(printer):
         data, md = out if isinstance(out, tuple) and len(out) == 2 else (out, None)
         md = dict(md or {})
         if "alt" not in md:
-            md["alt"] = describe_figure(fig)
+            try:
+                md["alt"] = describe_figure(fig)
+            except Exception as exc:  # the figure is shown all the same; the book's browser test reports it
+                warnings.warn(f"slamlib.viz could not describe the figure ({type(exc).__name__}: {exc}); "
+                              "its image has no text alternative", RuntimeWarning, stacklevel=2)
         return data, md
 
     setattr(printer_with_alt, _WRAPPED, True)
