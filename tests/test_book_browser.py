@@ -7,8 +7,10 @@ Run after ``jupyter-book build .``::
 It serves ``_build/html`` on localhost and checks, page by page: HTTP 200, no
 JavaScript errors in the console, nothing fetched from outside localhost (the
 book must read offline), MathJax finished with no unrendered TeX and no TeX
-errors, every ``<img>`` loaded, every animation's controls present with its
-first frame drawn, no favicon request failing, a logo and exactly one search box;
+errors, every ``<img>`` loaded, every image of the text (animation frames aside) with a
+text alternative that is not a file path and has at least 15 characters (``_ext/figure_alt.py``),
+every animation's controls present with its first frame drawn, no favicon request failing, a
+logo and exactly one search box;
 nothing wider than the text column (see below); and the search page finds
 "particle". Screenshots of a few pages go to ``artifacts/screenshots``.
 
@@ -136,7 +138,10 @@ const anims = Array.from(document.querySelectorAll('.animation')).map(a => {
           frame: !!(img && img.complete && img.naturalWidth > 0)};
 });
 const resources = performance.getEntriesByType('resource').map(r => r.name);
-return {text: clone.innerText, imgs: imgs, anims: anims, resources: resources,
+const article = document.querySelector('article.bd-article') || document.querySelector('main') || document.body;
+const figs = Array.from(article.querySelectorAll('img')).filter(i => !i.closest('.animation'))
+  .map(i => ({src: i.getAttribute('src'), alt: i.getAttribute('alt')}));
+return {text: clone.innerText, imgs: imgs, anims: anims, resources: resources, figs: figs,
         merror: document.querySelectorAll('mjx-merror, .MathJax_Error').length,
         mjx: document.querySelectorAll('mjx-container').length};
 """
@@ -174,6 +179,14 @@ return {pageScroll: document.documentElement.scrollWidth - document.documentElem
 """
 
 
+def meaningful_alt(alt):
+    """An image's text alternative says something: not missing, not a file path, not a few letters."""
+    if not isinstance(alt, str):
+        return False
+    alt = alt.strip()
+    return len(alt) >= 15 and "/_images/" not in alt and not alt.lower().endswith((".png", ".svg", ".jpg", ".jpeg", ".gif"))
+
+
 def _severe_console_errors(drv):
     return [entry["message"] for entry in drv.get_log("browser") if entry.get("level") == "SEVERE"]
 
@@ -206,6 +219,10 @@ def test_page_renders(page, server, driver):
 
     broken = [i["src"] for i in facts["imgs"] if not i["ok"]]
     assert not broken, f"{page}: images that did not load: {broken}"
+
+    no_alt = [f"{f['src']}: alt={f['alt']!r}" for f in facts["figs"] if not meaningful_alt(f["alt"])]
+    assert not no_alt, (f"{page}: {len(no_alt)} of {len(facts['figs'])} images in the text have no text alternative "
+                        f"(see _ext/figure_alt.py): {no_alt[:3]}")
 
     for k, anim in enumerate(facts["anims"]):
         assert anim["controls"] >= 3 and anim["slider"], f"{page}: animation {k} has no controls"

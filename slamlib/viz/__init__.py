@@ -16,3 +16,7 @@ from ._real_data import *  # noqa: F401,F403
 from ._graph import *  # noqa: F401,F403
 from ._scan import *  # noqa: F401,F403
 from ._victoria import *  # noqa: F401,F403
+from ._describe import describe_figure  # noqa: F401
+from ._describe import install as _install_figure_alt
+
+_install_figure_alt()  # in an IPython kernel: every figure's image output carries describe_figure(fig) as alt
