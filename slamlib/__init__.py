@@ -12,6 +12,7 @@ Layers, bottom up:
 * :mod:`slamlib.gaussian`, :mod:`slamlib.particle`, :mod:`slamlib.mcl` -- localization
 * :mod:`slamlib.ekf_slam`, :mod:`slamlib.fastslam` -- SLAM
 * :mod:`slamlib.graph_slam` -- full SLAM: pose graphs and landmark graphs as sparse least squares
+* :mod:`slamlib.lie` -- rotations and poses in 3-D: SO(3), SE(3), exp/log, Jacobians (``sl.lie.so3_exp``)
 * :mod:`slamlib.scan_matching`, :mod:`slamlib.mapping`, :mod:`slamlib.lidar_slam` -- ICP, occupancy grids, lidar SLAM
 * :mod:`slamlib.datasets` -- loaders of the real robot logs shipped in ``slamlib/data``
 * :mod:`slamlib.viz` -- plotting (the only module that imports matplotlib)
@@ -19,6 +20,7 @@ Layers, bottom up:
 
 from . import angles, bayes, motion, sensors, maps, sim, metrics, scoring, gaussian, particle, mcl, ekf_slam, fastslam
 from . import graph_slam
+from . import lie
 from . import scan_matching, mapping, lidar_slam
 from .angles import *  # noqa: F401,F403
 from .bayes import *  # noqa: F401,F403
