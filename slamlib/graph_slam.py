@@ -116,7 +116,7 @@ __all__ = [
 SPLU_OPTIONS = dict(permc_spec="NATURAL", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
 #: Kernel widths (on the Mahalanobis distance ``sqrt(s)``) used when ``robust_scale`` is None:
 #: the square root of the 95 % quantile of the chi-square distribution with the edge's dimension.
-DEFAULT_ROBUST_SCALE = {2: math.sqrt(_chi2_dist.ppf(0.95, 2)), 3: math.sqrt(_chi2_dist.ppf(0.95, 3))}
+DEFAULT_ROBUST_SCALE = {d: math.sqrt(_chi2_dist.ppf(0.95, d)) for d in (2, 3, 6)}
 
 
 # =========================================================================== SE(2)
@@ -737,6 +737,23 @@ def pose_graph_initial_guess(n, edges, Z, *, root=0, x_root=(0.0, 0.0, 0.0)):
     root = as_index(root, "root", n)
     x_root = as_array(x_root, "x_root", (3,))
     _require_connected(n, edges, (root,))
+    # Z^-1 = [-R(theta_z)^T t_z, -theta_z]
+    inv_z = np.empty_like(Z)
+    inv_z[:, 0] = -(np.cos(Z[:, 2]) * Z[:, 0] + np.sin(Z[:, 2]) * Z[:, 1])
+    inv_z[:, 1] = -(-np.sin(Z[:, 2]) * Z[:, 0] + np.cos(Z[:, 2]) * Z[:, 1])
+    inv_z[:, 2] = wrap_angle(-Z[:, 2])
+    return _compose_along_tree(n, edges, Z, inv_z, root, x_root, _compose)
+
+
+def _compose_along_tree(n, edges, Z, inv_z, root, x_root, compose_fn):
+    """Poses composed from the measurements along a spanning tree (any pose representation).
+
+    ``Z`` and ``inv_z`` hold each edge's measurement and its inverse (leading axis the
+    edge), ``compose_fn(a, b)`` composes two stacks of poses, ``x_root`` is the root's
+    pose. The tree is the minimum spanning tree with weights ``|i - j|`` (the odometry
+    chain where there is one); the compositions along the paths are computed by pointer
+    jumping (``log2(depth)`` vectorised rounds), not by a loop over poses.
+    """
     E = edges.shape[0]
     # spanning tree preferring edges between poses close in index (the odometry chain): weight |i - j|
     w = np.abs(edges[:, 0] - edges[:, 1]).astype(np.float64)
@@ -750,14 +767,10 @@ def pose_graph_initial_guess(n, edges, Z, *, root=0, x_root=(0.0, 0.0, 0.0)):
     keys = np.concatenate([fwd_key, bwd_key])
     sorter = np.argsort(keys, kind="stable")
     hit = sorter[np.searchsorted(keys, par * n + child, sorter=sorter)]
-    rel = np.empty((n, 3))
+    rel = np.empty((n,) + Z.shape[1:])
     rel[root] = x_root
-    inv_z = np.empty_like(Z)
-    # Z^-1 = [-R(theta_z)^T t_z, -theta_z]
-    inv_z[:, 0] = -(np.cos(Z[:, 2]) * Z[:, 0] + np.sin(Z[:, 2]) * Z[:, 1])
-    inv_z[:, 1] = -(-np.sin(Z[:, 2]) * Z[:, 0] + np.cos(Z[:, 2]) * Z[:, 1])
-    inv_z[:, 2] = wrap_angle(-Z[:, 2])
-    rel[child] = np.where((hit < E)[:, None], Z[hit % E], inv_z[hit % E])
+    fwd = (hit < E).reshape((-1,) + (1,) * (Z.ndim - 1))
+    rel[child] = np.where(fwd, Z[hit % E], inv_z[hit % E])
     # pointer jumping: T[v] = T[anc[v]] (+) T[v], anc[v] = anc[anc[v]], until every ancestor is the root
     anc = np.full(n, root)
     anc[child] = par
@@ -765,11 +778,11 @@ def pose_graph_initial_guess(n, edges, Z, *, root=0, x_root=(0.0, 0.0, 0.0)):
     done[root] = True
     while not done.all():
         todo = np.flatnonzero(~done)
-        rel[todo] = _compose(rel[anc[todo]], rel[todo])
+        rel[todo] = compose_fn(rel[anc[todo]], rel[todo])
         anc[todo] = anc[anc[todo]]
         done[todo] = anc[todo] == root
     out = rel.copy()
-    out[child] = _compose(x_root[None, :], rel[child])
+    out[child] = compose_fn(x_root[None], rel[child])
     return out
 
 
@@ -951,21 +964,36 @@ def optimize_pose_graph(X0, edges, Z, Omega, *, method="lm", max_iter=100, rtol=
 
         def step(X):
             return np.asarray(user_step(X.copy(), edges.copy(), Z.copy(), Omega.copy()), dtype=float)
-    fixed_vars = [3 * f + c for f in fixed for c in range(3)]
-    layout = _Layout(3 * n, [(3 * edges[:, 0], 3, 3 * edges[:, 1], 3)], fixed_vars, order=True)
+    return _solve_pose_graph(X0, edges, Z, Omega, 3, _se2_edges, _update_poses, start=start, method=method,
+                             max_iter=max_iter, rtol=rtol, robust=robust, k=k, fixed=fixed,
+                             lm_lambda=as_scalar(lm_lambda, "lm_lambda", positive=True), step=step)
+
+
+def _pose_layout(n, edges, d, fixed, order=True):
+    """The sparsity layout of a pose graph with ``d`` unknowns per pose, the `fixed` poses removed."""
+    return _Layout(d * n, [(d * edges[:, 0], d, d * edges[:, 1], d)], [d * f + c for f in fixed for c in range(d)],
+                   order=order)
+
+
+def _solve_pose_graph(X0, edges, Z, Omega, d, edge_fn, update, *, start, method, max_iter, rtol, robust, k, fixed,
+                      lm_lambda, step=None):
+    """The optimiser of every pose graph (2-D and 3-D): checked inputs, ``d`` unknowns per pose.
+
+    ``edge_fn(X_i, X_j, Z) -> (e (E, d), A (E, d, d), B (E, d, d))`` gives the errors and
+    Jacobians of all edges at once; ``update(X, dx (n d,)) -> X`` applies a step.
+    """
+    layout = _pose_layout(X0.shape[0], edges, d, fixed)
     ii, jj = edges[:, 0], edges[:, 1]
 
     def evaluate(X):
-        e, A, B = _se2_edges(X[ii], X[jj], Z)
+        e, A, B = edge_fn(X[ii], X[jj], Z)
         s = _chi2_terms(e, Omega)
         rho, w = _kernel(s, robust, k)
         W = Omega if robust is None else Omega * w[:, None, None]
         return float(rho.sum()), float(s.sum()), [(A, B, e, W)], w
 
-    X, chi2s, costs, it, conv, w = _optimize(X0, evaluate, layout, _update_poses, method=method,
-                                             max_iter=max_iter, rtol=rtol,
-                                             lm_lambda=as_scalar(lm_lambda, "lm_lambda", positive=True),
-                                             step=step)
+    X, chi2s, costs, it, conv, w = _optimize(X0, evaluate, layout, update, method=method, max_iter=max_iter,
+                                             rtol=rtol, lm_lambda=lm_lambda, step=step)
     return PoseGraphResult(X=X, chi2=chi2s, cost=costs, iterations=it, converged=conv,
                            time=time.perf_counter() - start, method=method, weights=w)
 

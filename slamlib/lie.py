@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._checks import as_matrix, as_vector
+from ._checks import ROTATION_ATOL, as_matrix, as_rigid_motions, as_rotations, as_vector  # noqa: F401 (re-exported tolerance)
 
 __all__ = [
     "skew",
@@ -60,31 +60,17 @@ __all__ = [
     "se3_minus",
 ]
 
-#: Tolerance of the rotation checks: ``|R^T R - I|`` and ``|det R - 1|`` (data files store
-#: rotations as rounded quaternions or angles, so exact orthonormality is not required).
-ROTATION_ATOL = 1e-6
 #: Below this angle the Jacobian coefficients use their Taylor series (the direct forms
 #: lose digits to cancellation there).
 _SMALL = 1e-3
 
 
-# --------------------------------------------------------------------------- checks
-
-
 def _rotations(R, name):
-    R = as_matrix(R, name, 3, 3, copy=False)
-    err = np.abs(np.swapaxes(R, -1, -2) @ R - np.eye(3)).max(initial=0.0)
-    if err > ROTATION_ATOL or (R.size and np.abs(np.linalg.det(R) - 1.0).max() > ROTATION_ATOL):
-        raise ValueError(f"{name} must be a rotation matrix (orthonormal, det +1) or a batch of them")
-    return R
+    return as_rotations(R, name, copy=False)
 
 
 def _poses(T, name):
-    T = as_matrix(T, name, 4, 4, copy=False)
-    if T.size and np.abs(T[..., 3, :] - [0.0, 0.0, 0.0, 1.0]).max() > 0.0:
-        raise ValueError(f"{name} must be a homogeneous pose [[R, t], [0, 0, 0, 1]]: its last row must be [0, 0, 0, 1]")
-    _rotations(T[..., :3, :3], f"{name}[..., :3, :3]")
-    return T
+    return as_rigid_motions(T, name, copy=False)
 
 
 # --------------------------------------------------------------------------- cores
