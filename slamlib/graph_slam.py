@@ -114,6 +114,14 @@ __all__ = [
 #: blocks (:func:`_fill_reducing_order`) and built into the system, so SuperLU factorises it
 #: as it comes ("NATURAL"). Chosen by measurement (``benchmarks/bench_graph_slam.py``).
 SPLU_OPTIONS = dict(permc_spec="NATURAL", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
+#: Levenberg-Marquardt: the smallest factor by which one accepted step shrinks the damping (Nielsen's
+#: rule ``lambda *= max(floor, 1 - (2 gain - 1)^3)``; 1/10 is GTSAM's factor), and whether a rejected
+#: step whose predicted decrease is below ``rtol`` of the cost ends the optimisation (the minimum is
+#: reached to the tolerance). Chosen on the Intel, M3500, w10000, w20000, city10000 and sphere2500
+#: graphs (``benchmarks/bench_3d.py``).
+LM_SHRINK_FLOOR = 0.1
+LM_STOP_PREDICTED = True
+LM_RULE = "nielsen"
 #: Kernel widths (on the Mahalanobis distance ``sqrt(s)``) used when ``robust_scale`` is None:
 #: the square root of the 95 % quantile of the chi-square distribution with the edge's dimension.
 DEFAULT_ROBUST_SCALE = {d: math.sqrt(_chi2_dist.ppf(0.95, d)) for d in (2, 3, 6)}
@@ -822,7 +830,7 @@ class PoseGraphResult(NamedTuple):
     weights: np.ndarray
 
 
-def _optimize(state, evaluate, layout, update, *, method, max_iter, rtol, lm_lambda=1e-7, lm_shrink=1.0 / 3.0,
+def _optimize(state, evaluate, layout, update, *, method, max_iter, rtol, lm_lambda=1e-7, lm_shrink=None,
               step=None):
     """Gauss-Newton / Levenberg-Marquardt over a problem given by callbacks.
 
@@ -837,6 +845,7 @@ def _optimize(state, evaluate, layout, update, *, method, max_iter, rtol, lm_lam
     converged = cost == 0.0
     it = 0
     lam, nu = lm_lambda, 2.0
+    lm_shrink = LM_SHRINK_FLOOR if lm_shrink is None else lm_shrink
     data, b = layout.values(blocks) if not converged else (None, None)
     while not converged and it < max_iter:
         it += 1
@@ -865,14 +874,17 @@ def _optimize(state, evaluate, layout, update, *, method, max_iter, rtol, lm_lam
                 converged = abs(cost - new_cost) <= rtol * cost or new_cost <= floor
                 state, cost, chi2, weights = cand, new_cost, new_chi2, new_weights
                 data, b = layout.values(new_blocks)
-                # lambda *= max(1/3, 1 - (2 gain - 1)^3), nu = 2  (Madsen et al. 2004, Eq. 3.15)
-                lam *= max(lm_shrink, 1.0 - (2.0 * gain - 1.0) ** 3)
+                # lambda *= max(floor, 1 - (2 gain - 1)^3), nu = 2  (Madsen et al. 2004, Eq. 3.15, with the
+                # floor 1/10 of GTSAM's lambda factor in place of their 1/3)
+                lam *= max(lm_shrink, 1.0 - (2.0 * gain - 1.0) ** 3) if LM_RULE == "nielsen" else 0.1
                 nu = 2.0
             else:
-                lam *= nu
+                lam *= nu if LM_RULE == "nielsen" else 10.0
                 nu *= 2.0
-                # no step of any length lowers the cost any more: a minimum to working precision
-                converged = lam > 1e12 or abs(cost - new_cost) <= 1e-15 * cost
+                # a minimum to the tolerance: the quadratic model promises no relative decrease above rtol
+                # (the step failed on rounding), or no step of any length lowers the cost any more
+                converged = (LM_STOP_PREDICTED and 0.0 <= predicted <= rtol * cost) or lam > 1e12 \
+                    or abs(cost - new_cost) <= 1e-15 * cost
         costs.append(cost)
         chi2s.append(chi2)
     return state, np.array(chi2s), np.array(costs), it, bool(converged), weights
