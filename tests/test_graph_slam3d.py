@@ -105,8 +105,6 @@ def test_solver_reaches_a_minimum_with_zero_gradient_and_beats_odometry(method):
     # chi2 of a least-squares optimum with E edges of dimension 6 and 6(n-1) unknowns: about 6E - 6(n-1)
     dof = 6 * len(edges) - 6 * (len(T_true) - 1)
     assert 0.3 * dof < res.chi2[-1] < 3 * dof
-    H, b, _ = gs.pose_graph_system(np.zeros((len(T_true), 3)), edges[:1], np.zeros((1, 3)), np.eye(3)[None]) \
-        if False else (None, None, None)
     # zero gradient: the linearised system at the solution has b ~ 0
     layout = gs._pose_layout(len(T_true), edges, 6, (0,))
     e, A, B = g3.pose_graph3d_errors(res.X, edges, Z)
@@ -191,8 +189,8 @@ def test_g2o3d_without_vertices_composes_the_odometry_guess(tmp_path):
     p.write_text("EDGE3 0 1 1 0 0 0 0 0.5 " + " ".join(map(str, np.eye(6)[np.triu_indices(6)])) + "\n"
                  "EDGE3 1 2 1 0 0 0 0 0.5 " + " ".join(map(str, np.eye(6)[np.triu_indices(6)])) + "\n")
     g = load_g2o3d(p)
-    np.testing.assert_allclose(g.T[2], lie.se3_exp([0, 0, 0, 0, 0, 0.5]) @ np.eye(4) @ g.Z[0] @ g.Z[1] if False
-                               else g.Z[0] @ g.Z[1], atol=1e-15)
+    np.testing.assert_allclose(g.T[2], g.Z[0] @ g.Z[1], atol=1e-15)
+    np.testing.assert_allclose(g.T[2, :3, 3], [1 + np.cos(0.5), np.sin(0.5), 0.0], atol=1e-6)
 
 
 @pytest.mark.parametrize("line, match", [
@@ -253,3 +251,17 @@ def test_sphere2500_chi2_equals_gtsam_levenberg_marquardt():
     params.setAbsoluteErrorTol(0.0)
     vals = gtsam.LevenbergMarquardtOptimizer(graph, init, params).optimize()
     np.testing.assert_allclose(2 * graph.error(vals), SPHERE_CHI2, rtol=1e-9)
+
+
+# --------------------------------------------------------------------------- LM damping on a large 2-D graph
+@needs_gtsam
+def test_w10000_levenberg_marquardt_converges_in_as_few_iterations_as_gtsam():
+    """w10000 (TORO, 10 000 poses, 64 311 edges; shipped with GTSAM): Nielsen's damping with a shrink of at
+    most 1/3 per step crawled for 28 iterations; Marquardt's factor 10 with poses moved in their own frame
+    needs 9, as GTSAM's LM (benchmarks/bench_3d.py), at the same optimum."""
+    g = load_g2o(gtsam.findExampleDataFile("w10000.graph"))
+    assert (g.n_poses, g.n_edges) == (10000, 64311) and g.equivalences.shape == (5875, 2)
+    X0 = sl.pose_graph_initial_guess(g.n_poses, g.edges, g.Z)
+    res = sl.optimize_pose_graph(X0, g.edges, g.Z, g.Omega)
+    assert res.converged and res.iterations <= 10
+    np.testing.assert_allclose(res.chi2[-1], 289.725891182, rtol=1e-9)
