@@ -10,7 +10,7 @@ import numpy as np
 
 from .._checks import as_array
 
-__all__ = ["plot_pose_graphs3d", "plot_euler_conditioning"]
+__all__ = ["plot_pose_graphs3d", "plot_euler_conditioning", "plot_step_times"]
 
 _TRUTH = "0.15"
 
@@ -87,5 +87,38 @@ def plot_euler_conditioning(pitch, singular_values, *, ax=None):
     ax.axvline(90.0, color="0.5", lw=0.8, ls="--")
     ax.set_xlabel("pitch [deg]")
     ax.set_ylabel("singular value")
+    ax.legend()
+    return ax
+
+
+def plot_step_times(series, bin_size, *, ax=None, marks=None):
+    """Mean time per measurement of incremental solvers, in bins of measurements (log scale).
+
+    Parameters
+    ----------
+    series : dict of str -> sequence of float
+        Label -> mean milliseconds per measurement in each bin.
+    bin_size : int
+        Measurements per bin.
+    ax : matplotlib axes, optional, keyword-only
+    marks : sequence of int, optional, keyword-only
+        Measurements to mark with thin vertical lines (e.g. full solves).
+
+    Returns
+    -------
+    matplotlib axes
+    """
+    import matplotlib.pyplot as plt
+
+    if ax is None:
+        _, ax = plt.subplots(figsize=(6.5, 3.4), layout="constrained")
+    for k, (label, ms) in enumerate(series.items()):
+        ms = as_array(ms, label, ndim=1)
+        ax.step((np.arange(ms.size) + 1) * bin_size, ms, where="pre", color=f"C{k}", label=label)
+    for m in marks or ():
+        ax.axvline(m, color="0.7", lw=0.6, zorder=0)
+    ax.set_yscale("log")
+    ax.set_xlabel("measurements so far")
+    ax.set_ylabel(f"mean time per measurement [ms] (bins of {bin_size})")
     ax.legend()
     return ax
