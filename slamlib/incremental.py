@@ -74,7 +74,7 @@ def _solve(X, edges, Z, Omega, fixed, max_iter, rtol):
     return res.X
 
 
-def incremental_pose_graph(edges, Z, Omega, *, window=60, growth=0.25, local_iter=1, batch_iter=3,
+def incremental_pose_graph(edges, Z, Omega, *, window=60, growth=0.1, local_iter=1, batch_iter=3,
                            rtol=1e-6, snapshot_steps=()):
     """Solve a 2-D pose graph incrementally, one measurement at a time, in the given order.
 
