@@ -1,7 +1,7 @@
 """Precompute the incremental-smoothing figures of chapter 13 on City10000 (slamlib against gtsam.ISAM2).
 
-Run ``python tools/incremental_city10000.py`` (a few minutes; needs ``gtsam``, the dev extra). It feeds the
-20 687 measurements of City10000 one at a time to :func:`slamlib.incremental.incremental_pose_graph` and to
+Run ``python tools/incremental_city10000.py [--measurements M]`` (minutes; needs ``gtsam``, the dev extra).
+It feeds the first M (default all 20 687) measurements of City10000 one at a time to :func:`slamlib.incremental.incremental_pose_graph` and to
 ``gtsam.ISAM2`` (as ``benchmarks/bench_3d.py`` does), solves the whole graph once by batch
 Levenberg-Marquardt, and writes ``chapters/data/incremental_city10000.json``: the mean time per measurement
 in bins of 500 measurements for both, the full-solve steps, and the final chi2 and position RMSE against the
@@ -32,15 +32,25 @@ OUT = Path(__file__).resolve().parents[1] / "chapters" / "data" / "incremental_c
 BIN = 500
 
 
-def main():
+def main(argv=None):
+    import argparse
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--measurements", type=int, default=None, help="use the first M measurements (default all)")
+    args = ap.parse_args(argv)
     c = sl.datasets.load_city10000()
-    g = c.graph
+    m = args.measurements or c.graph.n_edges
+    edges, Z, Om = c.graph.edges[:m], c.graph.Z[:m], c.graph.Omega[:m]
+    n = int(edges.max()) + 1
+    g = sl.datasets.PoseGraph(X=sl.pose_graph_initial_guess(n, edges, Z), edges=edges, Z=Z, Omega=Om,
+                              vertex_ids=np.arange(n), source=c.graph.source)
+    truth = c.truth[:n]
     res = incremental_pose_graph(g.edges, g.Z, g.Omega)
     batch = sl.optimize_pose_graph(g.X, g.edges, g.Z, g.Omega)
     Xg, tg = run_isam2(g.edges, g.Z, g.Omega)
 
     def rmse(X):
-        return float(np.sqrt(np.mean(np.sum((X[:, :2] - c.truth[:, :2]) ** 2, axis=1))))
+        return float(np.sqrt(np.mean(np.sum((X[:, :2] - truth[:, :2]) ** 2, axis=1))))
 
     def binned(t):
         k = len(t) // BIN * BIN
