@@ -21,8 +21,9 @@ Goals (issue 19): sphere2500 within 2x of GTSAM's LM time; every 2-D graph at GT
 in no more time; incremental smoothing (city10000) per-step time within 5x of ``gtsam.ISAM2``
 with a final error within 1 % of batch.
 
-The bundle-adjustment comparison (against GTSAM and ``scipy.optimize.least_squares``) lives in
-``benchmarks/bench_bundle_adjustment.py`` (see the hook :func:`bundle_adjustment_figures` below).
+The bundle-adjustment comparison (against GTSAM and ``scipy.optimize.least_squares``) belongs to the
+camera part: :func:`bundle_adjustment_figures` runs the ``main()`` of its script
+(``benchmarks/bench_bundle_adjustment.py`` or ``benchmarks/bench_ba.py``) when present.
 
 BLAS runs single-threaded (``OPENBLAS_NUM_THREADS=1`` unless set already); GTSAM runs as installed.
 """
@@ -192,19 +193,25 @@ def figures2d(names=("Intel", "M3500", "w10000", "w20000", "city10000"), repeats
 
 
 # --------------------------------------------------------------------------- bundle adjustment (hook)
+#: The camera part's benchmark scripts, run by :func:`bundle_adjustment_figures` (the first that exists).
+BUNDLE_ADJUSTMENT_SCRIPTS = ("bench_bundle_adjustment.py", "bench_ba.py")
+
+
 def bundle_adjustment_figures():
-    """Bundle adjustment against GTSAM and ``scipy.optimize.least_squares``: owned by
-    ``benchmarks/bench_bundle_adjustment.py`` (run here when it exists)."""
-    path = os.path.join(os.path.dirname(os.path.abspath(__file__)), "bench_bundle_adjustment.py")
-    if not os.path.exists(path):
-        print("bundle adjustment: benchmarks/bench_bundle_adjustment.py not present; skipped")
-        return
+    """Bundle adjustment against GTSAM and ``scipy.optimize.least_squares``: owned by the camera part's
+    script (:data:`BUNDLE_ADJUSTMENT_SCRIPTS`), whose ``main()`` is run here when it exists."""
     import importlib.util
 
-    spec = importlib.util.spec_from_file_location("bench_bundle_adjustment", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    mod.main()
+    here = os.path.dirname(os.path.abspath(__file__))
+    for name in BUNDLE_ADJUSTMENT_SCRIPTS:
+        path = os.path.join(here, name)
+        if os.path.exists(path):
+            spec = importlib.util.spec_from_file_location(name[:-3], path)
+            mod = importlib.util.module_from_spec(spec)
+            spec.loader.exec_module(mod)
+            mod.main()
+            return
+    print(f"bundle adjustment: none of {', '.join(BUNDLE_ADJUSTMENT_SCRIPTS)} in benchmarks/; skipped")
 
 
 def main(argv=None):
