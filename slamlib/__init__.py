@@ -20,7 +20,7 @@ Layers, bottom up:
 from . import angles, bayes, motion, sensors, maps, sim, metrics, scoring, gaussian, particle, mcl, ekf_slam, fastslam
 from . import graph_slam
 from . import scan_matching, mapping, lidar_slam
-from . import camera
+from . import camera, bundle_adjustment
 from .angles import *  # noqa: F401,F403
 from .bayes import *  # noqa: F401,F403
 from .motion import *  # noqa: F401,F403
@@ -39,6 +39,7 @@ from .scan_matching import *  # noqa: F401,F403
 from .mapping import *  # noqa: F401,F403
 from .lidar_slam import *  # noqa: F401,F403
 from .camera import *  # noqa: F401,F403
+from .bundle_adjustment import *  # noqa: F401,F403
 from ._so3 import so3_exp, so3_log  # noqa: F401  (stand-in until slamlib.lie is merged)
 
 __version__ = "0.1.0"
@@ -49,7 +50,7 @@ __all__ = (
 )
 __all__ += graph_slam.__all__
 __all__ += scan_matching.__all__ + mapping.__all__ + lidar_slam.__all__
-__all__ += camera.__all__ + ["so3_exp", "so3_log"]
+__all__ += camera.__all__ + bundle_adjustment.__all__ + ["so3_exp", "so3_log"]
 
 
 def __getattr__(name):

@@ -1,0 +1,342 @@
+"""Bundle adjustment: sparse Levenberg-Marquardt over camera poses and points, with the Schur complement.
+
+The unknowns are ``C`` camera poses ``T_wc`` (6 degrees of freedom each, perturbed
+as ``T (+) delta = (R Exp(phi), t + R rho)``, :mod:`slamlib.camera`) and ``P``
+world points (3 each). Each observation ``k`` of point ``p_k`` in camera ``c_k``
+contributes the reprojection error ``e_k = project(K_c, T_c, P_p) - uv_k`` and its
+Jacobians ``A_k = d e_k / d delta_c`` (2 x 6), ``B_k = d e_k / d P_p`` (2 x 3).
+The normal equations ``H dx = -b`` have the arrow shape
+
+    H = [[H_cc, H_cp], [H_pc, H_pp]],   H_pp block-diagonal in 3 x 3,
+
+because an observation links one camera to one point. Eliminating the points
+(:func:`schur_complement`) leaves the *reduced camera system*
+``S dx_c = -s`` of size ``6C``; the points follow by back-substitution
+(:func:`back_substitute`), one 3 x 3 solve each. With hundreds of points per
+camera this is far cheaper than factorising ``H``.
+
+:func:`bundle_adjust` runs Levenberg-Marquardt with the loop, damping and robust
+kernels of :mod:`slamlib.graph_slam` (the same ``_optimize`` and sparse
+``_Layout``), with the linear solve done by the Schur complement (``schur=True``)
+or by a sparse factorisation of the whole ``H`` (``schur=False``). The gauge
+(a rigid motion and a scale leave every reprojection unchanged) is fixed by holding
+the first camera and, with ``fix_scale=True``, one translation coordinate of the
+second.
+
+References
+----------
+B. Triggs, P. McLauchlan, R. Hartley, A. Fitzgibbon, "Bundle adjustment - a modern
+synthesis", Vision Algorithms 1999, Sec. 6.1 (the Schur complement / reduced camera
+system), Sec. 9 (gauge freedom); Hartley & Zisserman (2004), Appendix A6.3
+(sparse Levenberg-Marquardt); S. Agarwal et al., "Bundle adjustment in the large",
+ECCV 2010.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.linalg import cho_factor, cho_solve
+
+from ._checks import as_array, as_count, as_index_set, as_indices, as_scalar, check_choice
+from ._so3 import _so3_exp
+from .camera import _project
+from .graph_slam import _kernel, _Layout, _optimize, _robust_args
+
+__all__ = ["schur_complement", "back_substitute", "BAResult", "bundle_adjust", "reprojection_errors"]
+
+
+# =========================================================================== the Schur complement
+def _pp_blocks(H_pp):
+    """The ``(P, 3, 3)`` diagonal blocks of a block-diagonal (dense or sparse) ``H_pp``."""
+    n = H_pp.shape[0] // 3
+    if sp.issparse(H_pp):
+        out = np.empty((n, 3, 3))
+        for a in range(3):
+            for c in range(3):
+                d = H_pp.diagonal(c - a)  # entries (i, i + c - a)
+                out[:, a, c] = d[3 * np.arange(n) + min(a, c)]
+        return out
+    idx = 3 * np.arange(n)[:, None] + np.arange(3)
+    return H_pp[idx[:, :, None], idx[:, None, :]]
+
+
+def _schur(H_cc, H_cp, Hpp_inv, b_c, b_p):
+    """``(S, s, W)`` with ``W = H_cp H_pp^-1`` (``H_cp`` dense or sparse, ``Hpp_inv (P, 3, 3)``)."""
+    n = Hpp_inv.shape[0]
+    if sp.issparse(H_cp):
+        W = H_cp @ sp.block_diag(Hpp_inv, format="csr")
+        S = H_cc - (W @ H_cp.T).toarray()  # S = H_cc - H_cp H_pp^-1 H_pc  (Triggs et al. 1999, Eq. 28)
+    else:
+        W = np.einsum("apk,pkl->apl", H_cp.reshape(-1, n, 3), Hpp_inv).reshape(H_cp.shape)
+        S = H_cc - W @ H_cp.T
+    return S, b_c - W @ b_p, W
+
+
+def _split(H, b, m):
+    return H[:m, :m], H[:m, m:], H[m:, m:], b[:m], b[m:]
+
+
+def schur_complement(H, b, n_cameras):
+    """Eliminate the points from the bundle-adjustment normal equations ``H dx = -b``.
+
+    Parameters
+    ----------
+    H : ndarray, shape (6C + 3P, 6C + 3P)
+        Symmetric positive definite; the ``6C`` camera unknowns come first, then
+        the points, and the point block ``H_pp`` is block-diagonal in ``3 x 3``.
+    b : ndarray, shape (6C + 3P,)
+    n_cameras : int
+        ``C``.
+
+    Returns
+    -------
+    S : ndarray, shape (6C, 6C)
+        ``H_cc - H_cp H_pp^-1 H_pc``, the reduced camera system.
+    s : ndarray, shape (6C,)
+        ``b_c - H_cp H_pp^-1 b_p``; ``S dx_c = -s`` gives the cameras' step.
+
+    References
+    ----------
+    Triggs et al. (1999), Sec. 6.1; Hartley & Zisserman (2004), Algorithm A6.4.
+    """
+    H, b, m = _as_system(H, b, n_cameras)
+    H_cc, H_cp, H_pp, b_c, b_p = _split(H, b, m)
+    S, s, _ = _schur(H_cc, H_cp, np.linalg.inv(_pp_blocks(H_pp)), b_c, b_p)  # H_pp^-1 block by block
+    return S, s
+
+
+def _back(H_pc, Hpp_inv, b_p, dx_c):
+    r = (b_p + H_pc @ dx_c).reshape(-1, 3)
+    return -np.einsum("pkl,pl->pk", Hpp_inv, r).ravel()  # dx_p = -H_pp^-1 (b_p + H_pc dx_c)
+
+
+def back_substitute(H, b, n_cameras, dx_cameras):
+    """The points' step ``dx_p = -H_pp^-1 (b_p + H_pc dx_c)`` once the cameras' step is known.
+
+    Parameters
+    ----------
+    H, b, n_cameras
+        As in :func:`schur_complement`.
+    dx_cameras : ndarray, shape (6C,)
+        Solution of ``S dx_c = -s``.
+
+    Returns
+    -------
+    ndarray, shape (3P,)
+        ``[dx_cameras, dx_points]`` solves ``H dx = -b``.
+
+    References
+    ----------
+    Triggs et al. (1999), Sec. 6.1 (back-substitution); Hartley & Zisserman (2004), Algorithm A6.4.
+    """
+    H, b, m = _as_system(H, b, n_cameras)
+    dx_c = as_array(dx_cameras, "dx_cameras", (m,))
+    _, _, H_pp, _, b_p = _split(H, b, m)
+    return _back(H[m:, :m], np.linalg.inv(_pp_blocks(H_pp)), b_p, dx_c)
+
+
+def _as_system(H, b, n_cameras):
+    H = as_array(H, "H", ndim=2)
+    n = H.shape[0]
+    if H.shape != (n, n):
+        raise ValueError(f"H must be square, got shape {H.shape}")
+    b = as_array(b, "b", (n,), ref="H")
+    C = as_count(n_cameras, "n_cameras")
+    m = 6 * C
+    if m > n or (n - m) % 3:
+        raise ValueError(f"H of size {n} does not hold 6 n_cameras = {m} camera unknowns followed by 3 per point")
+    return H, b, m
+
+
+# =========================================================================== the optimiser
+class _SchurLayout(_Layout):
+    """The sparse pattern of ``H`` with ``m`` free camera unknowns first; solves by the Schur complement.
+
+    With ``hooks = (schur_complement, back_substitute)`` (the contract functions,
+    e.g. a student's), the dense ``H`` and ``b = -rhs`` are handed to them instead.
+    """
+
+    def __init__(self, n_var, terms, fixed_vars, m, hooks=None):
+        super().__init__(n_var, terms, fixed_vars, order=False)
+        self.m = m
+        self.hooks = hooks
+
+    def solve(self, data, rhs):
+        m = self.m
+        H = self.matrix(data)
+        if self.hooks is not None:
+            schur, back = self.hooks
+            Hd, b = H.toarray(), -rhs
+            S, s = schur(Hd, b, m // 6)
+            dx_c = cho_solve(cho_factor(np.asarray(S, dtype=float)), -np.asarray(s, dtype=float))
+            return np.concatenate([dx_c, np.asarray(back(Hd, b, m // 6, dx_c), dtype=float)])
+        H = H.tocsr()
+        H_cc, H_cp, H_pp = H[:m, :m].toarray(), H[:m, m:], H[m:, m:]
+        Hpp_inv = np.linalg.inv(_pp_blocks(H_pp))
+        S, s, _ = _schur(H_cc, H_cp, Hpp_inv, -rhs[:m], -rhs[m:])
+        dx_c = cho_solve(cho_factor(S), -s)  # S dx_c = -s
+        return np.concatenate([dx_c, _back(H[m:, :m], Hpp_inv, -rhs[m:], dx_c)])
+
+
+class BAResult(NamedTuple):
+    """Result of :func:`bundle_adjust`.
+
+    Attributes
+    ----------
+    T_wc : ndarray, shape (C, 4, 4)
+    points : ndarray, shape (P, 3)
+    cost : ndarray, shape (iterations + 1,)
+        ``sum_k rho(|e_k|^2)`` (pixels squared; ``rho(s) = s`` without a robust kernel) after each iteration.
+    iterations : int
+    converged : bool
+    weights : ndarray, shape (O,)
+        The robust kernel's weights of the observations at the end (ones without one).
+    """
+
+    T_wc: np.ndarray
+    points: np.ndarray
+    cost: np.ndarray
+    iterations: int
+    converged: bool
+    weights: np.ndarray
+
+
+def _residuals(K, T, points, cam, point, uv, project=None):
+    """``(e (O, 2), A (O, 2, 6), B (O, 2, 3))`` of every observation (``project``: a hook per camera)."""
+    if project is None:
+        Kc = K[cam] if K.ndim == 3 else K
+        uv_hat, A, B, _ = _project(Kc, T[cam, :3, :3], T[cam, :3, 3], points[point])
+        return uv_hat - uv, A, B
+    e, A, B = np.empty((len(cam), 2)), np.empty((len(cam), 2, 6)), np.empty((len(cam), 2, 3))
+    for c in np.unique(cam):
+        sel = np.flatnonzero(cam == c)
+        u, a, bb = project(K[c] if K.ndim == 3 else K, T[c], points[point[sel]])
+        e[sel], A[sel], B[sel] = np.asarray(u) - uv[sel], a, bb
+    return e, A, B
+
+
+def reprojection_errors(K, T_wc, points, cam, point, uv):
+    """Reprojection errors ``project(K_c, T_c, P_p) - uv_k`` of every observation, shape ``(O, 2)`` (pixels)."""
+    K, T, points, cam, point, uv = _as_problem(K, T_wc, points, cam, point, uv)
+    return _residuals(K, T, points, cam, point, uv)[0]
+
+
+def _as_problem(K, T_wc, points, cam, point, uv):
+    T = as_array(T_wc, "T_wc", (None, 4, 4))
+    C = T.shape[0]
+    K = as_array(K, "K", ndim=(2, 3))
+    if K.shape not in ((3, 3), (C, 3, 3)):
+        raise ValueError(f"K must have shape (3, 3) or ({C}, 3, 3) (to match T_wc), got {K.shape}")
+    points = as_array(points, "points", (None, 3))
+    cam = as_indices(cam, "cam", C)
+    point = as_indices(point, "point", points.shape[0])
+    if cam.ndim != 1 or point.ndim != 1:
+        raise ValueError(f"cam and point must be 1-D index arrays, got shapes {cam.shape} and {point.shape}")
+    uv = as_array(uv, "uv", (None, 2))
+    if not (len(cam) == len(point) == len(uv)):
+        raise ValueError(f"cam, point and uv must have one row per observation, got {len(cam)}, {len(point)}, "
+                         f"{len(uv)}")
+    return K, T, points, cam, point, uv
+
+
+def _update(state, dx, C, exp):
+    T, points = state
+    d = dx[:6 * C].reshape(C, 6)
+    R = T[:, :3, :3]
+    Tn = T.copy()
+    Tn[:, :3, :3] = R @ (exp(d[:, 3:]) if exp is _so3_exp else np.stack([exp(v) for v in d[:, 3:]]))
+    Tn[:, :3, 3] = T[:, :3, 3] + np.einsum("cij,cj->ci", R, d[:, :3])  # T (+) delta = (R Exp(phi), t + R rho)
+    return Tn, points + dx[6 * C:].reshape(-1, 3)
+
+
+def bundle_adjust(T_wc, points, K, cam, point, uv, *, fixed=(0,), fix_scale=False, robust=None, robust_scale=None,
+                  schur=True, method="lm", max_iter=50, rtol=1e-10, lm_lambda=1e-7, project=None, so3_exp=None,
+                  schur_complement=None, back_substitute=None):
+    """Bundle adjustment by Levenberg-Marquardt (or Gauss-Newton) over camera poses and points.
+
+    Parameters
+    ----------
+    T_wc : ndarray, shape (C, 4, 4)
+        Initial camera poses (camera-to-world).
+    points : ndarray, shape (P, 3)
+        Initial world points.
+    K : ndarray, shape (3, 3) or (C, 3, 3)
+        Calibration, shared or per camera (held fixed).
+    cam, point : ndarray of int, shape (O,)
+        Camera and point of each observation.
+    uv : ndarray, shape (O, 2)
+        Observed pixels.
+    fixed : sequence of int, keyword-only
+        Cameras held fixed (the gauge: default the first).
+    fix_scale : bool, keyword-only
+        Also hold the translation coordinate of camera ``fixed[0] + 1``'s step
+        ``rho`` along which it lies farthest from camera ``fixed[0]`` (the scale
+        gauge); without it the damping of LM keeps the step finite.
+    robust : {"huber", "cauchy"} or None, keyword-only
+        Robust kernel on the squared reprojection error (IRLS, as in
+        :func:`slamlib.optimize_pose_graph`); `robust_scale` its width in pixels
+        (default ``sqrt(chi2_2(0.95)) = 2.45``).
+    schur : bool, keyword-only
+        Solve each step by the Schur complement (the reduced camera system), or
+        by a sparse factorisation of the whole ``H`` (fill-reducing order).
+    method : {"lm", "gn"}, keyword-only
+    max_iter, rtol, lm_lambda : keyword-only
+        Iteration limit, relative cost change that stops, and LM's initial damping
+        relative to the mean of ``diag H`` (:func:`slamlib.optimize_pose_graph`).
+    project, so3_exp, schur_complement, back_substitute : callable, keyword-only
+        Hooks replacing the library's own :func:`slamlib.project` (called once per
+        camera), :func:`slamlib.so3_exp` (in the pose update, once per camera),
+        and the Schur elimination (both together; the dense ``H`` of the free
+        cameras and all points is passed, with ``fixed`` and no ``fix_scale``).
+
+    Returns
+    -------
+    BAResult
+
+    References
+    ----------
+    Triggs et al. (1999); Hartley & Zisserman (2004), Sec. A6.3; Madsen, Nielsen &
+    Tingleff, *Methods for non-linear least squares problems* (2004) (the damping).
+    """
+    K, T, P, cam, point, uv = _as_problem(K, T_wc, points, cam, point, uv)
+    C, n_pt = T.shape[0], P.shape[0]
+    fixed = list(as_index_set(fixed, "fixed", C, what="camera index")) if len(fixed) else []
+    check_choice(method, "method", {"gn": "Gauss-Newton", "lm": "Levenberg-Marquardt"})
+    max_iter = as_count(max_iter, "max_iter")
+    rtol = as_scalar(rtol, "rtol", nonnegative=True)
+    robust, k = _robust_args(robust, robust_scale, 2)
+    hooks = None
+    if (schur_complement is None) != (back_substitute is None):
+        raise ValueError("schur_complement and back_substitute are plugged in together")
+    if schur_complement is not None:
+        if fix_scale or not schur:
+            raise ValueError("schur_complement and back_substitute need schur=True and fix_scale=False")
+        hooks = (schur_complement, back_substitute)
+    fixed_vars = [6 * c + i for c in fixed for i in range(6)]
+    if fix_scale:
+        if not fixed or C < 2:
+            raise ValueError("fix_scale needs a fixed camera and a second one")
+        c0 = fixed[0]
+        c1 = (c0 + 1) % C
+        base = T[c1, :3, :3].T @ (T[c1, :3, 3] - T[c0, :3, 3])
+        fixed_vars.append(6 * c1 + int(np.argmax(np.abs(base))))
+    m = 6 * C - len(fixed_vars)
+    terms = [(6 * cam, 6, 6 * C + 3 * point, 3)]
+    layout = _SchurLayout(6 * C + 3 * n_pt, terms, fixed_vars, m, hooks) if schur else \
+        _Layout(6 * C + 3 * n_pt, terms, fixed_vars, order=True)
+    eye = np.eye(2)
+    exp = _so3_exp if so3_exp is None else so3_exp
+
+    def evaluate(state):
+        e, A, B = _residuals(K, state[0], state[1], cam, point, uv, project)
+        s = np.einsum("ki,ki->k", e, e)
+        cost, w = _kernel(s, robust, k)
+        return float(cost.sum()), float(s.sum()), [(A, B, e, w[:, None, None] * eye)], w
+
+    (T_out, P_out), _, costs, it, conv, w = _optimize(
+        (T, P), evaluate, layout, lambda st, dx: _update(st, dx, C, exp), method=method, max_iter=max_iter,
+        rtol=rtol, lm_lambda=lm_lambda)
+    return BAResult(T_out, P_out, costs, it, conv, w)
