@@ -50,29 +50,26 @@ __all__ = ["schur_complement", "back_substitute", "BAResult", "bundle_adjust", "
 
 # =========================================================================== the Schur complement
 def _pp_blocks(H_pp):
-    """The ``(P, 3, 3)`` diagonal blocks of a block-diagonal (dense or sparse) ``H_pp``."""
-    n = H_pp.shape[0] // 3
-    if sp.issparse(H_pp):
-        out = np.empty((n, 3, 3))
-        for a in range(3):
-            for c in range(3):
-                d = H_pp.diagonal(c - a)  # entries (i, i + c - a)
-                out[:, a, c] = d[3 * np.arange(n) + min(a, c)]
-        return out
-    idx = 3 * np.arange(n)[:, None] + np.arange(3)
+    """The ``(P, 3, 3)`` diagonal blocks of a block-diagonal ``H_pp (3P, 3P)``."""
+    idx = 3 * np.arange(H_pp.shape[0] // 3)[:, None] + np.arange(3)
     return H_pp[idx[:, :, None], idx[:, None, :]]
 
 
+def _pp_blocks_sparse(H_pp):
+    """:func:`_pp_blocks` of a sparse ``H_pp``, read from its diagonals."""
+    n = H_pp.shape[0] // 3
+    out = np.empty((n, 3, 3))
+    for a in range(3):
+        for c in range(3):
+            out[:, a, c] = H_pp.diagonal(c - a)[3 * np.arange(n) + min(a, c)]  # entries (i, i + c - a)
+    return out
+
+
 def _schur(H_cc, H_cp, Hpp_inv, b_c, b_p):
-    """``(S, s, W)`` with ``W = H_cp H_pp^-1`` (``H_cp`` dense or sparse, ``Hpp_inv (P, 3, 3)``)."""
-    n = Hpp_inv.shape[0]
-    if sp.issparse(H_cp):
-        W = H_cp @ sp.block_diag(Hpp_inv, format="csr")
-        S = H_cc - (W @ H_cp.T).toarray()  # S = H_cc - H_cp H_pp^-1 H_pc  (Triggs et al. 1999, Eq. 28)
-    else:
-        W = np.einsum("apk,pkl->apl", H_cp.reshape(-1, n, 3), Hpp_inv).reshape(H_cp.shape)
-        S = H_cc - W @ H_cp.T
-    return S, b_c - W @ b_p, W
+    """``(S, s)`` from dense blocks, ``Hpp_inv (P, 3, 3)`` the inverted point blocks."""
+    W = np.einsum("apk,pkl->apl", H_cp.reshape(H_cp.shape[0], -1, 3), Hpp_inv).reshape(H_cp.shape)  # H_cp H_pp^-1
+    # S = H_cc - H_cp H_pp^-1 H_pc, s = b_c - H_cp H_pp^-1 b_p  (Triggs et al. 1999, Eq. 28)
+    return H_cc - W @ H_cp.T, b_c - W @ b_p
 
 
 def _split(H, b, m):
@@ -104,8 +101,7 @@ def schur_complement(H, b, n_cameras):
     """
     H, b, m = _as_system(H, b, n_cameras)
     H_cc, H_cp, H_pp, b_c, b_p = _split(H, b, m)
-    S, s, _ = _schur(H_cc, H_cp, np.linalg.inv(_pp_blocks(H_pp)), b_c, b_p)  # H_pp^-1 block by block
-    return S, s
+    return _schur(H_cc, H_cp, np.linalg.inv(_pp_blocks(H_pp)), b_c, b_p)  # H_pp^-1 block by block
 
 
 def _back(H_pc, Hpp_inv, b_p, dx_c):
@@ -174,9 +170,11 @@ class _SchurLayout(_Layout):
             dx_c = cho_solve(cho_factor(np.asarray(S, dtype=float)), -np.asarray(s, dtype=float))
             return np.concatenate([dx_c, np.asarray(back(Hd, b, m // 6, dx_c), dtype=float)])
         H = H.tocsr()
-        H_cc, H_cp, H_pp = H[:m, :m].toarray(), H[:m, m:], H[m:, m:]
-        Hpp_inv = np.linalg.inv(_pp_blocks(H_pp))
-        S, s, _ = _schur(H_cc, H_cp, Hpp_inv, -rhs[:m], -rhs[m:])
+        H_cp = H[:m, m:]
+        Hpp_inv = np.linalg.inv(_pp_blocks_sparse(H[m:, m:]))
+        W = H_cp @ sp.block_diag(Hpp_inv, format="csr")  # H_cp H_pp^-1, sparse
+        S = H[:m, :m].toarray() - (W @ H_cp.T).toarray()  # the reduced camera system  (Triggs et al. 1999, Eq. 28)
+        s = -rhs[:m] - W @ -rhs[m:]
         dx_c = cho_solve(cho_factor(S), -s)  # S dx_c = -s
         return np.concatenate([dx_c, _back(H[m:, :m], Hpp_inv, -rhs[m:], dx_c)])
 

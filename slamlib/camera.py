@@ -44,7 +44,7 @@ from ._so3 import _skew
 
 __all__ = ["calibration_matrix", "pose_matrix", "project", "triangulate", "to_normalized", "eight_point",
            "sampson_distance", "ransac_iterations", "EssentialResult", "essential_ransac", "decompose_essential",
-           "recover_pose", "match_descriptors", "epipolar_lines"]
+           "recover_pose", "TwoViewResult", "two_view_reconstruction", "match_descriptors", "epipolar_lines"]
 
 
 # =========================================================================== poses and calibration
@@ -332,7 +332,7 @@ class EssentialResult(NamedTuple):
     iterations: int
 
 
-def essential_ransac(x1, x2, *, threshold, rng, confidence=0.999, max_iter=2000):
+def essential_ransac(x1, x2, *, threshold, rng, confidence=0.999, max_iter=2000, eight_point=None):
     """The essential matrix of matches with outliers: eight-point inside RANSAC.
 
     Parameters
@@ -351,6 +351,8 @@ def essential_ransac(x1, x2, *, threshold, rng, confidence=0.999, max_iter=2000)
         (:func:`ransac_iterations`), the adaptive stopping rule.
     max_iter : int, keyword-only
         Upper bound on the samples.
+    eight_point : callable, keyword-only
+        Hook replacing :func:`eight_point` (each sample's fit and the final refit).
 
     Returns
     -------
@@ -368,19 +370,20 @@ def essential_ransac(x1, x2, *, threshold, rng, confidence=0.999, max_iter=2000)
     if p >= 1:
         raise ValueError(f"confidence must be in (0, 1), got {p}")
     max_iter = as_count(max_iter, "max_iter", minimum=1)
+    fit = _eight_point if eight_point is None else (lambda a, b: np.asarray(eight_point(a, b), dtype=float))
     n = len(x1)
     best = np.zeros(n, dtype=bool)
     needed, it = max_iter, 0
     while it < min(needed, max_iter):
         it += 1
         idx = rng.choice(n, 8, replace=False)
-        inl = _sampson(_eight_point(x1[idx], x2[idx]), x1, x2) < thr2
+        inl = _sampson(fit(x1[idx], x2[idx]), x1, x2) < thr2
         if inl.sum() > best.sum():
             best = inl
             needed = _ransac_iterations(inl.mean(), 8, p)
     if best.sum() < 8:
         raise ValueError("RANSAC found no essential matrix with 8 inliers; raise threshold or check the matches")
-    E = _eight_point(x1[best], x2[best])
+    E = fit(x1[best], x2[best])
     return EssentialResult(E, _sampson(E, x1, x2) < thr2, it)
 
 
@@ -451,6 +454,77 @@ def recover_pose(E, x1, x2):
     T[:3, :3] = R.T  # x2 = R x1 + t: camera 2 sits at -R^T t, rotated by R^T
     T[:3, 3] = -R.T @ t
     return T, P, front
+
+
+class TwoViewResult(NamedTuple):
+    """Result of :func:`two_view_reconstruction`.
+
+    Attributes
+    ----------
+    T_wc2 : ndarray, shape (4, 4)
+        Camera 2 in camera 1's frame, translation of unit length.
+    points : ndarray, shape (M, 3)
+        The inliers in front of both cameras, triangulated (camera 1's frame).
+    inliers : ndarray of int, shape (M,)
+        Indices of those matches.
+    E : ndarray, shape (3, 3)
+    """
+
+    T_wc2: np.ndarray
+    points: np.ndarray
+    inliers: np.ndarray
+    E: np.ndarray
+
+
+def two_view_reconstruction(K, uv1, uv2, *, threshold, rng, confidence=0.999, max_iter=2000, eight_point=None,
+                            triangulate=None):
+    """Relative motion and points from matched pixels of two photographs of one calibrated camera.
+
+    RANSAC over eight-point fits (:func:`essential_ransac`, `threshold` in
+    pixels), the decomposition with the most points in front of both cameras
+    (:func:`recover_pose`), and the DLT triangulation in pixels
+    (:func:`triangulate`, camera 1 at the identity) of the inliers in front.
+
+    Parameters
+    ----------
+    K : ndarray, shape (3, 3)
+    uv1, uv2 : ndarray, shape (N, 2)
+        Matched pixels.
+    threshold : float, keyword-only
+        Inlier threshold on the Sampson distance, in pixels (divided by ``fx``).
+    rng : numpy.random.Generator, keyword-only
+        RANSAC's samples.
+    confidence, max_iter : keyword-only
+        As in :func:`essential_ransac`.
+    eight_point, triangulate : callable, keyword-only
+        Hooks replacing :func:`eight_point` and :func:`triangulate`.
+
+    Returns
+    -------
+    TwoViewResult
+
+    References
+    ----------
+    Hartley & Zisserman (2004), Sec. 9.6, 11.6, 12.2.
+    """
+    K = _as_calibration(K)
+    uv1 = as_array(uv1, "uv1", (None, 2))
+    uv2 = as_array(uv2, "uv2", (None, 2))
+    if uv1.shape != uv2.shape:
+        raise ValueError(f"uv2 must have the shape of uv1 {uv1.shape}, got {uv2.shape}")
+    thr = as_scalar(threshold, "threshold", positive=True) / K[0, 0]
+    x1 = np.column_stack([(uv1[:, 0] - K[0, 2]) / K[0, 0], (uv1[:, 1] - K[1, 2]) / K[1, 1]])
+    x2 = np.column_stack([(uv2[:, 0] - K[0, 2]) / K[0, 0], (uv2[:, 1] - K[1, 2]) / K[1, 1]])
+    res = essential_ransac(x1, x2, threshold=thr, rng=rng, confidence=confidence, max_iter=max_iter,
+                           eight_point=eight_point)
+    inl = np.flatnonzero(res.inliers)
+    T2, _, front = recover_pose(res.E, x1[inl], x2[inl])
+    keep = inl[front]
+    if triangulate is None:
+        P = _triangulate(_camera_matrix(K, np.eye(4)), _camera_matrix(K, T2), uv1[keep], uv2[keep])
+    else:
+        P = np.asarray(triangulate(K, np.eye(4), T2, uv1[keep], uv2[keep]), dtype=float)
+    return TwoViewResult(T2, P, keep, res.E)
 
 
 def epipolar_lines(E, x1):
