@@ -43,7 +43,7 @@ def so3_exp(w):
 def _so3_log(R):
     v = 0.5 * np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1)
     s = np.linalg.norm(v, axis=-1)
-    c = 0.5 * (np.trace(R, axis1=-2, axis2=-1) - 1.0)
+    c = 0.5 * (R[..., 0, 0] + R[..., 1, 1] + R[..., 2, 2] - 1.0)  # cos(angle) = (tr R - 1) / 2
     angle = np.arctan2(s, c)
     w = v / np.sinc(angle / np.pi)[..., None]  # angle / sin(angle) v
     # near pi the axis comes from the symmetric part: (R + R^T)/2 - cos I = (1 - cos) n n^T

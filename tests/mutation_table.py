@@ -280,6 +280,44 @@ EQUIVALENT = {
         "_rigid_fit: [R = U @ np.diag([1.0, d]) @ Vt] U @ np.diag([1.0, d]) -> "
         "np.swapaxes(U, -1, -2) @ np.diag([1.0, d])": SVD_U,
     },
+    "so3_log": {
+        "_so3_log: [far = c < 0.0] c < 0.0 -> c <= 0.0":
+            "switches to the symmetric-part axis at an angle of exactly pi/2 too, where both ways are exact",
+        "_so3_log: [n = col / np.linalg.norm(col, axis=-1, keepdims=True)] -1 -> 1":
+            "axis=1 instead of -1 of the (1, 3) column of the contract's single R: the same norm",
+        "_so3_log: [sign = np.where(np.sum(n * v[far], axis=-1) < 0.0, -1.0, 1.0)] "
+        "np.sum(n * v[far], axis=-1) < 0.0 -> np.sum(n * v[far], axis=-1) <= 0.0":
+            "differs only where n . vee(R - R^T) = 0 exactly, a half turn (R symmetric), where the contract accepts "
+            "either sign",
+        "_so3_log: [if np.any(far):] np.any(far) -> np.all(far)": "any and all agree on the contract's single R",
+        "_so3_log: [k = np.argmax(np.diagonal(S, axis1=-2, axis2=-1), axis=-1)] -1 -> 1 #2":
+            "axis=1 instead of -1 of the (1, 3) diagonal of the contract's single R: the same argmax",
+        "_so3_log: [sign = np.where(np.sum(n * v[far], axis=-1) < 0.0, -1.0, 1.0)] -1 -> 1":
+            "axis=1 instead of -1 of the (1, 3) product of the contract's single R: the same sum",
+    },
+    "eight_point": {
+        "_hartley: [s = math.sqrt(2.0) / np.mean(np.linalg.norm(x - c, axis=1))] x - c -> c - x":
+            "|x - c| = |c - x|",
+    },
+    "project": {
+        "_project: [Jc = np.stack([np.stack([fx * iz, zero, -fx * X * iz * iz], -1), np.stack([zero, fy * i...] "
+        "-1 -> 1": AXIS,
+        "_project: [Jc = np.stack([np.stack([fx * iz, zero, -fx * X * iz * iz], -1), np.stack([zero, fy * i...] "
+        "-1 -> 1 #2": AXIS,
+        "_project: [uv = np.stack([fx * X * iz + cx, fy * Y * iz + cy], axis=-1)] -1 -> 1":
+            "axis=1 instead of -1 when stacking the (N,) pixel coordinates: the same (N, 2)",
+        "_project: [J_point = Jc @ np.swapaxes(R, -1, -2)] -1 -> 1":
+            "swapaxes(R, 1, -2) of the contract's single (3, 3) R is its transpose too",
+    },
+    "schur_complement": {
+        "_schur: [W = np.einsum('apk,pkl->apl', H_cp.reshape(H_cp.shape[0], -1, 3), Hpp_inv).reshape(H_cp...] "
+        "1 -> 2": RESHAPE_NEG,
+    },
+    "back_substitute": {
+        "_split: [return (H[:m, :m], H[:m, m:], H[m:, m:], b[:m], b[m:])] b -> H":
+            "b_c (returned by the shared _split) is not read by back_substitute (dead code here)",
+        "_back: [r = (b_p + H_pc @ dx_c).reshape(-1, 3)] 1 -> 2": RESHAPE_NEG,
+    },
 }
 
 NOT_KILLED = {
