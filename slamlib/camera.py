@@ -372,19 +372,26 @@ def essential_ransac(x1, x2, *, threshold, rng, confidence=0.999, max_iter=2000,
     max_iter = as_count(max_iter, "max_iter", minimum=1)
     fit = _eight_point if eight_point is None else (lambda a, b: np.asarray(eight_point(a, b), dtype=float))
     n = len(x1)
-    best = np.zeros(n, dtype=bool)
+    best, best_E = np.zeros(n, dtype=bool), None
     needed, it = max_iter, 0
     while it < min(needed, max_iter):
         it += 1
         idx = rng.choice(n, 8, replace=False)
-        inl = _sampson(fit(x1[idx], x2[idx]), x1, x2) < thr2
+        with np.errstate(all="ignore"):
+            E = fit(x1[idx], x2[idx])
+            if not np.all(np.isfinite(E)):
+                continue  # a degenerate sample (e.g. repeated keypoints)
+            inl = _sampson(E, x1, x2) < thr2
         if inl.sum() > best.sum():
-            best = inl
+            best, best_E = inl, E
             needed = _ransac_iterations(inl.mean(), 8, p)
     if best.sum() < 8:
         raise ValueError("RANSAC found no essential matrix with 8 inliers; raise threshold or check the matches")
-    E = fit(x1[best], x2[best])
-    return EssentialResult(E, _sampson(E, x1, x2) < thr2, it)
+    E = fit(x1[best], x2[best])  # refit on all inliers; kept only if it explains at least as many
+    inl = _sampson(E, x1, x2) < thr2
+    if inl.sum() < best.sum():
+        E, inl = best_E, best
+    return EssentialResult(E, inl, it)
 
 
 # =========================================================================== relative pose

@@ -16,3 +16,4 @@ from ._real_data import *  # noqa: F401,F403
 from ._graph import *  # noqa: F401,F403
 from ._scan import *  # noqa: F401,F403
 from ._victoria import *  # noqa: F401,F403
+from ._camera import *  # noqa: F401,F403
