@@ -28,7 +28,8 @@ normalised eight-point algorithm), Sec. 12.2 (linear triangulation), Sec. 4.7.1
 (RANSAC's number of samples, Eq. 4.18). R. Hartley, "In defense of the eight-point
 algorithm", IEEE TPAMI 19(6), 1997. D. G. Lowe, "Distinctive image features from
 scale-invariant keypoints", IJCV 60(2), 2004, Sec. 7.1 (the ratio test).
-M. A. Fischler, R. C. Bolles, "Random sample consensus", CACM 24(6), 1981.
+M. A. Fischler, R. C. Bolles, "Random sample consensus", CACM 24(6), 1981. O. Chum, J. Matas,
+J. Kittler, "Locally optimized RANSAC", DAGM 2003.
 """
 
 from __future__ import annotations
@@ -345,6 +346,8 @@ def essential_ransac(x1, x2, *, threshold, rng, confidence=0.999, max_iter=2000,
         by the focal length.
     rng : numpy.random.Generator, keyword-only
         Draws each sample of 8 distinct matches (``rng.choice(N, 8, replace=False)``).
+        Each sample that beats the best so far is refitted on its inliers and the
+        refit kept when it explains more matches (local optimisation).
     confidence : float, keyword-only
         Probability of drawing at least one all-inlier sample: after each better
         sample the number of samples is recomputed from its inlier ratio
@@ -372,25 +375,35 @@ def essential_ransac(x1, x2, *, threshold, rng, confidence=0.999, max_iter=2000,
     max_iter = as_count(max_iter, "max_iter", minimum=1)
     fit = _eight_point if eight_point is None else (lambda a, b: np.asarray(eight_point(a, b), dtype=float))
     n = len(x1)
+
+    def consensus(idx):
+        """``(E, inliers)`` of a fit to the matches ``idx``, or None for a degenerate set (no finite fit)."""
+        if len(idx) < 8:
+            return None
+        try:
+            with np.errstate(all="ignore"):
+                E = fit(x1[idx], x2[idx])
+        except np.linalg.LinAlgError:
+            return None
+        if not np.all(np.isfinite(E)):
+            return None  # e.g. repeated keypoints
+        return E, _sampson(E, x1, x2) < thr2
+
     best, best_E = np.zeros(n, dtype=bool), None
     needed, it = max_iter, 0
     while it < min(needed, max_iter):
         it += 1
-        idx = rng.choice(n, 8, replace=False)
-        with np.errstate(all="ignore"):
-            E = fit(x1[idx], x2[idx])
-            if not np.all(np.isfinite(E)):
-                continue  # a degenerate sample (e.g. repeated keypoints)
-            inl = _sampson(E, x1, x2) < thr2
-        if inl.sum() > best.sum():
-            best, best_E = inl, E
-            needed = _ransac_iterations(inl.mean(), 8, p)
+        cand = consensus(rng.choice(n, 8, replace=False))
+        if cand is None or cand[1].sum() <= best.sum():
+            continue
+        # local optimisation: refit on the new best's inliers, keep it if it explains more (Chum et al. 2003)
+        lo = consensus(np.flatnonzero(cand[1]))
+        best_E, best = lo if lo is not None and lo[1].sum() > cand[1].sum() else cand
+        needed = _ransac_iterations(best.mean(), 8, p)
     if best.sum() < 8:
         raise ValueError("RANSAC found no essential matrix with 8 inliers; raise threshold or check the matches")
-    E = fit(x1[best], x2[best])  # refit on all inliers; kept only if it explains at least as many
-    inl = _sampson(E, x1, x2) < thr2
-    if inl.sum() < best.sum():
-        E, inl = best_E, best
+    final = consensus(np.flatnonzero(best))  # refit on all inliers; kept only if it explains at least as many
+    E, inl = final if final is not None and final[1].sum() >= best.sum() else (best_E, best)
     return EssentialResult(E, inl, it)
 
 
