@@ -17,8 +17,9 @@ camera this is far cheaper than factorising ``H``.
 
 :func:`bundle_adjust` runs Levenberg-Marquardt with the loop, damping and robust
 kernels of :mod:`slamlib.graph_slam` (the same ``_optimize`` and sparse
-``_Layout``), with the linear solve done by the Schur complement (``schur=True``)
-or by a sparse factorisation of the whole ``H`` (``schur=False``). The gauge
+``_Layout``), with the linear solve done by the Schur complement
+(``linear_solver="schur"``), by a sparse factorisation of the whole ``H``
+(``"sparse"``) or by a dense one (``"dense"``). The gauge
 (a rigid motion and a scale leave every reprojection unchanged) is fixed by holding
 the first camera and, with ``fix_scale=True``, one translation coordinate of the
 second.
@@ -37,7 +38,6 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-import scipy.sparse as sp
 from scipy.linalg import cho_factor, cho_solve
 
 from ._checks import as_array, as_count, as_index_set, as_indices, as_scalar, check_choice
@@ -53,16 +53,6 @@ def _pp_blocks(H_pp):
     """The ``(P, 3, 3)`` diagonal blocks of a block-diagonal ``H_pp (3P, 3P)``."""
     idx = 3 * np.arange(H_pp.shape[0] // 3)[:, None] + np.arange(3)
     return H_pp[idx[:, :, None], idx[:, None, :]]
-
-
-def _pp_blocks_sparse(H_pp):
-    """:func:`_pp_blocks` of a sparse ``H_pp``, read from its diagonals."""
-    n = H_pp.shape[0] // 3
-    out = np.empty((n, 3, 3))
-    for a in range(3):
-        for c in range(3):
-            out[:, a, c] = H_pp.diagonal(c - a)[3 * np.arange(n) + min(a, c)]  # entries (i, i + c - a)
-    return out
 
 
 def _schur(H_cc, H_cp, Hpp_inv, b_c, b_p):
@@ -148,35 +138,115 @@ def _as_system(H, b, n_cameras):
 
 
 # =========================================================================== the optimiser
-class _SchurLayout(_Layout):
-    """The sparse pattern of ``H`` with ``m`` free camera unknowns first; solves by the Schur complement.
+class _SchurLayout:
+    """The normal equations of bundle adjustment kept in blocks, solved by the Schur complement.
 
-    With ``hooks = (schur_complement, back_substitute)`` (the contract functions,
-    e.g. a student's), the dense ``H`` and ``b = -rhs`` are handed to them instead.
+    Plays the part of :class:`slamlib.graph_slam._Layout` for ``_optimize``: ``data``
+    holds the dense camera block ``H_cc`` of the free camera unknowns (``m x m``)
+    followed by the ``3 x 3`` point blocks ``H_pp``; the camera-point blocks
+    ``H_cp,k = A_k^T W_k B_k`` (6 x 3) stay per observation, so the reduced camera
+    system is summed over the pairs of observations of each point,
+    ``S = H_cc - sum_j sum_{k, l see j} H_cp,k H_pp,j^-1 H_cp,l^T``, with no sparse
+    matrix at all. With ``hooks = (schur_complement, back_substitute)`` (the
+    contract functions, e.g. a student's), the dense ``H`` and ``b`` are handed to
+    them instead.
     """
 
-    def __init__(self, n_var, terms, fixed_vars, m, hooks=None):
-        super().__init__(n_var, terms, fixed_vars, order=False)
-        self.m = m
-        self.hooks = hooks
+    def __init__(self, n_cam, n_pt, fixed_vars, cam, point, hooks=None):
+        C = n_cam
+        self.C, self.P, self.cam, self.point, self.hooks = C, n_pt, cam, point, hooks
+        free = np.ones(6 * C, dtype=bool)
+        free[list(fixed_vars)] = False
+        self.idx = np.flatnonzero(free)  # free camera variables, in order
+        m = self.m = self.idx.size
+        self.n = m + 3 * n_pt
+        self.diag = np.concatenate([np.arange(m) * (m + 1), m * m + 9 * np.arange(n_pt)[:, None] + [0, 4, 8]], axis=None)
+        self.cc_idx = ((6 * cam[:, None, None] + np.arange(6)[:, None]) * (6 * C)
+                       + 6 * cam[:, None, None] + np.arange(6)).ravel()
+        self.bc_idx = (6 * cam[:, None] + np.arange(6)).ravel()
+        # pairs (k, l) of observations of the same point, both orders and k = l
+        order = np.argsort(point, kind="stable")
+        counts = np.bincount(point, minlength=n_pt)
+        starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        ks, ls = [np.zeros(0, dtype=np.int64)], [np.zeros(0, dtype=np.int64)]
+        for c in np.unique(counts[counts > 0]):
+            members = order[starts[counts == c][:, None] + np.arange(c)]  # (points seen c times, c)
+            ks.append(np.repeat(members, c, axis=1).ravel())
+            ls.append(np.tile(members, (1, c)).ravel())
+        self.pk, self.pl = np.concatenate(ks), np.concatenate(ls)
+        rows = 6 * cam[self.pk][:, None, None] + np.arange(6)[None, :, None]
+        self.s_idx = (rows * (6 * C) + 6 * cam[self.pl][:, None, None] + np.arange(6)[None, None, :]).ravel()
+
+    def values(self, blocks):
+        """``data = [H_cc (free), H_pp blocks]`` and ``b`` (free cameras, then points) from ``[(A, B, e, W)]``."""
+        A, B, e, W = blocks[0]
+        C, m = self.C, self.m
+        At = np.swapaxes(A, 1, 2)
+        WB, We = W @ B, np.einsum("kij,kj->ki", W, e)
+        self.Hcp = At @ WB  # H_cp of each observation, (O, 6, 3)
+        # H = sum J^T W J, b = sum J^T W e, block by block  (Triggs et al. 1999, Sec. 6.1)
+        Hcc = np.bincount(self.cc_idx, (At @ (W @ A)).ravel(), minlength=36 * C * C).reshape(6 * C, 6 * C)
+        Hpp = np.zeros((self.P, 3, 3))
+        np.add.at(Hpp, self.point, np.swapaxes(B, 1, 2) @ WB)
+        b_c = np.bincount(self.bc_idx, np.einsum("kij,ki->kj", A, We).ravel(), minlength=6 * C)
+        b_p = np.zeros((self.P, 3))
+        np.add.at(b_p, self.point, np.einsum("kij,ki->kj", B, We))
+        data = np.concatenate([Hcc[np.ix_(self.idx, self.idx)].ravel(), Hpp.ravel()])
+        return data, np.concatenate([b_c[self.idx], b_p.ravel()])
+
+    def expand(self, dx):
+        out = np.zeros(6 * self.C + 3 * self.P)
+        out[self.idx] = dx[: self.m]
+        out[6 * self.C:] = dx[self.m:]
+        return out
+
+    def _dense(self, data):
+        """The whole ``H`` (free cameras, then points) as a dense array (for the hooks)."""
+        m, C = self.m, self.C
+        H = np.zeros((self.n, self.n))
+        H[:m, :m] = data[: m * m].reshape(m, m)
+        Hpp = data[m * m:].reshape(-1, 3, 3)
+        v = m + 3 * np.arange(self.P)[:, None] + np.arange(3)
+        H[v[:, :, None], v[:, None, :]] = Hpp
+        Hcp = np.zeros((6 * C, 3 * self.P))
+        np.add.at(Hcp, (6 * self.cam[:, None, None] + np.arange(6)[:, None],
+                        3 * self.point[:, None, None] + np.arange(3)), self.Hcp)
+        H[:m, m:] = Hcp[self.idx]
+        H[m:, :m] = H[:m, m:].T
+        return H
 
     def solve(self, data, rhs):
-        m = self.m
-        H = self.matrix(data)
+        m, C = self.m, self.C
         if self.hooks is not None:
             schur, back = self.hooks
-            Hd, b = H.toarray(), -rhs
+            Hd, b = self._dense(data), -rhs
             S, s = schur(Hd, b, m // 6)
             dx_c = cho_solve(cho_factor(np.asarray(S, dtype=float)), -np.asarray(s, dtype=float))
             return np.concatenate([dx_c, np.asarray(back(Hd, b, m // 6, dx_c), dtype=float)])
-        H = H.tocsr()
-        H_cp = H[:m, m:]
-        Hpp_inv = np.linalg.inv(_pp_blocks_sparse(H[m:, m:]))
-        W = H_cp @ sp.block_diag(Hpp_inv, format="csr")  # H_cp H_pp^-1, sparse
-        S = H[:m, :m].toarray() - (W @ H_cp.T).toarray()  # the reduced camera system  (Triggs et al. 1999, Eq. 28)
-        s = -rhs[:m] - W @ -rhs[m:]
+        Hpp_inv = np.linalg.inv(data[m * m:].reshape(-1, 3, 3))
+        b_p = -rhs[m:].reshape(-1, 3)
+        Y = self.Hcp @ Hpp_inv[self.point]  # H_cp,k H_pp^-1, (O, 6, 3)
+        # S = H_cc - H_cp H_pp^-1 H_pc over pairs of observations of one point  (Triggs et al. 1999, Eq. 28)
+        full = np.bincount(self.s_idx, (Y[self.pk] @ np.swapaxes(self.Hcp[self.pl], 1, 2)).ravel(),
+                           minlength=36 * C * C).reshape(6 * C, 6 * C)
+        sub = np.bincount(self.bc_idx, np.einsum("kij,kj->ki", Y, b_p[self.point]).ravel(), minlength=6 * C)
+        S = data[: m * m].reshape(m, m) - full[np.ix_(self.idx, self.idx)]
+        s = -rhs[:m] - sub[self.idx]  # s = b_c - H_cp H_pp^-1 b_p
         dx_c = cho_solve(cho_factor(S), -s)  # S dx_c = -s
-        return np.concatenate([dx_c, _back(H[m:, :m], Hpp_inv, -rhs[m:], dx_c)])
+        dx_all = np.zeros(6 * C)
+        dx_all[self.idx] = dx_c
+        # dx_p = -H_pp^-1 (b_p + H_pc dx_c), H_pc dx_c summed over each point's observations
+        hpc_dx = np.zeros_like(b_p)
+        np.add.at(hpc_dx, self.point, np.einsum("kij,ki->kj", self.Hcp, dx_all.reshape(C, 6)[self.cam]))
+        dx_p = -np.einsum("pkl,pl->pk", Hpp_inv, b_p + hpc_dx)
+        return np.concatenate([dx_c, dx_p.ravel()])
+
+
+class _DenseLayout(_Layout):
+    """The pattern of ``H``; solves by a dense Cholesky factorisation of the whole ``H`` (no structure used)."""
+
+    def solve(self, data, rhs):
+        return cho_solve(cho_factor(self.matrix(data).toarray()), rhs)
 
 
 class BAResult(NamedTuple):
@@ -251,7 +321,7 @@ def _update(state, dx, C, exp):
 
 
 def bundle_adjust(T_wc, points, K, cam, point, uv, *, fixed=(0,), fix_scale=False, robust=None, robust_scale=None,
-                  schur=True, method="lm", max_iter=50, rtol=1e-10, lm_lambda=1e-7, project=None, so3_exp=None,
+                  linear_solver="schur", method="lm", max_iter=50, rtol=1e-10, lm_lambda=1e-7, project=None, so3_exp=None,
                   schur_complement=None, back_substitute=None):
     """Bundle adjustment by Levenberg-Marquardt (or Gauss-Newton) over camera poses and points.
 
@@ -277,9 +347,13 @@ def bundle_adjust(T_wc, points, K, cam, point, uv, *, fixed=(0,), fix_scale=Fals
         Robust kernel on the squared reprojection error (IRLS, as in
         :func:`slamlib.optimize_pose_graph`); `robust_scale` its width in pixels
         (default ``sqrt(chi2_2(0.95)) = 2.45``).
-    schur : bool, keyword-only
-        Solve each step by the Schur complement (the reduced camera system), or
-        by a sparse factorisation of the whole ``H`` (fill-reducing order).
+    linear_solver : {"schur", "sparse", "dense"}, keyword-only
+        How each step's normal equations are solved: by the Schur complement (the
+        reduced camera system, then back-substitution), by a sparse factorisation
+        of the whole ``H`` (fill-reducing order, as :func:`slamlib.optimize_pose_graph`),
+        or by a dense Cholesky factorisation of the whole ``H`` (the textbook
+        Levenberg-Marquardt that ignores the structure). All three give the same
+        steps up to rounding.
     method : {"lm", "gn"}, keyword-only
     max_iter, rtol, lm_lambda : keyword-only
         Iteration limit, relative cost change that stops, and LM's initial damping
@@ -306,12 +380,14 @@ def bundle_adjust(T_wc, points, K, cam, point, uv, *, fixed=(0,), fix_scale=Fals
     max_iter = as_count(max_iter, "max_iter")
     rtol = as_scalar(rtol, "rtol", nonnegative=True)
     robust, k = _robust_args(robust, robust_scale, 2)
+    check_choice(linear_solver, "linear_solver", {"schur": "Schur complement", "sparse": "sparse factorisation",
+                                                  "dense": "dense Cholesky factorisation"})
     hooks = None
     if (schur_complement is None) != (back_substitute is None):
         raise ValueError("schur_complement and back_substitute are plugged in together")
     if schur_complement is not None:
-        if fix_scale or not schur:
-            raise ValueError("schur_complement and back_substitute need schur=True and fix_scale=False")
+        if fix_scale or linear_solver != "schur":
+            raise ValueError("schur_complement and back_substitute need linear_solver='schur' and fix_scale=False")
         hooks = (schur_complement, back_substitute)
     fixed_vars = [6 * c + i for c in fixed for i in range(6)]
     if fix_scale:
@@ -323,8 +399,13 @@ def bundle_adjust(T_wc, points, K, cam, point, uv, *, fixed=(0,), fix_scale=Fals
         fixed_vars.append(6 * c1 + int(np.argmax(np.abs(base))))
     m = 6 * C - len(fixed_vars)
     terms = [(6 * cam, 6, 6 * C + 3 * point, 3)]
-    layout = _SchurLayout(6 * C + 3 * n_pt, terms, fixed_vars, m, hooks) if schur else \
-        _Layout(6 * C + 3 * n_pt, terms, fixed_vars, order=True)
+    n_var = 6 * C + 3 * n_pt
+    if linear_solver == "schur":
+        layout = _SchurLayout(C, n_pt, fixed_vars, cam, point, hooks)
+    elif linear_solver == "sparse":
+        layout = _Layout(n_var, terms, fixed_vars, order=True)
+    else:
+        layout = _DenseLayout(n_var, terms, fixed_vars, order=False)
     eye = np.eye(2)
     exp = _so3_exp if so3_exp is None else so3_exp
 

@@ -83,12 +83,13 @@ def test_bundle_adjustment_reaches_the_noise_floor_and_the_truth():
     assert np.abs(res.points - P).max() < 0.1 and np.abs(P0 - P).max() > 0.2
 
 
-def test_schur_and_full_solves_give_the_same_iterates():
+@pytest.mark.parametrize("solver", ["sparse", "dense"])
+def test_schur_and_full_solves_give_the_same_iterates(solver):
     rng = np.random.default_rng(2)
     K, T, P, cam, point, uv = _scene(rng, n_cam=4, n_pt=25)
     T0, P0 = _perturbed(rng, T, P)
-    a = sl.bundle_adjust(T0, P0, K, cam, point, uv, schur=True, max_iter=8, rtol=0.0)
-    b = sl.bundle_adjust(T0, P0, K, cam, point, uv, schur=False, max_iter=8, rtol=0.0)
+    a = sl.bundle_adjust(T0, P0, K, cam, point, uv, linear_solver="schur", max_iter=5, rtol=0.0)
+    b = sl.bundle_adjust(T0, P0, K, cam, point, uv, linear_solver=solver, max_iter=5, rtol=0.0)
     np.testing.assert_allclose(a.cost, b.cost, rtol=1e-8)
     np.testing.assert_allclose(a.points, b.points, atol=1e-8)
 
