@@ -6,7 +6,7 @@ import numpy as np
 
 from ._core import _axes
 
-__all__ = ["plot_matches", "plot_epipolar_lines", "plot_reconstruction"]
+__all__ = ["plot_matches", "plot_epipolar_lines", "plot_reconstruction", "plot_matrix_pattern", "plot_reprojection_errors"]
 
 
 def _side_by_side(img1, img2):
@@ -55,4 +55,30 @@ def plot_reconstruction(points, T_wcs, ax=None, *, size=0.3):
     ax.set_xlabel("x [first camera's units]")
     ax.set_ylabel("z (depth)")
     ax.set_aspect("equal", adjustable="datalim")
+    return ax
+
+
+def plot_matrix_pattern(H, ax=None, *, split=None, title=None):
+    """The non-zero pattern of a matrix (``spy``), with a line after the first `split` rows and columns."""
+    ax = _axes(ax, figsize=(4.2, 4.2))
+    ax.spy(np.abs(np.asarray(H)) > 0, markersize=0.3, color="0.2")
+    if split is not None:
+        ax.axhline(split - 0.5, color="tab:red", lw=0.8)
+        ax.axvline(split - 0.5, color="tab:red", lw=0.8)
+    if title:
+        ax.set_title(title)
+    ax.set_xticks([])
+    ax.set_yticks([])
+    return ax
+
+
+def plot_reprojection_errors(errors, labels, ax=None, *, bins=40, max_px=None):
+    """Histograms of reprojection error norms (pixels), one per array in `errors`."""
+    ax = _axes(ax, figsize=(5.5, 3.2))
+    top = max_px if max_px is not None else max(float(np.percentile(e, 99)) for e in errors)
+    for e, lab in zip(errors, labels):
+        ax.hist(np.clip(e, 0, top), bins=bins, range=(0, top), histtype="step", lw=1.5, label=lab)
+    ax.set_xlabel("reprojection error [px]")
+    ax.set_ylabel("observations")
+    ax.legend()
     return ax
