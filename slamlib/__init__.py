@@ -20,7 +20,7 @@ Layers, bottom up:
 from . import angles, bayes, motion, sensors, maps, sim, metrics, scoring, gaussian, particle, mcl, ekf_slam, fastslam
 from . import graph_slam
 from . import scan_matching, mapping, lidar_slam
-from . import camera, bundle_adjustment
+from . import camera, bundle_adjustment, visual_odometry
 from .angles import *  # noqa: F401,F403
 from .bayes import *  # noqa: F401,F403
 from .motion import *  # noqa: F401,F403
@@ -40,6 +40,7 @@ from .mapping import *  # noqa: F401,F403
 from .lidar_slam import *  # noqa: F401,F403
 from .camera import *  # noqa: F401,F403
 from .bundle_adjustment import *  # noqa: F401,F403
+from .visual_odometry import *  # noqa: F401,F403
 from ._so3 import so3_exp, so3_log  # noqa: F401  (stand-in until slamlib.lie is merged)
 
 __version__ = "0.1.0"
@@ -50,7 +51,7 @@ __all__ = (
 )
 __all__ += graph_slam.__all__
 __all__ += scan_matching.__all__ + mapping.__all__ + lidar_slam.__all__
-__all__ += camera.__all__ + bundle_adjustment.__all__ + ["so3_exp", "so3_log"]
+__all__ += camera.__all__ + bundle_adjustment.__all__ + visual_odometry.__all__ + ["so3_exp", "so3_log"]
 
 
 def __getattr__(name):

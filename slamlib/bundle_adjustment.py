@@ -41,7 +41,7 @@ import numpy as np
 from scipy.linalg import cho_factor, cho_solve
 
 from ._checks import as_array, as_count, as_index_set, as_indices, as_scalar, check_choice
-from ._so3 import _so3_exp
+from ._so3 import _skew, _so3_exp
 from .camera import _project
 from .graph_slam import _kernel, _Layout, _optimize, _robust_args
 
@@ -144,10 +144,10 @@ class _SchurLayout:
     Plays the part of :class:`slamlib.graph_slam._Layout` for ``_optimize``: ``data``
     holds the dense camera block ``H_cc`` of the free camera unknowns (``m x m``)
     followed by the ``3 x 3`` point blocks ``H_pp``; the camera-point blocks
-    ``H_cp,k = A_k^T W_k B_k`` (6 x 3) stay per observation, so the reduced camera
-    system is summed over the pairs of observations of each point,
-    ``S = H_cc - sum_j sum_{k, l see j} H_cp,k H_pp,j^-1 H_cp,l^T``, with no sparse
-    matrix at all. With ``hooks = (schur_complement, back_substitute)`` (the
+    ``H_cp = sum_k A_k^T W_k B_k`` (6 x 3) stay one per camera and point seen by it,
+    so the reduced camera system is summed over the pairs of cameras that see each
+    point, ``S = H_cc - sum_j sum_{c, c' see j} H_cj H_pp,j^-1 H_c'j^T``, with no
+    sparse matrix at all. With ``hooks = (schur_complement, back_substitute)`` (the
     contract functions, e.g. a student's), the dense ``H`` and ``b`` are handed to
     them instead.
     """
@@ -164,35 +164,42 @@ class _SchurLayout:
         self.cc_idx = ((6 * cam[:, None, None] + np.arange(6)[:, None]) * (6 * C)
                        + 6 * cam[:, None, None] + np.arange(6)).ravel()
         self.bc_idx = (6 * cam[:, None] + np.arange(6)).ravel()
-        # pairs (k, l) of observations of the same point, both orders and k = l
-        order = np.argsort(point, kind="stable")
-        counts = np.bincount(point, minlength=n_pt)
+        self.pp_idx = (9 * point[:, None] + np.arange(9)).ravel()
+        self.bp_idx = (3 * point[:, None] + np.arange(3)).ravel()
+        # observations of the same camera and point share one H_cp block
+        pairs, self.obs_pair = np.unique(cam * n_pt + point, return_inverse=True)
+        self.U = pairs.size
+        self.pair_cam, self.pair_point = pairs // n_pt, pairs % n_pt
+        self.cp_idx = (18 * self.obs_pair[:, None] + np.arange(18)).ravel()
+        # pairs (k, l) of camera-point blocks of the same point, both orders and k = l
+        order = np.argsort(self.pair_point, kind="stable")
+        counts = np.bincount(self.pair_point, minlength=n_pt)
         starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
         ks, ls = [np.zeros(0, dtype=np.int64)], [np.zeros(0, dtype=np.int64)]
         for c in np.unique(counts[counts > 0]):
-            members = order[starts[counts == c][:, None] + np.arange(c)]  # (points seen c times, c)
+            members = order[starts[counts == c][:, None] + np.arange(c)]  # (points seen by c cameras, c)
             ks.append(np.repeat(members, c, axis=1).ravel())
             ls.append(np.tile(members, (1, c)).ravel())
         self.pk, self.pl = np.concatenate(ks), np.concatenate(ls)
-        rows = 6 * cam[self.pk][:, None, None] + np.arange(6)[None, :, None]
-        self.s_idx = (rows * (6 * C) + 6 * cam[self.pl][:, None, None] + np.arange(6)[None, None, :]).ravel()
+        rows = 6 * self.pair_cam[self.pk][:, None, None] + np.arange(6)[None, :, None]
+        self.s_idx = (rows * (6 * C) + 6 * self.pair_cam[self.pl][:, None, None] + np.arange(6)[None, None, :]).ravel()
+        self.sc_idx = (6 * self.pair_cam[:, None] + np.arange(6)).ravel()
+        self.pb_idx = (3 * self.pair_point[:, None] + np.arange(3)).ravel()
 
     def values(self, blocks):
         """``data = [H_cc (free), H_pp blocks]`` and ``b`` (free cameras, then points) from ``[(A, B, e, W)]``."""
         A, B, e, W = blocks[0]
-        C, m = self.C, self.m
+        C, P = self.C, self.P
         At = np.swapaxes(A, 1, 2)
         WB, We = W @ B, np.einsum("kij,kj->ki", W, e)
-        self.Hcp = At @ WB  # H_cp of each observation, (O, 6, 3)
         # H = sum J^T W J, b = sum J^T W e, block by block  (Triggs et al. 1999, Sec. 6.1)
+        self.Hcp = np.bincount(self.cp_idx, (At @ WB).ravel(), minlength=18 * self.U).reshape(-1, 6, 3)
         Hcc = np.bincount(self.cc_idx, (At @ (W @ A)).ravel(), minlength=36 * C * C).reshape(6 * C, 6 * C)
-        Hpp = np.zeros((self.P, 3, 3))
-        np.add.at(Hpp, self.point, np.swapaxes(B, 1, 2) @ WB)
+        Hpp = np.bincount(self.pp_idx, (np.swapaxes(B, 1, 2) @ WB).ravel(), minlength=9 * P)
         b_c = np.bincount(self.bc_idx, np.einsum("kij,ki->kj", A, We).ravel(), minlength=6 * C)
-        b_p = np.zeros((self.P, 3))
-        np.add.at(b_p, self.point, np.einsum("kij,ki->kj", B, We))
-        data = np.concatenate([Hcc[np.ix_(self.idx, self.idx)].ravel(), Hpp.ravel()])
-        return data, np.concatenate([b_c[self.idx], b_p.ravel()])
+        b_p = np.bincount(self.bp_idx, np.einsum("kij,ki->kj", B, We).ravel(), minlength=3 * P)
+        data = np.concatenate([Hcc[np.ix_(self.idx, self.idx)].ravel(), Hpp])
+        return data, np.concatenate([b_c[self.idx], b_p])
 
     def expand(self, dx):
         out = np.zeros(6 * self.C + 3 * self.P)
@@ -209,8 +216,8 @@ class _SchurLayout:
         v = m + 3 * np.arange(self.P)[:, None] + np.arange(3)
         H[v[:, :, None], v[:, None, :]] = Hpp
         Hcp = np.zeros((6 * C, 3 * self.P))
-        np.add.at(Hcp, (6 * self.cam[:, None, None] + np.arange(6)[:, None],
-                        3 * self.point[:, None, None] + np.arange(3)), self.Hcp)
+        np.add.at(Hcp, (6 * self.pair_cam[:, None, None] + np.arange(6)[:, None],
+                        3 * self.pair_point[:, None, None] + np.arange(3)), self.Hcp)
         H[:m, m:] = Hcp[self.idx]
         H[m:, :m] = H[:m, m:].T
         return H
@@ -225,19 +232,19 @@ class _SchurLayout:
             return np.concatenate([dx_c, np.asarray(back(Hd, b, m // 6, dx_c), dtype=float)])
         Hpp_inv = np.linalg.inv(data[m * m:].reshape(-1, 3, 3))
         b_p = -rhs[m:].reshape(-1, 3)
-        Y = self.Hcp @ Hpp_inv[self.point]  # H_cp,k H_pp^-1, (O, 6, 3)
-        # S = H_cc - H_cp H_pp^-1 H_pc over pairs of observations of one point  (Triggs et al. 1999, Eq. 28)
+        Y = self.Hcp @ Hpp_inv[self.pair_point]  # H_cp H_pp^-1 per camera-point block, (U, 6, 3)
+        # S = H_cc - H_cp H_pp^-1 H_pc over pairs of blocks of one point  (Triggs et al. 1999, Eq. 28)
         full = np.bincount(self.s_idx, (Y[self.pk] @ np.swapaxes(self.Hcp[self.pl], 1, 2)).ravel(),
                            minlength=36 * C * C).reshape(6 * C, 6 * C)
-        sub = np.bincount(self.bc_idx, np.einsum("kij,kj->ki", Y, b_p[self.point]).ravel(), minlength=6 * C)
+        sub = np.bincount(self.sc_idx, np.einsum("kij,kj->ki", Y, b_p[self.pair_point]).ravel(), minlength=6 * C)
         S = data[: m * m].reshape(m, m) - full[np.ix_(self.idx, self.idx)]
         s = -rhs[:m] - sub[self.idx]  # s = b_c - H_cp H_pp^-1 b_p
         dx_c = cho_solve(cho_factor(S), -s)  # S dx_c = -s
         dx_all = np.zeros(6 * C)
         dx_all[self.idx] = dx_c
-        # dx_p = -H_pp^-1 (b_p + H_pc dx_c), H_pc dx_c summed over each point's observations
-        hpc_dx = np.zeros_like(b_p)
-        np.add.at(hpc_dx, self.point, np.einsum("kij,ki->kj", self.Hcp, dx_all.reshape(C, 6)[self.cam]))
+        # dx_p = -H_pp^-1 (b_p + H_pc dx_c), H_pc dx_c summed over each point's blocks
+        hpc_dx = np.bincount(self.pb_idx, np.einsum("kij,ki->kj", self.Hcp, dx_all.reshape(C, 6)[self.pair_cam]).ravel(),
+                             minlength=3 * self.P).reshape(-1, 3)
         dx_p = -np.einsum("pkl,pl->pk", Hpp_inv, b_p + hpc_dx)
         return np.concatenate([dx_c, dx_p.ravel()])
 
@@ -272,8 +279,28 @@ class BAResult(NamedTuple):
     weights: np.ndarray
 
 
-def _residuals(K, T, points, cam, point, uv, project=None):
+def _project_offset(K, R, t, P, o):
+    """Pixels and Jacobians of a sensor displaced by ``o`` (camera frame, no rotation) from the camera.
+
+    ``q = R^T (P - t) - o`` is projected; a perturbation ``delta`` of the camera moves
+    ``q`` by ``-rho + [p_c]x phi`` (``p_c = q + o``), so ``J_pose = D(q) [-I, [p_c]x]``.
+    """
+    pc = np.einsum("...ji,...j->...i", R, P - t)
+    q = pc - o
+    X, Y, iz = q[:, 0], q[:, 1], 1.0 / q[:, 2]
+    fx, fy = K[..., 0, 0], K[..., 1, 1]
+    uv = np.column_stack([fx * X * iz + K[..., 0, 2], fy * Y * iz + K[..., 1, 2]])
+    zero = np.zeros_like(iz)
+    D = np.stack([np.stack([fx * iz, zero, -fx * X * iz * iz], -1), np.stack([zero, fy * iz, -fy * Y * iz * iz], -1)], -2)
+    return uv, np.concatenate([-D, D @ _skew(pc)], axis=-1), D @ np.swapaxes(R, -1, -2)
+
+
+def _residuals(K, T, points, cam, point, uv, project=None, offset=None):
     """``(e (O, 2), A (O, 2, 6), B (O, 2, 3))`` of every observation (``project``: a hook per camera)."""
+    if offset is not None:
+        Kc = K[cam] if K.ndim == 3 else K
+        uv_hat, A, B = _project_offset(Kc, T[cam, :3, :3], T[cam, :3, 3], points[point], offset)
+        return uv_hat - uv, A, B
     if project is None:
         Kc = K[cam] if K.ndim == 3 else K
         uv_hat, A, B, _ = _project(Kc, T[cam, :3, :3], T[cam, :3, 3], points[point])
@@ -321,8 +348,8 @@ def _update(state, dx, C, exp):
 
 
 def bundle_adjust(T_wc, points, K, cam, point, uv, *, fixed=(0,), fix_scale=False, robust=None, robust_scale=None,
-                  linear_solver="schur", method="lm", max_iter=50, rtol=1e-10, lm_lambda=1e-7, project=None, so3_exp=None,
-                  schur_complement=None, back_substitute=None):
+                  linear_solver="schur", method="lm", max_iter=50, rtol=1e-10, lm_lambda=1e-7, offset=None,
+                  project=None, so3_exp=None, schur_complement=None, back_substitute=None):
     """Bundle adjustment by Levenberg-Marquardt (or Gauss-Newton) over camera poses and points.
 
     Parameters
@@ -358,6 +385,11 @@ def bundle_adjust(T_wc, points, K, cam, point, uv, *, fixed=(0,), fix_scale=Fals
     max_iter, rtol, lm_lambda : keyword-only
         Iteration limit, relative cost change that stops, and LM's initial damping
         relative to the mean of ``diag H`` (:func:`slamlib.optimize_pose_graph`).
+    offset : ndarray, shape (O, 3), optional, keyword-only
+        Position, in its camera's frame, of the sensor that made each observation
+        (no rotation): ``[b, 0, 0]`` for the right image of a rectified stereo pair of
+        baseline ``b``, zeros for the left (the camera itself). A stereo rig is then one
+        pose per frame.
     project, so3_exp, schur_complement, back_substitute : callable, keyword-only
         Hooks replacing the library's own :func:`slamlib.project` (called once per
         camera), :func:`slamlib.so3_exp` (in the pose update, once per camera),
@@ -375,6 +407,10 @@ def bundle_adjust(T_wc, points, K, cam, point, uv, *, fixed=(0,), fix_scale=Fals
     """
     K, T, P, cam, point, uv = _as_problem(K, T_wc, points, cam, point, uv)
     C, n_pt = T.shape[0], P.shape[0]
+    if offset is not None:
+        offset = as_array(offset, "offset", (len(cam), 3), ref="cam")
+        if project is not None:
+            raise ValueError("offset and a project hook cannot be combined")
     fixed = list(as_index_set(fixed, "fixed", C, what="camera index")) if len(fixed) else []
     check_choice(method, "method", {"gn": "Gauss-Newton", "lm": "Levenberg-Marquardt"})
     max_iter = as_count(max_iter, "max_iter")
@@ -410,7 +446,7 @@ def bundle_adjust(T_wc, points, K, cam, point, uv, *, fixed=(0,), fix_scale=Fals
     exp = _so3_exp if so3_exp is None else so3_exp
 
     def evaluate(state):
-        e, A, B = _residuals(K, state[0], state[1], cam, point, uv, project)
+        e, A, B = _residuals(K, state[0], state[1], cam, point, uv, project, offset)
         s = np.einsum("ki,ki->k", e, e)
         cost, w = _kernel(s, robust, k)
         return float(cost.sum()), float(s.sum()), [(A, B, e, w[:, None, None] * eye)], w
