@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._core import _axes
+from ._core import TRUTH_COLOR, _axes
 
-__all__ = ["plot_matches", "plot_epipolar_lines", "plot_reconstruction", "plot_matrix_pattern", "plot_reprojection_errors"]
+__all__ = ["plot_matches", "plot_epipolar_lines", "plot_reconstruction", "plot_matrix_pattern", "plot_reprojection_errors",
+           "plot_camera_paths"]
 
 
 def _side_by_side(img1, img2):
@@ -80,5 +81,21 @@ def plot_reprojection_errors(errors, labels, ax=None, *, bins=40, max_px=None):
         ax.hist(np.clip(e, 0, top), bins=bins, range=(0, top), histtype="step", lw=1.5, label=lab)
     ax.set_xlabel("reprojection error [px]")
     ax.set_ylabel("observations")
+    ax.legend()
+    return ax
+
+
+def plot_camera_paths(paths, labels, ax=None, *, colors=None):
+    """Camera positions seen from above (x and z of the world), one line per trajectory ``(F, 4, 4)``.
+
+    The first trajectory is the reference, drawn in the truth colour unless `colors` says otherwise.
+    """
+    ax = _axes(ax, figsize=(5.5, 4.0))
+    colors = colors or [TRUTH_COLOR] + [None] * (len(paths) - 1)
+    for T, lab, col in zip(paths, labels, colors):
+        ax.plot(T[:, 0, 3], T[:, 2, 3], "-", lw=1.5, label=lab, color=col)
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("z [m] (forward at the start)")
+    ax.set_aspect("equal", adjustable="datalim")
     ax.legend()
     return ax
