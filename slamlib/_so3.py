@@ -36,7 +36,18 @@ def _so3_exp(w):
 
 
 def so3_exp(w):
-    """Rodrigues' formula: the rotation ``Exp(w)`` of rotation vector ``w (..., 3)``."""
+    """Rodrigues' formula: the rotation of a rotation vector.
+
+    Parameters
+    ----------
+    w : ndarray, shape (..., 3)
+        Rotation vectors (axis times angle).
+
+    Returns
+    -------
+    ndarray, shape (..., 3, 3)
+        ``I + sin(a)/a [w]x + (1 - cos a)/a^2 [w]x^2``, ``a = |w|``, exact at ``w = 0``.
+    """
     return _so3_exp(as_vector(w, "w", 3))
 
 
@@ -59,5 +70,18 @@ def _so3_log(R):
 
 
 def so3_log(R):
-    """The rotation vector ``w`` with ``Exp(w) = R`` and ``|w| <= pi``; ``R (..., 3, 3)`` -> ``(..., 3)``."""
+    """The rotation vector of a rotation matrix (the inverse of :func:`so3_exp`).
+
+    Parameters
+    ----------
+    R : ndarray, shape (..., 3, 3)
+        Rotation matrices.
+
+    Returns
+    -------
+    ndarray, shape (..., 3)
+        ``w`` with ``Exp(w) = R`` and ``|w| <= pi``; the angle from
+        ``atan2(|vee(R - R^T)| / 2, (tr R - 1) / 2)``, the axis near ``pi`` from the
+        symmetric part of ``R``.
+    """
     return _so3_log(as_matrix(R, "R", 3, 3))

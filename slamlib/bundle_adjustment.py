@@ -314,7 +314,18 @@ def _residuals(K, T, points, cam, point, uv, project=None, offset=None):
 
 
 def reprojection_errors(K, T_wc, points, cam, point, uv):
-    """Reprojection errors ``project(K_c, T_c, P_p) - uv_k`` of every observation, shape ``(O, 2)`` (pixels)."""
+    """Reprojection errors of every observation.
+
+    Parameters
+    ----------
+    K, T_wc, points, cam, point, uv
+        As in :func:`bundle_adjust`.
+
+    Returns
+    -------
+    ndarray, shape (O, 2)
+        ``project(K_c, T_c, P_p) - uv_k`` in pixels.
+    """
     K, T, points, cam, point, uv = _as_problem(K, T_wc, points, cam, point, uv)
     return _residuals(K, T, points, cam, point, uv)[0]
 

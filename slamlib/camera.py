@@ -50,14 +50,39 @@ __all__ = ["calibration_matrix", "pose_matrix", "project", "triangulate", "to_no
 
 # =========================================================================== poses and calibration
 def calibration_matrix(fx, fy, cx, cy):
-    """The calibration matrix ``K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]`` (HZ Eq. 6.4, no skew)."""
+    """The calibration matrix of a pinhole camera (HZ Eq. 6.4, no skew).
+
+    Parameters
+    ----------
+    fx, fy : float
+        Focal lengths in pixels, positive.
+    cx, cy : float
+        Principal point in pixels.
+
+    Returns
+    -------
+    ndarray, shape (3, 3)
+        ``[[fx, 0, cx], [0, fy, cy], [0, 0, 1]]``.
+    """
     fx = as_scalar(fx, "fx", positive=True)
     fy = as_scalar(fy, "fy", positive=True)
     return np.array([[fx, 0.0, as_scalar(cx, "cx")], [0.0, fy, as_scalar(cy, "cy")], [0.0, 0.0, 1.0]])
 
 
 def pose_matrix(R, t):
-    """The homogeneous ``(4, 4)`` pose ``[[R, t], [0, 0, 0, 1]]`` of rotations ``R (..., 3, 3)`` and ``t (..., 3)``."""
+    """The homogeneous pose ``[[R, t], [0, 0, 0, 1]]``.
+
+    Parameters
+    ----------
+    R : ndarray, shape (..., 3, 3)
+        Rotations.
+    t : ndarray, shape (..., 3)
+        Translations.
+
+    Returns
+    -------
+    ndarray, shape (..., 4, 4)
+    """
     R = as_matrix(R, "R", 3, 3)
     t = as_array(t, "t", ndim=None)
     if t.shape != R.shape[:-1]:
@@ -151,7 +176,20 @@ def project(K, T_wc, P):
 
 
 def to_normalized(K, uv):
-    """Normalised image coordinates ``K^-1 [u, v, 1]`` (first two entries) of pixels ``uv (N, 2)``."""
+    """Normalised image coordinates of pixels: the pixels with ``K^-1`` applied.
+
+    Parameters
+    ----------
+    K : ndarray, shape (3, 3)
+        Calibration.
+    uv : ndarray, shape (N, 2)
+        Pixels.
+
+    Returns
+    -------
+    ndarray, shape (N, 2)
+        ``[(u - cx) / fx, (v - cy) / fy]``: the first two entries of ``K^-1 [u, v, 1]``.
+    """
     K = _as_calibration(K)
     uv = as_array(uv, "uv", (None, 2))
     return np.column_stack([(uv[:, 0] - K[0, 2]) / K[0, 0], (uv[:, 1] - K[1, 2]) / K[1, 1]])
@@ -283,8 +321,17 @@ def _sampson(E, x1, x2):
 def sampson_distance(E, x1, x2):
     """Squared Sampson distance of each match to the epipolar geometry of ``E`` (HZ Eq. 11.9).
 
-    ``(x2^T E x1)^2 / ((E x1)_1^2 + (E x1)_2^2 + (E^T x2)_1^2 + (E^T x2)_2^2)``, in the
-    squared units of ``x1``, ``x2`` (normalised coordinates here); shape ``(N,)``.
+    Parameters
+    ----------
+    E : ndarray, shape (3, 3)
+    x1, x2 : ndarray, shape (N, 2)
+        Matches (normalised image coordinates).
+
+    Returns
+    -------
+    ndarray, shape (N,)
+        ``(x2^T E x1)^2 / ((E x1)_1^2 + (E x1)_2^2 + (E^T x2)_1^2 + (E^T x2)_2^2)``, in the
+        squared units of ``x1``, ``x2``: the first-order geometric error of the match.
     """
     E = as_array(E, "E", (3, 3))
     x1, x2 = _as_matches(x1, x2, 0)
@@ -294,7 +341,20 @@ def sampson_distance(E, x1, x2):
 def ransac_iterations(inlier_ratio, sample_size=8, confidence=0.999):
     """Samples RANSAC needs to draw one all-inlier sample with probability `confidence`.
 
-    ``N = log(1 - p) / log(1 - w^s)`` (HZ Eq. 4.18), rounded up; ``inf`` for ``w = 0``.
+    Parameters
+    ----------
+    inlier_ratio : float
+        ``w`` in ``[0, 1]``.
+    sample_size : int
+        ``s``, matches per sample (8 for the eight-point algorithm).
+    confidence : float
+        ``p`` in ``(0, 1)``.
+
+    Returns
+    -------
+    int or float
+        ``N = log(1 - p) / log(1 - w^s)`` (HZ Eq. 4.18), rounded up; 1 for ``w = 1``,
+        ``inf`` for ``w = 0``.
     """
     w = as_scalar(inlier_ratio, "inlier_ratio", nonnegative=True)
     if w > 1:
@@ -415,6 +475,10 @@ def decompose_essential(E):
     ``W = [[0, -1, 0], [1, 0, 0], [0, 0, 1]]``: ``R in {U W V^T, U W^T V^T}``,
     ``t = +-u_3`` (unit length). ``x2 = R x1 + t`` maps camera-1 coordinates to
     camera 2's for the right one of the four.
+
+    Parameters
+    ----------
+    E : ndarray, shape (3, 3)
 
     Returns
     -------
@@ -548,7 +612,20 @@ def two_view_reconstruction(K, uv1, uv2, *, threshold, rng, confidence=0.999, ma
 
 
 def epipolar_lines(E, x1):
-    """Epipolar lines ``l2 = E [x1, 1]`` in image 2 (normalised coordinates), scaled so ``a^2 + b^2 = 1``."""
+    """Epipolar lines in image 2 of points of image 1 (HZ Sec. 9.2).
+
+    Parameters
+    ----------
+    E : ndarray, shape (3, 3)
+    x1 : ndarray, shape (N, 2)
+        Points of image 1 (normalised coordinates).
+
+    Returns
+    -------
+    ndarray, shape (N, 3)
+        ``l2 = E [x1, 1]`` scaled so that ``a^2 + b^2 = 1``: ``a x + b y + c`` is the
+        signed distance of ``[x, y]`` in image 2 from the line.
+    """
     E = as_array(E, "E", (3, 3))
     x1 = as_array(x1, "x1", (None, 2))
     lines = np.column_stack([x1, np.ones(len(x1))]) @ E.T

@@ -41,9 +41,21 @@ __all__ = ["stereo_triangulate", "align_3d", "VOResult", "stereo_visual_odometry
 
 
 def stereo_triangulate(K, baseline, uL, uR, v):
-    """Points ``(N, 3)`` in the left camera from rectified stereo pixels: ``Z = fx b / (uL - uR)``.
+    """Points in the left camera from rectified stereo pixels.
 
-    ``X = (uL - cx) Z / fx``, ``Y = (v - cy) Z / fy``; the disparity ``uL - uR`` must be positive.
+    Parameters
+    ----------
+    K : ndarray, shape (3, 3)
+        Calibration of the (rectified) left camera.
+    baseline : float
+        ``b``, the right camera's offset along x [m].
+    uL, uR, v : ndarray, shape (N,)
+        Columns in the left and right images and the shared row; ``uL > uR``.
+
+    Returns
+    -------
+    ndarray, shape (N, 3)
+        ``Z = fx b / (uL - uR)``, ``X = (uL - cx) Z / fx``, ``Y = (v - cy) Z / fy``.
     """
     K = as_array(K, "K", (3, 3))
     b = as_scalar(baseline, "baseline", positive=True)

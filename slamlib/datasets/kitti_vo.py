@@ -46,7 +46,7 @@ class StereoVOData(NamedTuple):
 
 def load_kitti_vo():
     """Load the stereo measurements, calibration and poses of the KITTI drive (77 frames, ~54 m)."""
-    fx, fy, _, cx, cy, b = (float(v) for v in open_text(data_path("kitti_vo", "calibration_00s.txt")).split())
+    fx, fy, _, cx, cy, b = (float(v) for v in open_text(data_path("kitti_vo", "calibration_00s.txt.gz")).split())
     K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
     poses = np.array(open_text(data_path("kitti_vo", "camera_poses_00s.txt.gz")).split(), dtype=np.float64)
     poses = poses.reshape(-1, 17)

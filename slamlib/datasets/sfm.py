@@ -22,7 +22,7 @@ import numpy as np
 from . import data_path
 from ._text import open_text
 
-__all__ = ["SiftKeys", "load_balbianello_keys", "balbianello_image_path", "SfmProblem", "load_bundler",
+__all__ = ["SiftKeys", "load_balbianello_keys", "load_balbianello_image", "SfmProblem", "load_bundler",
            "load_bal", "load_balbianello", "load_dubrovnik"]
 
 #: Size (width, height) of the Balbianello photographs in pixels.
@@ -70,11 +70,21 @@ def load_balbianello_keys(image):
     return SiftKeys(body[:, [1, 0]].copy(), body[:, 4:].copy(), body[:, 2].copy(), body[:, 3].copy(), K)
 
 
-def balbianello_image_path(image):
-    """Path of Balbianello photograph ``image`` (1 or 2), a 640 x 427 JPEG."""
+def load_balbianello_image(image):
+    """Balbianello photograph ``image`` (1 or 2) as an RGB array ``(427, 640, 3)`` of ``uint8``.
+
+    The JPEG files are stored gzipped (the repository keeps every data file compressed);
+    they are decoded with Pillow, which matplotlib already requires.
+    """
+    import gzip
+    import io
+
+    from PIL import Image
+
     if image not in (1, 2):
         raise ValueError(f"image must be 1 or 2 (the photographs shipped), got {image!r}")
-    return data_path("sfm", f"BalbianelloMedium-{image}.jpg")
+    raw = gzip.decompress(data_path("sfm", f"BalbianelloMedium-{image}.jpg.gz").read_bytes())
+    return np.asarray(Image.open(io.BytesIO(raw)).convert("RGB"))
 
 
 class SfmProblem(NamedTuple):
