@@ -37,6 +37,8 @@ ORDER_VALUES = ("changes the values (not the pattern) of the matrix used only to
 CONNECTED = ("the connectivity check anchored at pose 1 instead of 0: on the connected graphs the contract "
              "requires (otherwise H[3:, 3:] is singular) both anchors pass")
 RESHAPE_NEG = "reshape(-2, 3) == reshape(-1, 3): NumPy (2.x) treats any negative size as the unknown one"
+ROW_SIGN = ("negates one row of the DLT matrix A: the right singular vectors of A and of A with a row negated are "
+            "the same (A^T A is unchanged), as the contract states (row signs do not change the answer)")
 CENTRED = ("sum_k (q_k + mu_q)(p_k - mu_p)^T = C + 2 mu_q sum_k (p_k - mu_p)^T = C: the other factor is centred, "
            "so the cross-covariance is unchanged")
 DET_PM1 = "det(U) and det(V) are +-1: their product is never 0 and has the sign of their quotient"
@@ -299,7 +301,16 @@ EQUIVALENT = {
         "_hartley: [s = math.sqrt(2.0) / np.mean(np.linalg.norm(x - c, axis=1))] x - c -> c - x":
             "|x - c| = |c - x|",
     },
+    "triangulate": {
+        "_triangulate: [A = np.stack(*] uv1[:, :1] * P1[2] - P1[0] -> P1[0] - uv1[:, :1] * P1[2]": ROW_SIGN,
+        "_triangulate: [A = np.stack(*] uv1[:, 1:] * P1[2] - P1[1] -> P1[1] - uv1[:, 1:] * P1[2]": ROW_SIGN,
+        "_triangulate: [A = np.stack(*] uv2[:, :1] * P2[2] - P2[0] -> P2[0] - uv2[:, :1] * P2[2]": ROW_SIGN,
+        "_triangulate: [A = np.stack(*] uv2[:, 1:] * P2[2] - P2[1] -> P2[1] - uv2[:, 1:] * P2[2]": ROW_SIGN,
+    },
     "project": {
+        "_skew: [return np.stack([np.stack([z, -w[..., 2], w[..., 1]], -1)*] -1 -> 1*":
+            "axis=1 instead of -1 when stacking the (N,) entries of [p_c]x for the contract's (N, 3) points: the "
+            "same (N, 3, 3)",
         "_project: [Jc = np.stack([np.stack([fx * iz, zero, -fx * X * iz * iz], -1), np.stack([zero, fy * i...] "
         "-1 -> 1": AXIS,
         "_project: [Jc = np.stack([np.stack([fx * iz, zero, -fx * X * iz * iz], -1), np.stack([zero, fy * i...] "
