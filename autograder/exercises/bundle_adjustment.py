@@ -156,7 +156,7 @@ def _check_exp(ctx, w, *, small=False):
     return R
 
 
-@EX.test("so3_exp", "rotations of random rotation vectors", weight=8,
+@EX.test("so3_exp", "rotations of random rotation vectors", weight=6,
          hint="Exp(w) = I + sin(a)/a [w]x + (1 - cos a)/a^2 [w]x^2 with a = |w| and [w]x v = w x v (Rodrigues' formula).")
 def _(ctx):
     for a in (0.3, 1.0, 2.0, 3.0, np.pi - 1e-3):
@@ -164,7 +164,7 @@ def _(ctx):
     _check_exp(ctx, ctx.rng.uniform(3.5, 6.0) * _unit(ctx.rng))
 
 
-@EX.test("so3_exp", "w = 0 and tiny angles", weight=5,
+@EX.test("so3_exp", "w = 0 and tiny angles", weight=4,
          hint="At w = 0 return the identity (no 0/0); near 0 use the series sin(a)/a = 1 - a^2/6 + ..., "
               "(1 - cos a)/a^2 = 1/2 - a^2/24 + ..., or the form 2 sin^2(a/2)/a^2 that has no cancellation.")
 def _(ctx):
@@ -173,7 +173,7 @@ def _(ctx):
         _check_exp(ctx, a * ctx.rng.uniform(0.5, 1.0) * _unit(ctx.rng), small=True)
 
 
-@EX.test("so3_exp", "bundle adjustment with your so3_exp", weight=5, visibility="hidden",
+@EX.test("so3_exp", "bundle adjustment with your so3_exp", weight=4, visibility="hidden",
          hint="Plugged into the pose update T (+) delta = (R Exp(phi), t + R rho) of slamlib's bundle adjustment, "
               "your Exp must lead to the reference's cameras and points.")
 def _(ctx):
@@ -203,7 +203,7 @@ def _check_log(ctx, R, *, either_sign=False, small=None):
     return w
 
 
-@EX.test("so3_log", "rotation vectors of random rotations", weight=8,
+@EX.test("so3_log", "rotation vectors of random rotations", weight=6,
          hint="The angle a = atan2(|vee(R - R^T)| / 2, (tr R - 1) / 2) and the axis from vee(R - R^T) / (2 sin a), "
               "w = a axis, |w| <= pi.")
 def _(ctx):
@@ -211,7 +211,7 @@ def _(ctx):
         _check_log(ctx, sl.so3_exp(a * _unit(ctx.rng)))
 
 
-@EX.test("so3_log", "the identity and tiny angles", weight=4,
+@EX.test("so3_log", "the identity and tiny angles", weight=3,
          hint="R = I gives w = 0; for small angles arccos((tr R - 1)/2) loses the angle to rounding: use atan2 "
               "with vee(R - R^T), and a / sin(a) -> 1.")
 def _(ctx):
@@ -221,7 +221,7 @@ def _(ctx):
         _check_log(ctx, sl.so3_exp(a * _unit(ctx.rng)), small=a)
 
 
-@EX.test("so3_log", "angles at and near pi", weight=6,
+@EX.test("so3_log", "angles at and near pi", weight=5,
          hint="Near a = pi, sin a ~ 0: take the axis from the symmetric part, (R + R^T)/2 - cos(a) I = (1 - cos a) "
               "n n^T (the column of the largest diagonal entry), and its sign from vee(R - R^T).")
 def _(ctx):
@@ -247,7 +247,7 @@ def _check_project(ctx, K, T, P):
     return uv, Jp, Jx
 
 
-@EX.test("project", "pixels and Jacobians of random scenes", weight=10,
+@EX.test("project", "pixels and Jacobians of random scenes", weight=8,
          hint="p_c = R^T (P - t); uv = [fx X/Z + cx, fy Y/Z + cy]; with D = d uv / d p_c = [[fx/Z, 0, -fx X/Z^2], "
               "[0, fy/Z, -fy Y/Z^2]]: J_point = D R^T, J_pose = D [-I, [p_c]x] for T (+) [rho, phi] = "
               "(R Exp(phi), t + R rho).")
@@ -257,7 +257,7 @@ def _(ctx):
         _check_project(ctx, K, T[ctx.rng.integers(2)], P)
 
 
-@EX.test("project", "J_pose and J_point match finite differences of your uv", weight=5, visibility="hidden",
+@EX.test("project", "J_pose and J_point match finite differences of your uv", weight=4, visibility="hidden",
          hint="Your Jacobians disagree with numerical derivatives of your own uv: perturb the pose as "
               "(R Exp(phi), t + R rho), translation first.")
 def _(ctx):
@@ -274,7 +274,7 @@ def _(ctx):
     check_fd(ctx, "J_point", Jx, num_x, atol=1e-4, rtol=1e-5)
 
 
-@EX.test("project", "bundle adjustment with your project", weight=6, visibility="hidden",
+@EX.test("project", "bundle adjustment with your project", weight=4, visibility="hidden",
          hint="Plugged into slamlib's bundle adjustment (called once per camera and iteration), your pixels and "
               "Jacobians must lead to the reference's cameras and points.")
 def _(ctx):
@@ -303,7 +303,7 @@ def _two_views(ctx, n, noise, spread=1.5):
     return K, T[0], T[1], uv1, uv2
 
 
-@EX.test("triangulate", "exact pixels of random scenes", weight=8,
+@EX.test("triangulate", "exact pixels of random scenes", weight=6,
          hint="For each match stack the rows u1 p_1^3 - p_1^1, v1 p_1^3 - p_1^2, u2 p_2^3 - p_2^1, v2 p_2^3 - p_2^2 "
               "of P_k = K [R_k^T, -R_k^T t_k] (Hartley & Zisserman, Sec. 12.2); take the last right singular vector "
               "and divide by its 4th entry.")
@@ -312,7 +312,7 @@ def _(ctx):
         _check_tri(ctx, *_two_views(ctx, n, 0.0))
 
 
-@EX.test("triangulate", "noisy pixels: the DLT in pixel rows", weight=7,
+@EX.test("triangulate", "noisy pixels: the DLT in pixel rows", weight=5,
          hint="On noisy matches the answer depends on how the rows are scaled: use the rows in pixels exactly as "
               "written (do not normalise them or apply K^-1 first).")
 def _(ctx):
@@ -354,7 +354,7 @@ def _e2e_two_view(ctx, what, **hooks):
     ctx.close(f"{what}: the points", got.points, ref.points, atol=1e-6, rtol=1e-6)
 
 
-@EX.test("triangulate", "two-view reconstruction with your triangulate", weight=5, visibility="hidden",
+@EX.test("triangulate", "two-view reconstruction with your triangulate", weight=4, visibility="hidden",
          hint="Plugged into slamlib's two-view reconstruction (RANSAC, pose recovery, then your triangulation of the "
               "inliers), your points must be the reference's.")
 def _(ctx):
@@ -384,7 +384,7 @@ def _normalized_matches(ctx, n, noise, shift=0.0):
     return x1 + shift, x2 - shift
 
 
-@EX.test("eight_point", "exact and noisy matches", weight=10,
+@EX.test("eight_point", "exact and noisy matches", weight=7,
          hint="Hartley-normalise each set (centroid to 0, mean distance sqrt(2)), one row [x2 x1, x2 y1, x2, y2 x1, "
               "y2 y1, y2, x1, y1, 1] per match, F = last right singular vector read row by row, E = T2^T F T1, then "
               "E = U diag(1, 1, 0) V^T (Hartley & Zisserman, Algorithm 11.1).")
@@ -393,7 +393,7 @@ def _(ctx):
         _check_eight(ctx, *_normalized_matches(ctx, n, noise))
 
 
-@EX.test("eight_point", "matches far from the origin (the normalisation matters)", weight=6,
+@EX.test("eight_point", "matches far from the origin (the normalisation matters)", weight=5,
          hint="Translate each set so that its centroid is at the origin and scale it so that the mean distance to "
               "the origin is sqrt(2), before the SVD; undo it with E = T2^T F T1.")
 def _(ctx):
@@ -401,7 +401,7 @@ def _(ctx):
         _check_eight(ctx, *_normalized_matches(ctx, 25, 1.0, shift=shift))
 
 
-@EX.test("eight_point", "two-view reconstruction with your eight_point", weight=5, visibility="hidden",
+@EX.test("eight_point", "two-view reconstruction with your eight_point", weight=4, visibility="hidden",
          hint="Plugged into RANSAC (each sample of 8 and the refit on the inliers), your essential matrices must "
               "lead to the reference's inliers, pose and points.")
 def _(ctx):
@@ -423,7 +423,7 @@ def _check_schur(ctx, H, b, C):
     return S, s
 
 
-@EX.test("schur_complement", "reduced camera systems of random problems", weight=10,
+@EX.test("schur_complement", "reduced camera systems of random problems", weight=8,
          hint="S = H_cc - H_cp H_pp^-1 H_pc and s = b_c - H_cp H_pp^-1 b_p, with the 6C camera unknowns first and "
               "H_pp block-diagonal in 3 x 3 (Triggs et al. 1999, Sec. 6.1).")
 def _(ctx):
@@ -432,7 +432,7 @@ def _(ctx):
         _check_schur(ctx, H, b, C)
 
 
-@EX.test("schur_complement", "bundle adjustment with your schur_complement", weight=6, visibility="hidden",
+@EX.test("schur_complement", "bundle adjustment with your schur_complement", weight=4, visibility="hidden",
          hint="Plugged into slamlib's Levenberg-Marquardt (your S and s, then slamlib's back-substitution), the "
               "adjusted cameras and points must be the reference's.")
 def _(ctx):
@@ -456,7 +456,7 @@ def _check_back(ctx, H, b, C, dx_c):
     return dx_p
 
 
-@EX.test("back_substitute", "points' steps of random problems", weight=10,
+@EX.test("back_substitute", "points' steps of random problems", weight=9,
          hint="dx_p = -H_pp^-1 (b_p + H_pc dx_c), H_pp^-1 block by block (3 x 3 per point): then "
               "[dx_c, dx_p] solves H dx = -b.")
 def _(ctx):
@@ -472,7 +472,7 @@ def _(ctx):
         _check_back(ctx, H, b, C, ctx.rng.normal(0.0, 0.1, 6 * C))
 
 
-@EX.test("back_substitute", "bundle adjustment with your back_substitute", weight=6, visibility="hidden",
+@EX.test("back_substitute", "bundle adjustment with your back_substitute", weight=4, visibility="hidden",
          hint="Plugged into slamlib's Levenberg-Marquardt (slamlib's Schur complement, then your back-substitution), "
               "the adjusted cameras and points must be the reference's.")
 def _(ctx):
