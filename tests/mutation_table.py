@@ -292,6 +292,7 @@ EQUIVALENT = {
             "differs only where n . vee(R - R^T) = 0 exactly, a half turn (R symmetric), where the contract accepts "
             "either sign",
         "_so3_log: [if np.any(far):] np.any(far) -> np.all(far)": "any and all agree on the contract's single R",
+        "_so3_log: [col = np.take_along_axis(S, k[..., None, None], axis=-1)[..., 0]] 0 -> -1": LAST_AXIS,
         "_so3_log: [k = np.argmax(np.diagonal(S, axis1=-2, axis2=-1), axis=-1)] -1 -> 1 #2":
             "axis=1 instead of -1 of the (1, 3) diagonal of the contract's single R: the same argmax",
         "_so3_log: [sign = np.where(np.sum(n * v[far], axis=-1) < 0.0, -1.0, 1.0)] -1 -> 1":
