@@ -181,8 +181,10 @@ class _SchurLayout:
             ks.append(np.repeat(members, c, axis=1).ravel())
             ls.append(np.tile(members, (1, c)).ravel())
         self.pk, self.pl = np.concatenate(ks), np.concatenate(ls)
-        rows = 6 * self.pair_cam[self.pk][:, None, None] + np.arange(6)[None, :, None]
-        self.s_idx = (rows * (6 * C) + 6 * self.pair_cam[self.pl][:, None, None] + np.arange(6)[None, None, :]).ravel()
+        # the pairs sorted by the camera block (c_k, c_l) they add to, for one reduceat per step
+        blk = self.pair_cam[self.pk] * C + self.pair_cam[self.pl]
+        self.s_order = np.argsort(blk, kind="stable")
+        self.s_blocks, self.s_starts = np.unique(blk[self.s_order], return_index=True)
         self.sc_idx = (6 * self.pair_cam[:, None] + np.arange(6)).ravel()
         self.pb_idx = (3 * self.pair_point[:, None] + np.arange(3)).ravel()
 
@@ -234,8 +236,11 @@ class _SchurLayout:
         b_p = -rhs[m:].reshape(-1, 3)
         Y = self.Hcp @ Hpp_inv[self.pair_point]  # H_cp H_pp^-1 per camera-point block, (U, 6, 3)
         # S = H_cc - H_cp H_pp^-1 H_pc over pairs of blocks of one point  (Triggs et al. 1999, Eq. 28)
-        full = np.bincount(self.s_idx, (Y[self.pk] @ np.swapaxes(self.Hcp[self.pl], 1, 2)).ravel(),
-                           minlength=36 * C * C).reshape(6 * C, 6 * C)
+        Z = np.add.reduceat(Y[self.pk[self.s_order]] @ np.swapaxes(self.Hcp[self.pl[self.s_order]], 1, 2),
+                            self.s_starts, axis=0)  # one 6 x 6 block per pair of cameras sharing points
+        full = np.zeros((C, C, 6, 6))
+        full.reshape(C * C, 6, 6)[self.s_blocks] = Z
+        full = full.transpose(0, 2, 1, 3).reshape(6 * C, 6 * C)
         sub = np.bincount(self.sc_idx, np.einsum("kij,kj->ki", Y, b_p[self.pair_point]).ravel(), minlength=6 * C)
         S = data[: m * m].reshape(m, m) - full[np.ix_(self.idx, self.idx)]
         s = -rhs[:m] - sub[self.idx]  # s = b_c - H_cp H_pp^-1 b_p
