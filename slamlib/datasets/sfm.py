@@ -20,6 +20,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import data_path
+from .._so3 import _so3_exp
 from ._text import open_text
 
 __all__ = ["SiftKeys", "load_balbianello_keys", "load_balbianello_image", "SfmProblem", "load_bundler",
@@ -173,14 +174,6 @@ def load_bundler(path, *, undistort=True):
                               np.concatenate(xy), np.concatenate(key), undistort)
 
 
-def _rodrigues(w):
-    a = np.linalg.norm(w, axis=-1)[:, None, None]
-    z = np.zeros(len(w))
-    W = np.stack([np.stack([z, -w[:, 2], w[:, 1]], -1), np.stack([w[:, 2], z, -w[:, 0]], -1),
-                  np.stack([-w[:, 1], w[:, 0], z], -1)], -2)
-    return np.eye(3) + np.sinc(a / np.pi) * W + 0.5 * np.sinc(a / (2 * np.pi)) ** 2 * (W @ W)
-
-
 def load_bal(path, *, undistort=True):
     """Read a BAL problem file ("Bundle Adjustment in the Large") as an :class:`SfmProblem`.
 
@@ -194,7 +187,7 @@ def load_bal(path, *, undistort=True):
     rest = np.array(tok[3 + 4 * n_obs:], dtype=np.float64)
     cams = rest[:9 * n_cam].reshape(n_cam, 9)
     pts = rest[9 * n_cam:9 * n_cam + 3 * n_pt].reshape(n_pt, 3)
-    return _from_file_cameras(_rodrigues(cams[:, :3]), cams[:, 3:6], cams[:, 6], cams[:, 7:9], pts,
+    return _from_file_cameras(_so3_exp(cams[:, :3]), cams[:, 3:6], cams[:, 6], cams[:, 7:9], pts,
                               obs[:, 0].astype(np.int64), obs[:, 1].astype(np.int64), obs[:, 2:],
                               np.full(n_obs, -1, dtype=np.int64), undistort)
 
