@@ -142,6 +142,17 @@ def _e2e_ba(ctx, what, problem, **hooks):
         ctx.fail(f"{what}: the reprojection cost went from {got.cost[0]:.4g} to only {got.cost[-1]:.4g}")
 
 
+def _e2e_ba_with(ctx, hook, step, check, **others):
+    """:func:`_e2e_ba` on a fresh problem with the student's function as hook ``hook``, each call checked first."""
+    problem = _ba_problem(ctx.rng, n_cam=3, n_pt=10)
+    count = _Counter()
+
+    def plugged(*args):
+        return _in(ctx, step, count(), lambda: check(ctx, *args))
+
+    _e2e_ba(ctx, f"bundle adjustment with your {ctx.function}", problem, **{hook: plugged}, **others)
+
+
 # =========================================================================== so3_exp
 def _check_exp(ctx, w, *, small=False):
     """Call so3_exp and compare R with slamlib's (R - I relative to |w| for small angles)."""
@@ -177,13 +188,7 @@ def _(ctx):
          hint="Plugged into the pose update T (+) delta = (R Exp(phi), t + R rho) of slamlib's bundle adjustment, "
               "your Exp must lead to the reference's cameras and points.")
 def _(ctx):
-    problem = _ba_problem(ctx.rng, n_cam=3, n_pt=10)
-    count = _Counter()
-
-    def exp(w):
-        return _in(ctx, "pose update", count(), lambda: _check_exp(ctx, np.asarray(w, dtype=float)))
-
-    _e2e_ba(ctx, "bundle adjustment with your so3_exp", problem, so3_exp=exp)
+    _e2e_ba_with(ctx, "so3_exp", "pose update", _check_exp)
 
 
 # =========================================================================== so3_log
@@ -278,13 +283,7 @@ def _(ctx):
          hint="Plugged into slamlib's bundle adjustment (called once per camera and iteration), your pixels and "
               "Jacobians must lead to the reference's cameras and points.")
 def _(ctx):
-    problem = _ba_problem(ctx.rng, n_cam=3, n_pt=10)
-    count = _Counter()
-
-    def project(K, T, P):
-        return _in(ctx, "projection", count(), lambda: _check_project(ctx, K, T, P))
-
-    _e2e_ba(ctx, "bundle adjustment with your project", problem, project=project)
+    _e2e_ba_with(ctx, "project", "projection", _check_project)
 
 
 # =========================================================================== triangulate
@@ -329,11 +328,20 @@ def _two_view_case(ctx, n=40, outliers=4, noise=0.2):
     return K, uv1, uv2
 
 
-def _e2e_two_view(ctx, what, **hooks):
-    """Two-view reconstruction through slamlib's driver with the hooks; inliers, pose and points compared.
+def _e2e_two_view(ctx, hook, step, check):
+    """Two-view reconstruction through slamlib's driver with the student's function as hook ``hook``.
 
-    The case is redrawn (at most 10 times) until the reference reconstruction succeeds on it.
+    Each call is checked first; then the inliers, pose and points are compared with the
+    reference run's. The case is redrawn (at most 10 times) until the reference
+    reconstruction succeeds on it.
     """
+    what = f"two-view reconstruction with your {ctx.function}"
+    count = _Counter()
+
+    def plugged(*args):
+        return _in(ctx, step, count(), lambda: check(ctx, *args))
+
+    hooks = {hook: plugged}
     kw = dict(threshold=1.5, confidence=0.99, max_iter=100)
     for _ in range(10):
         K, uv1, uv2 = _two_view_case(ctx)
@@ -358,12 +366,7 @@ def _e2e_two_view(ctx, what, **hooks):
          hint="Plugged into slamlib's two-view reconstruction (RANSAC, pose recovery, then your triangulation of the "
               "inliers), your points must be the reference's.")
 def _(ctx):
-    count = _Counter()
-
-    def tri(K, T1, T2, uv1, uv2):
-        return _in(ctx, "triangulation", count(), lambda: _check_tri(ctx, K, T1, T2, uv1, uv2, scale=1.0))
-
-    _e2e_two_view(ctx, "two-view reconstruction with your triangulate", triangulate=tri)
+    _e2e_two_view(ctx, "triangulate", "triangulation", lambda c, *a: _check_tri(c, *a, scale=1.0))
 
 
 # =========================================================================== eight_point
@@ -405,12 +408,7 @@ def _(ctx):
          hint="Plugged into RANSAC (each sample of 8 and the refit on the inliers), your essential matrices must "
               "lead to the reference's inliers, pose and points.")
 def _(ctx):
-    count = _Counter()
-
-    def eight(x1, x2):
-        return _in(ctx, "eight-point fit", count(), lambda: _check_eight(ctx, x1, x2))
-
-    _e2e_two_view(ctx, "two-view reconstruction with your eight_point", eight_point=eight)
+    _e2e_two_view(ctx, "eight_point", "eight-point fit", _check_eight)
 
 
 # =========================================================================== schur_complement
@@ -436,14 +434,7 @@ def _(ctx):
          hint="Plugged into slamlib's Levenberg-Marquardt (your S and s, then slamlib's back-substitution), the "
               "adjusted cameras and points must be the reference's.")
 def _(ctx):
-    problem = _ba_problem(ctx.rng, n_cam=3, n_pt=10)
-    count = _Counter()
-
-    def schur(H, b, C):
-        return _in(ctx, "LM step", count(), lambda: _check_schur(ctx, H, b, C))
-
-    _e2e_ba(ctx, "bundle adjustment with your schur_complement", problem, schur_complement=schur,
-            back_substitute=sl.back_substitute)
+    _e2e_ba_with(ctx, "schur_complement", "LM step", _check_schur, back_substitute=sl.back_substitute)
 
 
 # =========================================================================== back_substitute
@@ -476,11 +467,4 @@ def _(ctx):
          hint="Plugged into slamlib's Levenberg-Marquardt (slamlib's Schur complement, then your back-substitution), "
               "the adjusted cameras and points must be the reference's.")
 def _(ctx):
-    problem = _ba_problem(ctx.rng, n_cam=3, n_pt=10)
-    count = _Counter()
-
-    def back(H, b, C, dx_c):
-        return _in(ctx, "LM step", count(), lambda: _check_back(ctx, H, b, C, dx_c))
-
-    _e2e_ba(ctx, "bundle adjustment with your back_substitute", problem, schur_complement=sl.schur_complement,
-            back_substitute=back)
+    _e2e_ba_with(ctx, "back_substitute", "LM step", _check_back, schur_complement=sl.schur_complement)
