@@ -12,6 +12,9 @@ Layers, bottom up:
 * :mod:`slamlib.gaussian`, :mod:`slamlib.particle`, :mod:`slamlib.mcl` -- localization
 * :mod:`slamlib.ekf_slam`, :mod:`slamlib.fastslam` -- SLAM
 * :mod:`slamlib.graph_slam` -- full SLAM: pose graphs and landmark graphs as sparse least squares
+* :mod:`slamlib.lie` -- rotations and poses in 3-D: SO(3), SE(3), exp/log, Jacobians (``sl.lie.so3_exp``)
+* :mod:`slamlib.graph_slam3d` -- 3-D pose graphs on SE(3), solved by graph_slam's sparse machinery
+* :mod:`slamlib.incremental` -- incremental smoothing: a pose graph solved as each measurement arrives
 * :mod:`slamlib.scan_matching`, :mod:`slamlib.mapping`, :mod:`slamlib.lidar_slam` -- ICP, occupancy grids, lidar SLAM
 * :mod:`slamlib.datasets` -- loaders of the real robot logs shipped in ``slamlib/data``
 * :mod:`slamlib.viz` -- plotting (the only module that imports matplotlib)
@@ -19,6 +22,8 @@ Layers, bottom up:
 
 from . import angles, bayes, motion, sensors, maps, sim, metrics, scoring, gaussian, particle, mcl, ekf_slam, fastslam
 from . import graph_slam
+from . import lie
+from . import graph_slam3d, incremental
 from . import scan_matching, mapping, lidar_slam
 from . import camera, bundle_adjustment, visual_odometry
 from .angles import *  # noqa: F401,F403

@@ -12,9 +12,10 @@ of being coerced into a wrong answer.
   :func:`as_invertible_covariance` (PD with a representable determinant);
 * poses and states: :func:`as_pose`, :func:`as_poses`, :func:`as_slam_mean` and
   :func:`as_slam_state` (``[x, y, theta, m0x, m0y, ...]`` and its covariance),
-  :func:`as_rigid_transform` (``R``, ``t``);
+  :func:`as_rigid_transform` (``R``, ``t``); in 3-D :func:`as_rotations` (``(..., 3, 3)``) and
+  :func:`as_rigid_motions` (homogeneous ``(..., 4, 4)``);
 * graphs: :func:`as_edges` (index pairs), :func:`as_information` (a stack of
-  PD information matrices), :func:`as_pose_graph`;
+  PD information matrices), :func:`as_pose_graph`, :func:`as_pose_graph3d`;
 * weights and probabilities: :func:`as_weights`, :func:`as_log_weights`
   (:func:`check_log_weights`), :func:`as_probability`, :func:`as_probabilities`,
   :func:`as_kernel` (a motion kernel centred on zero);
@@ -512,6 +513,29 @@ def as_rigid_transform(R, t, names=("R", "t")):
     return R, t
 
 
+#: Tolerance of the 3-D rotation checks: ``|R^T R - I|`` and ``|det R - 1|`` (data files store
+#: rotations as rounded quaternions or angles, so exact orthonormality is not required).
+ROTATION_ATOL = 1e-6
+
+
+def as_rotations(value, name, *, copy=True):
+    """3-D rotation matrices ``(3, 3)`` or ``(..., 3, 3)``: orthonormal with ``det +1`` up to :data:`ROTATION_ATOL`."""
+    R = as_matrix(value, name, 3, 3, copy=copy)
+    err = np.abs(np.swapaxes(R, -1, -2) @ R - np.eye(3)).max(initial=0.0)
+    if err > ROTATION_ATOL or (R.size and np.abs(np.linalg.det(R) - 1.0).max() > ROTATION_ATOL):
+        raise ValueError(f"{name} must be a rotation matrix (orthonormal, det +1) or a batch of them")
+    return R
+
+
+def as_rigid_motions(value, name, *, copy=True):
+    """Homogeneous 3-D poses ``[[R, t], [0, 0, 0, 1]]``, ``(4, 4)`` or ``(..., 4, 4)``, ``R`` a rotation."""
+    T = as_matrix(value, name, 4, 4, copy=copy)
+    if T.size and np.abs(T[..., 3, :] - [0.0, 0.0, 0.0, 1.0]).max() > 0.0:
+        raise ValueError(f"{name} must be a homogeneous pose [[R, t], [0, 0, 0, 1]]: its last row must be [0, 0, 0, 1]")
+    as_rotations(T[..., :3, :3], f"{name}[..., :3, :3]", copy=False)
+    return T
+
+
 def as_weights(value, name="w", n=None, *, normalize=True, ref=None):
     """Non-negative weights ``(n,)``, not all zero, finite sum; normalised to sum 1 unless told not to."""
     w = as_array(value, name, (None,) if n is None else (n,), ref=ref)
@@ -749,3 +773,18 @@ def as_pose_graph(X, edges, Z, Omega, names=("X", "edges", "Z", "Omega")):
     Z = as_array(Z, names[2], (E, 3))
     Omega = as_information(Omega, names[3], E, 3)
     return X, edges, Z, Omega
+
+
+def as_pose_graph3d(T, edges, Z, Omega, names=("T", "edges", "Z", "Omega")):
+    """A 3-D pose graph: poses ``T (n, 4, 4)`` (at least one), edges ``(E, 2)`` between them, relative
+    poses ``Z (E, 4, 4)`` and information matrices ``Omega (E, 6, 6)`` (``[translation, rotation]`` order)."""
+    T = as_rigid_motions(T, names[0])
+    if T.ndim != 3 or T.shape[0] == 0:
+        raise ValueError(f"{names[0]} must have shape (n, 4, 4) with n >= 1, got {T.shape}")
+    edges = as_edges(edges, names[1], T.shape[0])
+    E = edges.shape[0]
+    Z = as_rigid_motions(Z, names[2])
+    if Z.shape != (E, 4, 4):
+        raise ValueError(f"{names[2]} must have shape ({E}, 4, 4) (to match {names[1]}), got {Z.shape}")
+    Omega = as_information(Omega, names[3], E, 6)
+    return T, edges, Z, Omega

@@ -2,7 +2,7 @@
 
 Functions live in private submodules by topic (``_core``: poses, ellipses,
 particles, landmarks, grids, animations; ``_bayes``; ``_filters``; ``_mcl``;
-``_slam``; ``_fastslam``; ``_real_data``; ``_graph``; ``_scan``) and are
+``_slam``; ``_fastslam``; ``_real_data``; ``_graph``; ``_graph3d``; ``_scan``) and are
 re-exported here. Every function takes an optional ``ax`` and returns it.
 """
 
@@ -16,4 +16,5 @@ from ._real_data import *  # noqa: F401,F403
 from ._graph import *  # noqa: F401,F403
 from ._scan import *  # noqa: F401,F403
 from ._victoria import *  # noqa: F401,F403
+from ._graph3d import *  # noqa: F401,F403
 from ._camera import *  # noqa: F401,F403

@@ -1,0 +1,289 @@
+"""slamlib against GTSAM on the pose graphs that ship in GTSAM's wheel: 3-D (sphere2500) and the large 2-D ones.
+
+Run ``python benchmarks/bench_3d.py [names...]`` (a few minutes on an idle core; names among
+``sphere2500 Intel M3500 w10000 w20000 city10000 incremental``; default all). GTSAM
+(``pip install gtsam``, the ``bench``/``dev`` extras) is the independent check: both libraries
+optimise the same graph from the same initial guess (the odometry guess composed along the
+spanning tree, :func:`slamlib.pose_graph_initial_guess` / :func:`slamlib.graph_slam3d.pose_graph3d_initial_guess`),
+first pose fixed, Levenberg-Marquardt, relative-decrease tolerance 1e-9, at most 100 iterations.
+Printed per graph: final chi2 (``sum e^T Omega e``, twice GTSAM's graph error), iterations
+(linear solves; GTSAM counts outer iterations, its inner retries with more damping are extra
+solves), time (median of repeats), and the ratio of the times.
+
+Objectives. In 3-D both libraries use the error ``log(Z^-1 T_i^-1 T_j)`` of SE(3), so the chi2
+values are comparable directly (target: relative difference <= 1e-6). In 2-D slamlib uses g2o's
+``t2v(Z^-1 X_i^-1 X_j)`` and GTSAM the SE(2) logarithm: the optima of the two objectives differ
+slightly, so each solution is printed under *both* errors (``ours/g2o`` is the objective slamlib
+minimises, ``gtsam/log`` GTSAM's): on its own objective each library should be at least as low as
+the other's solution.
+
+Goals (issue 19): sphere2500 within 2x of GTSAM's LM time; every 2-D graph at GTSAM's chi2 or lower
+in no more time; incremental smoothing (city10000) per-step time within 5x of ``gtsam.ISAM2``
+with a final error within 1 % of batch.
+
+The bundle-adjustment comparison (against GTSAM and ``scipy.optimize.least_squares``) lives in
+``benchmarks/bench_bundle_adjustment.py`` (see the hook :func:`bundle_adjustment_figures` below).
+
+BLAS runs single-threaded (``OPENBLAS_NUM_THREADS=1`` unless set already); GTSAM runs as installed.
+"""
+
+from __future__ import annotations
+
+import os
+import statistics
+import sys
+import time
+
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")  # before numpy loads BLAS
+
+import numpy as np  # noqa: E402
+
+import slamlib as sl  # noqa: E402
+from slamlib import graph_slam3d as g3  # noqa: E402
+from slamlib.datasets import load_g2o, load_g2o3d, load_intel, load_m3500  # noqa: E402
+
+try:
+    import gtsam
+except ImportError:  # benchmark-only dependency
+    gtsam = None
+
+CHI2_RTOL = 1e-6
+RATIO_3D = 2.0
+MAX_ITER = 100
+
+
+def _median_time(fn, repeats):
+    out, times = None, []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times), out
+
+
+def _lm_params():
+    params = gtsam.LevenbergMarquardtParams()
+    params.setRelativeErrorTol(1e-9)
+    params.setAbsoluteErrorTol(0.0)
+    params.setMaxIterations(MAX_ITER)
+    return params
+
+
+# --------------------------------------------------------------------------- GTSAM graphs
+def _swap6(O):
+    """Information over [translation, rotation] -> GTSAM's Pose3 order [rotation, translation]."""
+    P = np.empty_like(O)
+    P[:3, :3], P[3:, 3:], P[:3, 3:], P[3:, :3] = O[3:, 3:], O[:3, :3], O[3:, :3], O[:3, 3:]
+    return P
+
+
+def gtsam_graph3d(edges, Z, Omega, T_first):
+    graph = gtsam.NonlinearFactorGraph()
+    for (i, j), z, W in zip(edges, Z, Omega):
+        graph.add(gtsam.BetweenFactorPose3(int(i), int(j), gtsam.Pose3(z), gtsam.noiseModel.Gaussian.Information(_swap6(W))))
+    graph.add(gtsam.NonlinearEqualityPose3(0, gtsam.Pose3(T_first)))
+    return graph
+
+
+def gtsam_values3d(T):
+    values = gtsam.Values()
+    for k, t in enumerate(T):
+        values.insert(k, gtsam.Pose3(t))
+    return values
+
+
+def gtsam_poses3d(values, n):
+    return np.array([values.atPose3(k).matrix() for k in range(n)])
+
+
+def gtsam_graph2d(edges, Z, Omega, x_first):
+    graph = gtsam.NonlinearFactorGraph()
+    for (i, j), z, W in zip(edges, Z, Omega):
+        graph.add(gtsam.BetweenFactorPose2(int(i), int(j), gtsam.Pose2(*z), gtsam.noiseModel.Gaussian.Information(W)))
+    graph.add(gtsam.NonlinearEqualityPose2(0, gtsam.Pose2(*x_first)))
+    return graph
+
+
+def gtsam_values2d(X):
+    values = gtsam.Values()
+    for k, x in enumerate(X):
+        values.insert(k, gtsam.Pose2(*x))
+    return values
+
+
+def gtsam_poses2d(values, n):
+    return np.array([[values.atPose2(k).x(), values.atPose2(k).y(), values.atPose2(k).theta()] for k in range(n)])
+
+
+def _run_gtsam(graph, init, repeats):
+    def run():
+        opt = gtsam.LevenbergMarquardtOptimizer(graph, init, _lm_params())
+        return opt.optimize(), opt.iterations()
+    return _median_time(run, repeats)
+
+
+# --------------------------------------------------------------------------- 3-D
+def sphere_figures(repeats=3):
+    """sphere2500 (TORO, 2500 poses, 4949 edges): slamlib's on-manifold LM against GTSAM's; error against the truth."""
+    g = load_g2o3d(gtsam.findExampleDataFile("sphere2500.txt") if gtsam else sl.datasets.data_path(
+        "pose_graphs", "sphere2500.txt.gz"))
+    print(f"sphere2500: {g.n_poses} poses, {g.n_edges} edges (3-D, TORO EDGE3), from the odometry guess")
+    T0 = g.T
+    t_s, res = _median_time(lambda: g3.optimize_pose_graph3d(T0, g.edges, g.Z, g.Omega, max_iter=MAX_ITER), repeats)
+    print(f"  slamlib LM  chi2 {res.chi2[-1]:.9f}  iterations {res.iterations:3d}  time {t_s:7.3f} s")
+    t_gn, res_gn = _median_time(lambda: g3.optimize_pose_graph3d(T0, g.edges, g.Z, g.Omega, method="gn",
+                                                                 max_iter=MAX_ITER), repeats)
+    print(f"  slamlib GN  chi2 {res_gn.chi2[-1]:.9f}  iterations {res_gn.iterations:3d}  time {t_gn:7.3f} s")
+    if gtsam is None:
+        print("  GTSAM not installed: comparison skipped")
+        return
+    graph = gtsam_graph3d(g.edges, g.Z, g.Omega, T0[0])
+    t_g, (vals, it_g) = _run_gtsam(graph, gtsam_values3d(T0), repeats)
+    chi2_g = 2 * graph.error(vals)
+    ours_in_g = 2 * graph.error(gtsam_values3d(res.X))
+    rel = abs(chi2_g - res.chi2[-1]) / chi2_g
+    print(f"  GTSAM LM    chi2 {chi2_g:.9f}  iterations {it_g:3d}  time {t_g:7.3f} s")
+    print(f"  ours evaluated by GTSAM {ours_in_g:.9f}; relative chi2 difference {rel:.1e} "
+          f"(target <= {CHI2_RTOL:.0e}): {'ok' if rel <= CHI2_RTOL else 'MISSED'}")
+    print(f"  time ratio slamlib / GTSAM = {t_s / t_g:.2f} (target <= {RATIO_3D:.0f}): "
+          f"{'ok' if t_s / t_g <= RATIO_3D else 'MISSED'}")
+    truth = load_g2o3d(gtsam.findExampleDataFile("sphere2500_groundtruth.txt"))
+    for name, T in (("slamlib", res.X), ("GTSAM", gtsam_poses3d(vals, g.n_poses))):
+        tr, rot = g3.trajectory_errors3d(T, truth.T)
+        print(f"  against the truth, {name:8s}: position RMSE {np.sqrt(np.mean(tr ** 2)):.4f} m, "
+              f"rotation RMSE {np.degrees(np.sqrt(np.mean(rot ** 2))):.3f} deg")
+
+
+# --------------------------------------------------------------------------- 2-D
+def _graphs2d(names):
+    for name in names:
+        if name == "Intel":
+            yield name, load_intel()
+        elif name == "M3500":
+            yield name, load_m3500()
+        elif name in ("w10000", "w20000") and gtsam is not None:
+            yield name, load_g2o(gtsam.findExampleDataFile("w10000.graph" if name == "w10000" else "w20000.txt"))
+        elif name == "city10000" and gtsam is not None:
+            yield name, sl.datasets.load_city10000(gtsam.findExampleDataFile("T1_city10000_04.txt")).graph
+
+
+def figures2d(names=("Intel", "M3500", "w10000", "w20000", "city10000"), repeats=3):
+    """The 2-D graphs: slamlib LM and GTSAM LM from the odometry guess; chi2 under both errors, iterations, time."""
+    print(f"{'graph':9s} {'solver':8s} {'chi2 ours/g2o':>16s} {'chi2 gtsam/log':>16s} {'iter':>5s} {'time [s]':>9s}")
+    for name, g in _graphs2d(names):
+        X0 = sl.pose_graph_initial_guess(g.n_poses, g.edges, g.Z)
+        t_s, res = _median_time(lambda: sl.optimize_pose_graph(X0, g.edges, g.Z, g.Omega, max_iter=MAX_ITER), repeats)
+        if gtsam is None:
+            print(f"{name:9s} {'slamlib':8s} {res.chi2[-1]:16.6f} {'-':>16s} {res.iterations:5d} {t_s:9.3f}")
+            continue
+        graph = gtsam_graph2d(g.edges, g.Z, g.Omega, X0[0])
+        t_g, (vals, it_g) = _run_gtsam(graph, gtsam_values2d(X0), repeats)
+        Xg = gtsam_poses2d(vals, g.n_poses)
+        ours_log = 2 * graph.error(gtsam_values2d(res.X))
+        g_log = 2 * graph.error(vals)
+        g_g2o = sl.pose_graph_chi2(Xg, g.edges, g.Z, g.Omega)
+        print(f"{name:9s} {'slamlib':8s} {res.chi2[-1]:16.6f} {ours_log:16.6f} {res.iterations:5d} {t_s:9.3f}")
+        print(f"{name:9s} {'GTSAM':8s} {g_g2o:16.6f} {g_log:16.6f} {it_g:5d} {t_g:9.3f}")
+        lower = res.chi2[-1] <= g_g2o * (1 + CHI2_RTOL)
+        print(f"{name:9s}   chi2 on slamlib's objective: ours {'<=' if lower else '>'} GTSAM's "
+              f"(relative {(res.chi2[-1] - g_g2o) / g_g2o:+.1e}); time ratio {t_s / t_g:.2f} "
+              f"({'ok' if t_s <= t_g and lower else 'MISSED'})")
+
+
+# --------------------------------------------------------------------------- bundle adjustment (hook)
+def bundle_adjustment_figures():
+    """Bundle adjustment against GTSAM and ``scipy.optimize.least_squares``: owned by
+    ``benchmarks/bench_bundle_adjustment.py`` (run here when it exists)."""
+    path = os.path.join(os.path.dirname(os.path.abspath(__file__)), "bench_bundle_adjustment.py")
+    if not os.path.exists(path):
+        print("bundle adjustment: benchmarks/bench_bundle_adjustment.py not present; skipped")
+        return
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("bench_bundle_adjustment", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    mod.main()
+
+
+def main(argv=None):
+    names = list(argv if argv is not None else sys.argv[1:]) or ["sphere2500", "Intel", "M3500", "w10000", "w20000",
+                                                                  "city10000", "incremental", "bundle_adjustment"]
+    if gtsam is None:
+        print("GTSAM not installed (pip install gtsam): only slamlib's figures are printed")
+    if "sphere2500" in names:
+        sphere_figures()
+    two_d = [n for n in names if n in ("Intel", "M3500", "w10000", "w20000", "city10000")]
+    if two_d:
+        figures2d(two_d)
+    if "incremental" in names:
+        incremental_figures()
+    if "bundle_adjustment" in names:
+        bundle_adjustment_figures()
+
+
+def run_isam2(edges, Z, Omega):
+    """gtsam.ISAM2 fed one measurement at a time (GTSAM's City10000 example settings: Gauss-Newton,
+    relinearise threshold 0.01, every update); returns the final poses and the seconds of each update."""
+    params = gtsam.ISAM2Params()
+    params.setRelinearizeThreshold(0.01)
+    params.relinearizeSkip = 1
+    isam = gtsam.ISAM2(params)
+    prior = gtsam.NonlinearFactorGraph()
+    prior.add(gtsam.PriorFactorPose2(0, gtsam.Pose2(0, 0, 0), gtsam.noiseModel.Diagonal.Sigmas(np.full(3, 1e-4))))
+    init = gtsam.Values()
+    init.insert(0, gtsam.Pose2(0, 0, 0))
+    isam.update(prior, init)
+    est = isam.calculateEstimate()
+    times = np.zeros(len(edges))
+    noise = [gtsam.noiseModel.Gaussian.Information(W) for W in Omega[:1]]
+    for k, ((i, j), z) in enumerate(zip(edges, Z)):
+        graph = gtsam.NonlinearFactorGraph()
+        vals = gtsam.Values()
+        graph.add(gtsam.BetweenFactorPose2(int(i), int(j), gtsam.Pose2(*z), noise[0]))
+        if j == i + 1 and not est.exists(int(j)):
+            vals.insert(int(j), est.atPose2(int(i)).compose(gtsam.Pose2(*z)))
+        t0 = time.perf_counter()
+        isam.update(graph, vals)
+        est = isam.calculateEstimate()
+        times[k] = time.perf_counter() - t0
+    n = int(edges.max()) + 1
+    return gtsam_poses2d(est, n), times
+
+
+def incremental_figures():
+    """City10000 (10 000 poses, 20 687 measurements in arrival order): slamlib's incremental smoother
+    against gtsam.ISAM2; per-step time, and the final estimate against the batch optimum and the truth."""
+    from slamlib.incremental import incremental_pose_graph
+
+    c = sl.datasets.load_city10000()
+    g = c.graph
+    res = incremental_pose_graph(g.edges, g.Z, g.Omega)
+    batch = sl.optimize_pose_graph(g.X, g.edges, g.Z, g.Omega)
+
+    def rmse(X):
+        return float(np.sqrt(np.mean(np.sum((X[:, :2] - c.truth[:, :2]) ** 2, axis=1))))
+
+    print(f"incremental smoothing on City10000: {g.n_poses} poses, {g.n_edges} measurements")
+    print(f"  {'solver':22s} {'mean step [ms]':>14s} {'total [s]':>9s} {'chi2':>12s} {'RMSE truth':>10s}")
+    print(f"  {'slamlib batch LM':22s} {'-':>14s} {batch.time:9.2f} {batch.chi2[-1]:12.3f} {rmse(batch.X):10.4f}")
+    print(f"  {'slamlib incremental':22s} {1000 * res.step_time.mean():14.3f} {res.step_time.sum():9.2f} "
+          f"{res.chi2:12.3f} {rmse(res.X):10.4f}   ({res.batch_steps.size} full solves)")
+    rel_chi2 = res.chi2 / batch.chi2[-1] - 1
+    rel_rmse = rmse(res.X) / rmse(batch.X) - 1
+    if gtsam is None:
+        return
+    Xg, tg = run_isam2(g.edges, g.Z, g.Omega)
+    chi2_g = sl.pose_graph_chi2(Xg, g.edges, g.Z, g.Omega)
+    print(f"  {'gtsam.ISAM2':22s} {1000 * tg.mean():14.3f} {tg.sum():9.2f} {chi2_g:12.3f} {rmse(Xg):10.4f}")
+    ratio = res.step_time.mean() / tg.mean()
+    print(f"  per-step time ratio slamlib / ISAM2 = {ratio:.2f} (target <= 5): {'ok' if ratio <= 5 else 'MISSED'}")
+    ok = abs(rel_chi2) <= 0.01 and abs(rel_rmse) <= 0.01
+    print(f"  final estimate against batch: chi2 {rel_chi2:+.2%}, RMSE to the truth {rel_rmse:+.2%} (target within 1 %): "
+          f"{'ok' if ok else 'MISSED'}; ISAM2 against batch: chi2 {chi2_g / batch.chi2[-1] - 1:+.2%}, "
+          f"RMSE {rmse(Xg) / rmse(batch.X) - 1:+.2%}")
+
+
+if __name__ == "__main__":
+    main()
