@@ -46,7 +46,6 @@ from .lidar_slam import *  # noqa: F401,F403
 from .camera import *  # noqa: F401,F403
 from .bundle_adjustment import *  # noqa: F401,F403
 from .visual_odometry import *  # noqa: F401,F403
-from ._so3 import so3_exp, so3_log  # noqa: F401  (stand-in until slamlib.lie is merged)
 
 __version__ = "0.1.0"
 
@@ -56,7 +55,7 @@ __all__ = (
 )
 __all__ += graph_slam.__all__
 __all__ += scan_matching.__all__ + mapping.__all__ + lidar_slam.__all__
-__all__ += camera.__all__ + bundle_adjustment.__all__ + visual_odometry.__all__ + ["so3_exp", "so3_log"]
+__all__ += camera.__all__ + bundle_adjustment.__all__ + visual_odometry.__all__
 
 
 def __getattr__(name):

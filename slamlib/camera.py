@@ -41,7 +41,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ._checks import as_array, as_count, as_matrix, as_scalar, check_rng
-from ._so3 import _skew
+from .lie import _skew
 
 __all__ = ["calibration_matrix", "pose_matrix", "project", "triangulate", "to_normalized", "eight_point",
            "sampson_distance", "ransac_iterations", "EssentialResult", "essential_ransac", "decompose_essential",

@@ -34,7 +34,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ._checks import as_array, as_count, as_scalar, check_rng
-from ._so3 import _so3_log
+from .lie import _so3_log
 from .bundle_adjustment import bundle_adjust
 
 __all__ = ["stereo_triangulate", "align_3d", "VOResult", "stereo_visual_odometry", "trajectory_errors"]

@@ -9,12 +9,12 @@ K = sl.calibration_matrix(520.0, 500.0, 320.0, 240.0)
 
 
 def _pose(rng, scale=1.0):
-    return sl.pose_matrix(sl.so3_exp(rng.normal(size=3) * 0.3), rng.normal(size=3) * scale)
+    return sl.pose_matrix(sl.lie.so3_exp(rng.normal(size=3) * 0.3), rng.normal(size=3) * scale)
 
 
 def _perturb(T, d):
     R, t = T[:3, :3], T[:3, 3]
-    return sl.pose_matrix(R @ sl.so3_exp(d[3:]), t + R @ d[:3])
+    return sl.pose_matrix(R @ sl.lie.so3_exp(d[3:]), t + R @ d[:3])
 
 
 def _points_in_front(rng, T, n, near=3.0, far=9.0):
@@ -27,25 +27,6 @@ def _two_views(rng, n=60, baseline=1.0):
     T2 = _perturb(T1, np.r_[rng.normal(size=3) * 0.2 + [baseline, 0, 0], rng.normal(size=3) * 0.05])
     P = _points_in_front(rng, T1, n)
     return T1, T2, P
-
-
-# --------------------------------------------------------------------------- rotations (stand-in of slamlib.lie)
-@pytest.mark.parametrize("angle", [0.0, 1e-12, 1e-7, 1e-3, 0.5, 2.0, 3.0, np.pi - 1e-6, np.pi - 1e-9])
-def test_so3_exp_log_round_trip_at_every_angle(angle):
-    rng = np.random.default_rng(1)
-    n = rng.normal(size=3)
-    w = angle * n / np.linalg.norm(n)
-    R = sl.so3_exp(w)
-    np.testing.assert_allclose(R.T @ R, np.eye(3), atol=1e-14)
-    assert np.linalg.det(R) == pytest.approx(1.0, abs=1e-14)
-    np.testing.assert_allclose(sl.so3_log(R), w, atol=1e-12, rtol=0)
-
-
-def test_so3_exp_small_angles_relative_accuracy():
-    w = np.array([1e-9, -2e-9, 3e-9])
-    W = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
-    # the diagonal of R - I (~1e-17) is below the resolution of 1 + ..., so it is compared with an absolute bound
-    np.testing.assert_allclose(sl.so3_exp(w) - np.eye(3), W + 0.5 * W @ W, rtol=1e-12, atol=1e-16)
 
 
 # --------------------------------------------------------------------------- projection
@@ -168,7 +149,7 @@ def test_ransac_finds_the_inliers_and_stops_early():
     assert (res.inliers & ~truth).sum() <= 2 and (truth & ~res.inliers).sum() <= 14
     assert res.iterations < 2000  # the adaptive count stopped it before max_iter
     T, _, _ = sl.recover_pose(res.E, x1[res.inliers], x2[res.inliers])
-    ang = np.linalg.norm(sl.so3_log(T[:3, :3].T @ rel[:3, :3]))
+    ang = np.linalg.norm(sl.lie.so3_log(T[:3, :3].T @ rel[:3, :3]))
     assert ang < 0.01
 
 

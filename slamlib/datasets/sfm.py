@@ -20,7 +20,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import data_path
-from .._so3 import _so3_exp
+from ..lie import _so3_exp
 from ._text import open_text
 
 __all__ = ["SiftKeys", "load_balbianello_keys", "load_balbianello_image", "SfmProblem", "load_bundler",
