@@ -46,6 +46,8 @@ from .lidar_slam import *  # noqa: F401,F403
 from .camera import *  # noqa: F401,F403
 from .bundle_adjustment import *  # noqa: F401,F403
 from .visual_odometry import *  # noqa: F401,F403
+# exercise 7 grades so3_exp/so3_log against slamlib's functions of the same name (one definition, in lie)
+from .lie import so3_exp, so3_log  # noqa: F401
 
 __version__ = "0.1.0"
 
@@ -55,7 +57,7 @@ __all__ = (
 )
 __all__ += graph_slam.__all__
 __all__ += scan_matching.__all__ + mapping.__all__ + lidar_slam.__all__
-__all__ += camera.__all__ + bundle_adjustment.__all__ + visual_odometry.__all__
+__all__ += camera.__all__ + bundle_adjustment.__all__ + visual_odometry.__all__ + ["so3_exp", "so3_log"]
 
 
 def __getattr__(name):

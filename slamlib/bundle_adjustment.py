@@ -408,7 +408,7 @@ def bundle_adjust(T_wc, points, K, cam, point, uv, *, fixed=(0,), fix_scale=Fals
         pose per frame.
     project, so3_exp, schur_complement, back_substitute : callable, keyword-only
         Hooks replacing the library's own :func:`slamlib.project` (called once per
-        camera), :func:`slamlib.lie.so3_exp` (in the pose update, once per camera),
+        camera), :func:`slamlib.so3_exp` (in the pose update, once per camera),
         and the Schur elimination (both together; the dense ``H`` of the free
         cameras and all points is passed, with ``fixed`` and no ``fix_scale``).
 

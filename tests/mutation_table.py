@@ -283,20 +283,24 @@ EQUIVALENT = {
         "np.swapaxes(U, -1, -2) @ np.diag([1.0, d])": SVD_U,
     },
     "so3_log": {
-        "_so3_log: [far = c < 0.0] c < 0.0 -> c <= 0.0":
-            "switches to the symmetric-part axis at an angle of exactly pi/2 too, where both ways are exact",
-        "_so3_log: [n = col / np.linalg.norm(col, axis=-1, keepdims=True)] -1 -> 1":
-            "axis=1 instead of -1 of the (1, 3) column of the contract's single R: the same norm",
-        "_so3_log: [sign = np.where(np.sum(n * v[far], axis=-1) < 0.0, -1.0, 1.0)] "
-        "np.sum(n * v[far], axis=-1) < 0.0 -> np.sum(n * v[far], axis=-1) <= 0.0":
+        "_so3_log: [c = 0.5 * (np.trace(R, axis1=-2, axis2=-1) - 1.0)] -1 -> 1":
+            "axis2=1 instead of -1 of the contract's single (3, 3) R: the same trace",
+        "_so3_log_branches: [S = 0.5 * (R + np.swapaxes(R, -1, -2)) - c[..., None, None] * np.eye(3)] -1 -> 1":
+            "swapaxes(R, 1, -2) of the contract's single (3, 3) R: the same transpose",
+        "_so3_log_branches: [d = np.diagonal(S, axis1=-2, axis2=-1)] -1 -> 1":
+            "axis2=1 instead of -1 of the contract's single (3, 3) R: the same diagonal",
+        "_so3_log_branches: [col = np.take_along_axis(S, k[..., None, None], axis=-1)[..., 0]] -1 -> 1":
+            "axis=1 instead of -1 of the contract's single (3, 3) R: the same column",
+        "_so3_log_branches: [col = np.take_along_axis(S, k[..., None, None], axis=-1)[..., 0]] 0 -> -1": LAST_AXIS,
+        "_so3_log_branches: [sign = np.where(np.sum(n * s, axis=-1) < 0.0, -1.0, 1.0)] "
+        "np.sum(n * s, axis=-1) < 0.0 -> np.sum(n * s, axis=-1) <= 0.0":
             "differs only where n . vee(R - R^T) = 0 exactly, a half turn (R symmetric), where the contract accepts "
             "either sign",
-        "_so3_log: [if np.any(far):] np.any(far) -> np.all(far)": "any and all agree on the contract's single R",
-        "_so3_log: [col = np.take_along_axis(S, k[..., None, None], axis=-1)[..., 0]] 0 -> -1": LAST_AXIS,
-        "_so3_log: [k = np.argmax(np.diagonal(S, axis1=-2, axis2=-1), axis=-1)] -1 -> 1 #2":
-            "axis=1 instead of -1 of the (1, 3) diagonal of the contract's single R: the same argmax",
-        "_so3_log: [sign = np.where(np.sum(n * v[far], axis=-1) < 0.0, -1.0, 1.0)] -1 -> 1":
-            "axis=1 instead of -1 of the (1, 3) product of the contract's single R: the same sum",
+        "_so3_log_branches: [return np.where((c < -0.5)[..., None], w_pi, w_small)] c < -0.5 -> c <= -0.5":
+            "differs only at cos(a) = -1/2 exactly (a = 2 pi / 3), where both branches are accurate",
+        "_so3_log_branches: [return np.where((c < -0.5)[..., None], w_pi, w_small)] -0.5 -> 0.5":
+            "the symmetric-part axis (its error ~ eps / (1 - cos a)) is accurate for every angle above pi / 3 too; "
+            "the switch only has to stay away from a = 0, where 1 - cos a vanishes",
     },
     "eight_point": {
         "_hartley: [s = math.sqrt(2.0) / np.mean(np.linalg.norm(x - c, axis=1))] x - c -> c - x":

@@ -99,7 +99,7 @@ def test_drivers_with_slamlib_hooks_equal_the_plain_drivers():
 
     T0, P0, K, cam, point, uv = B._ba_problem(rng, 3, 10)
     a = sl.bundle_adjust(T0, P0, K, cam, point, uv, max_iter=5, rtol=0.0)
-    b = sl.bundle_adjust(T0, P0, K, cam, point, uv, max_iter=5, rtol=0.0, project=sl.project, so3_exp=sl.lie.so3_exp,
+    b = sl.bundle_adjust(T0, P0, K, cam, point, uv, max_iter=5, rtol=0.0, project=sl.project, so3_exp=sl.so3_exp,
                          schur_complement=sl.schur_complement, back_substitute=sl.back_substitute)
     np.testing.assert_allclose(a.cost, b.cost, rtol=1e-9)
     np.testing.assert_allclose(a.points, b.points, atol=1e-9)

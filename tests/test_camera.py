@@ -9,12 +9,12 @@ K = sl.calibration_matrix(520.0, 500.0, 320.0, 240.0)
 
 
 def _pose(rng, scale=1.0):
-    return sl.pose_matrix(sl.lie.so3_exp(rng.normal(size=3) * 0.3), rng.normal(size=3) * scale)
+    return sl.pose_matrix(sl.so3_exp(rng.normal(size=3) * 0.3), rng.normal(size=3) * scale)
 
 
 def _perturb(T, d):
     R, t = T[:3, :3], T[:3, 3]
-    return sl.pose_matrix(R @ sl.lie.so3_exp(d[3:]), t + R @ d[:3])
+    return sl.pose_matrix(R @ sl.so3_exp(d[3:]), t + R @ d[:3])
 
 
 def _points_in_front(rng, T, n, near=3.0, far=9.0):

@@ -26,7 +26,7 @@ def test_stereo_triangulation_inverts_the_stereo_projection():
 def test_align_3d_recovers_the_motion_despite_outliers():
     rng = np.random.default_rng(1)
     P = rng.uniform(-10, 10, (100, 3))
-    R = sl.lie.so3_exp(np.array([0.1, -0.3, 0.2]))
+    R = sl.so3_exp(np.array([0.1, -0.3, 0.2]))
     t = np.array([1.0, -2.0, 0.5])
     Q = P @ R.T + t + rng.normal(0, 0.01, P.shape)
     Q[:25] += rng.uniform(1.0, 3.0, (25, 3))
