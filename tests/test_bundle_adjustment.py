@@ -185,3 +185,33 @@ def test_final_cost_equals_gtsam_from_the_same_start(loader):
     assert 0.5 * res.cost[0] == pytest.approx(e0, rel=1e-9)
     assert 0.5 * res.cost[-1] == pytest.approx(e1, rel=1e-6)
     assert res.cost[-1] < res.cost[0]
+
+
+def test_levenberg_marquardt_raises_the_damping_when_the_damped_system_is_not_positive_definite():
+    """A free gauge direction (the scale of a bundle adjustment) leaves ``H`` singular; once the damping has
+    shrunk below the rounding of ``H`` the Cholesky factorisation fails. LM takes that as a failed step and
+    raises the damping instead of stopping with the error."""
+    from slamlib.graph_slam import _optimize
+
+    class Layout:
+        diag = (np.arange(2), np.arange(2))
+
+        def values(self, blocks):
+            return blocks
+
+        def solve(self, data, rhs):
+            if data[1, 1] < 1e-8:  # the gauge direction: positive definite only while damped
+                raise np.linalg.LinAlgError("not positive definite")
+            return np.linalg.solve(data, rhs)
+
+        def expand(self, dx):
+            return dx
+
+    def evaluate(x):  # F = (x0 - 3)^2 + 0 * x1: x1 is a gauge freedom
+        r = x[0] - 3.0
+        return r * r, r * r, (np.diag([1.0, 0.0]), np.array([r, 0.0])), None
+
+    x, _, cost, it, converged, _ = _optimize(np.array([0.0, 0.0]), evaluate, Layout(), lambda s, d: s + d,
+                                             method="lm", max_iter=50, rtol=1e-12, lm_lambda=1e-7)
+    assert converged and cost[-1] < 1e-20
+    np.testing.assert_allclose(x, [3.0, 0.0], atol=1e-10)
