@@ -25,6 +25,7 @@ from . import graph_slam
 from . import lie
 from . import graph_slam3d, incremental
 from . import scan_matching, mapping, lidar_slam
+from . import camera, bundle_adjustment, visual_odometry
 from .angles import *  # noqa: F401,F403
 from .bayes import *  # noqa: F401,F403
 from .motion import *  # noqa: F401,F403
@@ -42,6 +43,11 @@ from .graph_slam import *  # noqa: F401,F403
 from .scan_matching import *  # noqa: F401,F403
 from .mapping import *  # noqa: F401,F403
 from .lidar_slam import *  # noqa: F401,F403
+from .camera import *  # noqa: F401,F403
+from .bundle_adjustment import *  # noqa: F401,F403
+from .visual_odometry import *  # noqa: F401,F403
+# exercise 7 grades so3_exp/so3_log against slamlib's functions of the same name (one definition, in lie)
+from .lie import so3_exp, so3_log  # noqa: F401
 
 __version__ = "0.1.0"
 
@@ -51,6 +57,7 @@ __all__ = (
 )
 __all__ += graph_slam.__all__
 __all__ += scan_matching.__all__ + mapping.__all__ + lidar_slam.__all__
+__all__ += camera.__all__ + bundle_adjustment.__all__ + visual_odometry.__all__ + ["so3_exp", "so3_log"]
 
 
 def __getattr__(name):

@@ -895,7 +895,17 @@ def _optimize(state, evaluate, layout, update, *, method, max_iter, rtol, lm_lam
             mu = lam * float(data[layout.diag].mean())
             # (H + mu I) dx = -b, mu = lambda mean(diag H)  (Madsen et al. 2004, Eq. 3.13)
             damped[layout.diag] += mu
-            dx = layout.solve(damped, -b)
+            try:
+                dx = layout.solve(damped, -b)
+            except np.linalg.LinAlgError:
+                # the damped system is not positive definite to rounding (a gauge direction left free, e.g. the
+                # scale of a bundle adjustment, with a damping shrunk too far): a failed step, more damping
+                # (as GTSAM's Levenberg-Marquardt does on an indeterminate linear system)
+                lam *= LM_FACTOR
+                converged = lam > 1e12
+                costs.append(cost)
+                chi2s.append(chi2)
+                continue
             cand = update(state, layout.expand(dx))
             new_cost, new_chi2, new_blocks, new_weights = evaluate(cand)
             # predicted decrease of the quadratic model: -(2 b^T dx + dx^T H dx) = dx^T (mu dx - b)

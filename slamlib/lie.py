@@ -90,10 +90,14 @@ def _sinc(a):
     return np.sinc(a / np.pi)  # sin(a)/a, exact 1 at 0
 
 
+def _rodrigues_coefficients(a):
+    """``A = sin(a)/a`` and ``B = (1 - cos a)/a^2``, accurate down to ``a = 0``."""
+    return _sinc(a), 0.5 * _sinc(0.5 * a) ** 2  # (1 - cos a)/a^2 = 2 sin^2(a/2)/a^2: no cancellation
+
+
 def _coefficients(a):
-    """``A = sin(a)/a``, ``B = (1 - cos a)/a^2`` and ``C = (a - sin a)/a^3``, accurate down to ``a = 0``."""
-    A = _sinc(a)
-    B = 0.5 * _sinc(0.5 * a) ** 2  # (1 - cos a)/a^2 = 2 sin^2(a/2)/a^2: no cancellation
+    """``A``, ``B`` (:func:`_rodrigues_coefficients`) and ``C = (a - sin a)/a^3``, accurate down to ``a = 0``."""
+    A, B = _rodrigues_coefficients(a)
     small = a < _SMALL
     a2 = a * a
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -103,7 +107,7 @@ def _coefficients(a):
 
 def _so3_exp(w):
     a = np.linalg.norm(w, axis=-1)
-    A, B, _ = _coefficients(a)
+    A, B = _rodrigues_coefficients(a)
     K = _skew(w)
     return np.eye(3) + A[..., None, None] * K + B[..., None, None] * (K @ K)  # Rodrigues
 

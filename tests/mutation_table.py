@@ -37,6 +37,8 @@ ORDER_VALUES = ("changes the values (not the pattern) of the matrix used only to
 CONNECTED = ("the connectivity check anchored at pose 1 instead of 0: on the connected graphs the contract "
              "requires (otherwise H[3:, 3:] is singular) both anchors pass")
 RESHAPE_NEG = "reshape(-2, 3) == reshape(-1, 3): NumPy (2.x) treats any negative size as the unknown one"
+ROW_SIGN = ("negates one row of the DLT matrix A: the right singular vectors of A and of A with a row negated are "
+            "the same (A^T A is unchanged), as the contract states (row signs do not change the answer)")
 CENTRED = ("sum_k (q_k + mu_q)(p_k - mu_p)^T = C + 2 mu_q sum_k (p_k - mu_p)^T = C: the other factor is centred, "
            "so the cross-covariance is unchanged")
 DET_PM1 = "det(U) and det(V) are +-1: their product is never 0 and has the sign of their quotient"
@@ -279,6 +281,58 @@ EQUIVALENT = {
         "np.linalg.det(U) * np.linalg.det(Vt) -> np.linalg.det(U) / np.linalg.det(Vt)": DET_PM1,
         "_rigid_fit: [R = U @ np.diag([1.0, d]) @ Vt] U @ np.diag([1.0, d]) -> "
         "np.swapaxes(U, -1, -2) @ np.diag([1.0, d])": SVD_U,
+    },
+    "so3_log": {
+        "_so3_log: [c = 0.5 * (np.trace(R, axis1=-2, axis2=-1) - 1.0)] -1 -> 1":
+            "axis2=1 instead of -1 of the contract's single (3, 3) R: the same trace",
+        "_so3_log_branches: [S = 0.5 * (R + np.swapaxes(R, -1, -2)) - c[..., None, None] * np.eye(3)] -1 -> 1":
+            "swapaxes(R, 1, -2) of the contract's single (3, 3) R: the same transpose",
+        "_so3_log_branches: [d = np.diagonal(S, axis1=-2, axis2=-1)] -1 -> 1":
+            "axis2=1 instead of -1 of the contract's single (3, 3) R: the same diagonal",
+        "_so3_log_branches: [col = np.take_along_axis(S, k[..., None, None], axis=-1)[..., 0]] -1 -> 1":
+            "axis=1 instead of -1 of the contract's single (3, 3) R: the same column",
+        "_so3_log_branches: [col = np.take_along_axis(S, k[..., None, None], axis=-1)[..., 0]] 0 -> -1": LAST_AXIS,
+        "_so3_log_branches: [sign = np.where(np.sum(n * s, axis=-1) < 0.0, -1.0, 1.0)] "
+        "np.sum(n * s, axis=-1) < 0.0 -> np.sum(n * s, axis=-1) <= 0.0":
+            "differs only where n . vee(R - R^T) = 0 exactly, a half turn (R symmetric), where the contract accepts "
+            "either sign",
+        "_so3_log_branches: [return np.where((c < -0.5)[..., None], w_pi, w_small)] c < -0.5 -> c <= -0.5":
+            "differs only at cos(a) = -1/2 exactly (a = 2 pi / 3), where both branches are accurate",
+        "_so3_log_branches: [return np.where((c < -0.5)[..., None], w_pi, w_small)] -0.5 -> 0.5":
+            "the symmetric-part axis (its error ~ eps / (1 - cos a)) is accurate for every angle above pi / 3 too; "
+            "the switch only has to stay away from a = 0, where 1 - cos a vanishes",
+    },
+    "eight_point": {
+        "_hartley: [s = math.sqrt(2.0) / np.mean(np.linalg.norm(x - c, axis=1))] x - c -> c - x":
+            "|x - c| = |c - x|",
+    },
+    "triangulate": {
+        "_triangulate: [A = np.stack(*] uv1[:, :1] * P1[2] - P1[0] -> P1[0] - uv1[:, :1] * P1[2]": ROW_SIGN,
+        "_triangulate: [A = np.stack(*] uv1[:, 1:] * P1[2] - P1[1] -> P1[1] - uv1[:, 1:] * P1[2]": ROW_SIGN,
+        "_triangulate: [A = np.stack(*] uv2[:, :1] * P2[2] - P2[0] -> P2[0] - uv2[:, :1] * P2[2]": ROW_SIGN,
+        "_triangulate: [A = np.stack(*] uv2[:, 1:] * P2[2] - P2[1] -> P2[1] - uv2[:, 1:] * P2[2]": ROW_SIGN,
+    },
+    "project": {
+        "_skew: [return np.stack([np.stack([z, -w[..., 2], w[..., 1]], -1)*] -1 -> 1*":
+            "axis=1 instead of -1 when stacking the (N,) entries of [p_c]x for the contract's (N, 3) points: the "
+            "same (N, 3, 3)",
+        "_project: [Jc = np.stack([np.stack([fx * iz, zero, -fx * X * iz * iz], -1), np.stack([zero, fy * i...] "
+        "-1 -> 1": AXIS,
+        "_project: [Jc = np.stack([np.stack([fx * iz, zero, -fx * X * iz * iz], -1), np.stack([zero, fy * i...] "
+        "-1 -> 1 #2": AXIS,
+        "_project: [uv = np.stack([fx * X * iz + cx, fy * Y * iz + cy], axis=-1)] -1 -> 1":
+            "axis=1 instead of -1 when stacking the (N,) pixel coordinates: the same (N, 2)",
+        "_project: [J_point = Jc @ np.swapaxes(R, -1, -2)] -1 -> 1":
+            "swapaxes(R, 1, -2) of the contract's single (3, 3) R is its transpose too",
+    },
+    "schur_complement": {
+        "_schur: [W = np.einsum('apk,pkl->apl', H_cp.reshape(H_cp.shape[0], -1, 3), Hpp_inv).reshape(H_cp...] "
+        "1 -> 2": RESHAPE_NEG,
+    },
+    "back_substitute": {
+        "_split: [return (H[:m, :m], H[:m, m:], H[m:, m:], b[:m], b[m:])] b -> H":
+            "b_c (returned by the shared _split) is not read by back_substitute (dead code here)",
+        "_back: [r = (b_p + H_pc @ dx_c).reshape(-1, 3)] 1 -> 2": RESHAPE_NEG,
     },
 }
 

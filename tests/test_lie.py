@@ -231,3 +231,10 @@ def test_functions_do_not_modify_inputs():
     lie.se3_log(T), lie.se3_inverse(T), lie.se3_plus(T, xi), lie.se3_exp(xi), lie.se3_right_jacobian_inv(xi)
     np.testing.assert_array_equal(T, T0)
     np.testing.assert_array_equal(xi, xi0)
+
+
+def test_top_level_rotations_are_lie_s():
+    """Exercise 7's references ``sl.so3_exp``/``sl.so3_log`` are lie's functions, not a second copy."""
+    import slamlib as sl
+
+    assert sl.so3_exp is lie.so3_exp and sl.so3_log is lie.so3_log

@@ -19,6 +19,7 @@ EXERCISES = {
     "ekf_slam": "ekf_slam",
     "fastslam": "fastslam",
     "graph_slam": "graph_slam",
+    "bundle_adjustment": "bundle_adjustment",
 }
 
 

@@ -17,6 +17,7 @@ from ._graph import *  # noqa: F401,F403
 from ._scan import *  # noqa: F401,F403
 from ._victoria import *  # noqa: F401,F403
 from ._graph3d import *  # noqa: F401,F403
+from ._camera import *  # noqa: F401,F403
 from ._describe import describe_figure  # noqa: F401
 from ._describe import install as _install_figure_alt
 

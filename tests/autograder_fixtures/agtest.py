@@ -9,7 +9,8 @@ from pathlib import Path
 FIXTURES = Path(__file__).resolve().parent
 SOLUTIONS = FIXTURES / "solutions"
 ROOT = FIXTURES.parents[1]
-EXERCISE_NAMES = ["motion_sensor_models", "ekf_localization", "particle_filter", "ekf_slam", "fastslam", "graph_slam"]
+EXERCISE_NAMES = ["motion_sensor_models", "ekf_localization", "particle_filter", "ekf_slam", "fastslam", "graph_slam",
+                  "bundle_adjustment"]
 NOTEBOOKS = {
     "motion_sensor_models": "01_motion_sensor_models.ipynb",
     "ekf_localization": "02_ekf_localization.ipynb",
@@ -17,6 +18,7 @@ NOTEBOOKS = {
     "ekf_slam": "04_ekf_slam.ipynb",
     "fastslam": "05_fastslam.ipynb",
     "graph_slam": "06_graph_slam.ipynb",
+    "bundle_adjustment": "07_bundle_adjustment.ipynb",
 }
 
 
