@@ -778,6 +778,9 @@ class EKFSLAM:
 
     #: Motion model ``motion(x, u, dt) -> (x_next, G, V)``; None is the velocity model (exact arc).
     _motion = None
+    #: The blocks of ``Sigma`` that association reads (:meth:`_blocks`), kept up to date through the
+    #: updates of one scan (rank-2 downdates); None: compute them again (after a prediction or a new landmark).
+    _bc = None
 
     def __init__(self, x0, Sigma0=None, *, capacity=16, prior_var=DEFAULT_PRIOR_VAR):
         x0 = as_array(x0, "x0", (3,))
@@ -834,6 +837,7 @@ class EKFSLAM:
         self._S = np.zeros((size, size))
         self._Pt = np.zeros((_PENDING_COLS, size))  # P^T: pending corrections, one per row
         self._k = 0
+        self._bc = None
 
     def _grow(self):
         self._flush()
@@ -898,6 +902,7 @@ class EKFSLAM:
         new = object.__new__(EKFSLAM)
         new.__dict__.update(self.__dict__)
         new._mu, new._S, new._Pt = self._mu.copy(), self._S.copy(), self._Pt.copy()
+        new._bc = None
         return new
 
     # ----------------------------------------------------------------- steps
@@ -931,6 +936,7 @@ class EKFSLAM:
 
     def _predict(self, u, dt, M):
         n, k, S = self._n, self._k, self._S
+        self._bc = None  # the robot rows change
         if self._motion is None:
             x_next, G, V = _arc1(self._mu[:3], u, dt)
         else:  # a pluggable motion model, e.g. slamlib.AckermannModel: (x_next, G, V) of the pose
@@ -977,6 +983,7 @@ class EKFSLAM:
         if self.n_landmarks == self._cap:
             self._grow()
         j, a = self.n_landmarks, self._n
+        self._bc = None
         # mu_j = (x + r cos(phi + theta), y + r sin(phi + theta))  (Table 10.1 line 10)
         self._mu[a:a + 2] = landmark_from_measurement(self._mu[:3], z)
         self._S[a, a] = self._S[a + 1, a + 1] = self.prior_var
@@ -1046,6 +1053,12 @@ class EKFSLAM:
         mu[2] = _wrap1(mu[2])
         self._Pt[k:k + 2, :n] = Wt  # Sigma -= W W^T, applied in _flush  (Table 10.1 line 19)
         self._k = k + 2
+        if self._bc is not None:  # the same downdate of the blocks association reads, O(N)
+            Sxx, Sxm, Smm = self._bc
+            W3, Wl = Wt[:, :3], Wt[:, 3:n].reshape(2, -1, 2)
+            Sxx -= W3.T @ W3
+            Sxm -= np.einsum("ri,rlc->lic", W3, Wl)
+            Smm -= np.einsum("rli,rlj->lij", Wl, Wl)
         return True
 
     def step(self, u, dt, M, z, j, Q):
@@ -1138,7 +1151,9 @@ class EKFSLAM:
         N = self.n_landmarks
         if N == 0:
             return np.empty((Z.shape[0], 0))
-        z_hat, Sk = _predicted(self._mu[:self._n], *self._blocks(), Q)
+        if self._bc is None:  # once per scan: the updates of its detections keep the blocks up to date
+            self._bc = self._blocks()
+        z_hat, Sk = _predicted(self._mu[:self._n], *self._bc, Q)
         return _nis(Z, z_hat, Sk)
 
     def jcbb(self, z, Q, alpha):
