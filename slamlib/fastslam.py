@@ -1048,7 +1048,7 @@ def _update_unknown_core(state, z, Q, log_p0, weight_cov, max_range, half_fov, c
     """Unknown-correspondence update; ``copy=False`` may write into `state`'s arrays."""
     z = z[z[:, 0] > 0]
     M = state.n_particles
-    maps, win, old_slots, (mu, Sigma, seen, counts) = _unknown_window(state, z.shape[0], "ids")
+    maps, win, (mu, Sigma, seen, counts) = _unknown_window(state, z.shape[0], "ids")
     log_w = state.log_weights.copy()
     matched = np.zeros_like(seen)
     x = state.poses
@@ -1098,32 +1098,29 @@ def _update_unknown_core(state, z, Q, log_p0, weight_cov, max_range, half_fov, c
             matched[k, slot] = True
             log_w[k] += log_p0  # w = p0  (Table 13.2)
             refresh(k, slot)
+    changed = matched  # updated and new landmarks, and below those that lost a count
     if max_range is not None:
-        seen, counts = _prune(x, mu, seen, counts, matched, max_range, half_fov)
-    maps = _put_changed(maps, win, old_slots, mu, Sigma, seen, counts, inplace=not copy)
+        seen, counts, miss = _prune(x, mu, seen, counts, matched, max_range, half_fov)
+        changed = changed | miss
+    maps = _put(maps, win, mu, Sigma, seen, counts, changed=changed, inplace=not copy)
     return FastSLAMState._from_maps(x, maps, _normalized(log_w))
 
 
 def _unknown_window(state, K, name):
     """The maps grown for `K` new landmarks per particle and, as dense copies, the slots a step with unknown
     correspondences can touch: those some particle uses and the next `K` (a new landmark takes the first
-    free slot). Returns ``(maps, cols, old, (mu, Sigma, seen, counts))``, `old` the raw slots."""
+    free slot). Returns ``(maps, cols, (mu, Sigma, seen, counts))``."""
     maps = state._blocks()
+    M = state.n_particles
     used = _used_slots(maps)
-    d = maps.pool.data[maps.table[:, :_n_blocks(used)]].reshape(state.n_particles, -1, _NF)[:, :used]
+    d = maps.pool.data[maps.table[:, :_n_blocks(used)]].reshape(M, -1, _NF)  # whole blocks: one gather
     need = int(np.count_nonzero(d[..., _SEEN], axis=1).max(initial=0)) + K
     if need > maps.N:
         maps = _grow(state, need, name)._maps
-    cols = np.arange(min(maps.N, used + K))
-    old = maps.pool.data[maps.table[:, cols // _BLOCK], cols % _BLOCK]
-    return maps, cols, old, _split(old)
-
-
-def _put_changed(maps, cols, old, mu, Sigma, seen, counts, inplace):
-    """:func:`_put` of the dense slots that differ from `old` (what a step changed)."""
-    changed = (old[..., _MU] != mu).any(axis=-1) | (old[..., _SIG] != Sigma.reshape(mu.shape[:-1] + (4,))).any(
-        axis=-1) | ((old[..., _SEEN] > 0) != seen) | (old[..., _COUNT] != counts)
-    return _put(maps, cols, mu, Sigma, seen, counts, changed=changed, inplace=inplace)
+    W = min(maps.N, used + K)
+    if W > d.shape[1]:
+        d = maps.pool.data[maps.table[:, :_n_blocks(W)]].reshape(M, -1, _NF)
+    return maps, np.arange(W), _split(d[:, :W])
 
 
 def _prune(x, mu, seen, counts, matched, max_range, half_fov):
@@ -1136,7 +1133,7 @@ def _prune(x, mu, seen, counts, matched, max_range, half_fov):
     counts = counts - miss  # i_j = i_j - 1 for unmatched landmarks in range  (Table 13.2)
     drop = seen & (counts < 0)  # discard landmark j when i_j < 0  (Table 13.2)
     seen = seen & ~drop
-    return seen, np.where(seen, counts, 0)
+    return seen, np.where(seen, counts, 0), miss
 
 
 # --------------------------------------------------------------------------- FastSLAM 2.0
@@ -1524,7 +1521,7 @@ def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rn
     K = z.shape[0]
     x_prev = state.poses
     x_hat, B = _motion_terms(x_prev, u, dt, L, motion)
-    maps, win, old_slots, (mu, Sigma, seen, counts) = _unknown_window(state, K, "the landmarks of a particle")
+    maps, win, (mu, Sigma, seen, counts) = _unknown_window(state, K, "the landmarks of a particle")
     log_w = state.log_weights.copy()
     rows = np.arange(n)
     P = [np.ones(n), np.zeros(n), np.ones(n)]  # information of the proposal over eta, prior N(0, I)
@@ -1596,9 +1593,11 @@ def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rn
             seen[k, slot] = True
             counts[k, slot] = 1  # i_j = 1
             matched[k, slot] = True
+    changed = matched  # updated and new landmarks, and below those that lost a count
     if max_range is not None:
-        seen, counts = _prune(x, mu, seen, counts, matched, max_range, half_fov)
-    maps = _put_changed(maps, win, old_slots, mu, Sigma, seen, counts, inplace=not copy)
+        seen, counts, miss = _prune(x, mu, seen, counts, matched, max_range, half_fov)
+        changed = changed | miss
+    maps = _put(maps, win, mu, Sigma, seen, counts, changed=changed, inplace=not copy)
     return FastSLAMState._from_maps(x, maps, _normalized(log_w))
 
 
