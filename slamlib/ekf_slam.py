@@ -114,10 +114,26 @@ def _predicted(mu, Sxx, Sxm, Smm, Q):
     """
     N = Smm.shape[0]
     lm = mu[3:3 + 2 * N].reshape(N, 2)
-    z_hat, Hx, Hm = landmark_measurement(mu[:3], lm)  # (Eq. 17.2, 17.3) for every landmark
-    cross = Hx @ Sxm @ Hm.transpose(0, 2, 1)
-    # S_k = H_k Sigma H_k^T + Q on the 5 non-zero columns  (Table 10.2 line 16: Psi_k)
-    Sk = Hx @ Sxx @ Hx.transpose(0, 2, 1) + cross + cross.transpose(0, 2, 1) + Hm @ Smm @ Hm.transpose(0, 2, 1) + Q
+    z_hat, _, Hm = landmark_measurement(mu[:3], lm)  # (Eq. 17.2, 17.3) for every landmark
+    # S_k = H_k Sigma H_k^T + Q on the 5 non-zero columns  (Table 10.2 line 16: Psi_k). The range-bearing
+    # model has H_x = [-H_m | c], c = (0, -1)^T, so H_k [x; m] = H_m (m - p) + c theta and
+    # S_k = H_m D H_m^T + H_m e c^T + c e^T H_m^T + Sigma_thth c c^T + Q with D = Cov(m - p), e = Cov(m - p, theta):
+    # written out per component over the landmarks (batched 2x3 matmuls cost several times more)
+    P = Sxm[:, :2, :]  # Cov(p, m)
+    d00 = Smm[:, 0, 0] - 2.0 * P[:, 0, 0] + Sxx[0, 0]
+    d01 = 0.5 * (Smm[:, 0, 1] + Smm[:, 1, 0]) - P[:, 0, 1] - P[:, 1, 0] + 0.5 * (Sxx[0, 1] + Sxx[1, 0])
+    d11 = Smm[:, 1, 1] - 2.0 * P[:, 1, 1] + Sxx[1, 1]
+    e0 = Sxm[:, 2, 0] - Sxx[0, 2]
+    e1 = Sxm[:, 2, 1] - Sxx[1, 2]
+    h00, h01, h10, h11 = Hm[:, 0, 0], Hm[:, 0, 1], Hm[:, 1, 0], Hm[:, 1, 1]
+    a00, a01 = h00 * d00 + h01 * d01, h00 * d01 + h01 * d11  # A = H_m D
+    a10, a11 = h10 * d00 + h11 * d01, h10 * d01 + h11 * d11
+    g0, g1 = h00 * e0 + h01 * e1, h10 * e0 + h11 * e1  # g = H_m e
+    Sk = np.empty((N, 2, 2))
+    Sk[:, 0, 0] = a00 * h00 + a01 * h01 + Q[0, 0]
+    Sk[:, 0, 1] = a00 * h10 + a01 * h11 - g0 + Q[0, 1]
+    Sk[:, 1, 0] = a10 * h00 + a11 * h01 - g0 + Q[1, 0]
+    Sk[:, 1, 1] = a10 * h10 + a11 * h11 - 2.0 * g1 + Sxx[2, 2] + Q[1, 1]
     return z_hat, Sk
 
 
