@@ -49,6 +49,7 @@ FastSLAM; Montemerlo et al. (2003), FastSLAM 2.0.
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -1057,25 +1058,29 @@ def _update_unknown_core(state, z, Q, log_p0, weight_cov, max_range, half_fov, c
     # slots at and beyond hi stay empty in every particle during this step (a new landmark takes the
     # particle's first free slot, at most one more per measurement)
     hi = min(seen.shape[1], (int(used[-1]) + 1 if used.size else 0) + z.shape[0])
-    # the pose is fixed within the step: predict every landmark once, then refresh only what changes
-    # z_hat_j = h(mu_j, x), H_j = h'(mu_j, x), S_j = H_j Sigma_j H_j^T + Q for every landmark j  (Table 13.2)
-    mu_safe = np.where(seen[:, :hi, None], mu[:, :hi], x[:, None, :2] + 1.0)  # keep h defined on empty slots
+    cols = _candidates(x, mu[:, :hi], Sigma[:, :hi], seen[:, :hi], z, Q, log_p0)
+    pos = np.full(hi, -1)
+    pos[cols] = np.arange(cols.size)  # column of each candidate slot in z_hat, S and ll
+    # the pose is fixed within the step: predict every candidate once, then refresh only what changes
+    # z_hat_j = h(mu_j, x), H_j = h'(mu_j, x), S_j = H_j Sigma_j H_j^T + Q for every candidate j  (Table 13.2)
+    mu_safe = np.where(seen[:, cols, None], mu[:, cols], x[:, None, :2] + 1.0)  # keep h defined on empty slots
     z_hat, _, H = landmark_measurement(x[:, None, :], mu_safe)
-    _, S_parts, _ = _innovation(H, Sigma[:, :hi], Q)
-    S = np.stack(S_parts, axis=-1)  # (M, hi, 3): S00, S01, S11
+    _, S_parts, _ = _innovation(H, Sigma[:, cols], Q)
+    S = np.stack(S_parts, axis=-1)  # (M, C, 3): S00, S01, S11
 
     def refresh(k, jk):
         zh, _, Hk = landmark_measurement(x[k], mu[k, jk])
-        z_hat[k, jk] = zh
-        S[k, jk] = np.stack(_innovation(Hk, Sigma[k, jk], Q)[1], axis=-1)
+        z_hat[k, pos[jk]] = zh
+        S[k, pos[jk]] = np.stack(_innovation(Hk, Sigma[k, jk], Q)[1], axis=-1)
 
     for zk in z:
-        sn = seen[:, :hi]
+        sn = seen[:, cols]
         nu1 = wrap_angle(zk[1] - z_hat[..., 1])
         # w_j = N(nu_j; 0, S_j)  (Table 13.2)
         ll = np.where(sn, _log_gauss_2(zk[0] - z_hat[..., 0], nu1, S[..., 0], S[..., 1], S[..., 2]), -np.inf)
-        j = np.argmax(ll, axis=1)  # ties: smallest index
-        best = ll[rows, j]
+        c = np.argmax(ll, axis=1)  # ties: smallest index (the candidates are in increasing order)
+        best = ll[rows, c]
+        j = cols[c]
         is_new = best < log_p0  # c_hat = new landmark when p0 beats every w_j  (Table 13.2)
         old = ~is_new
         if old.any():
@@ -1104,6 +1109,25 @@ def _update_unknown_core(state, z, Q, log_p0, weight_cov, max_range, half_fov, c
         changed = changed | miss
     maps = _put(maps, win, mu, Sigma, seen, counts, changed=changed, inplace=not copy)
     return FastSLAMState._from_maps(x, maps, _normalized(log_w))
+
+
+def _candidates(x, mu, Sigma, seen, z, Q, log_p0):
+    """The slots a step's maximum-likelihood association must score (FastSLAM 1.0), in increasing order.
+
+    Every slot that is free in some particle (a new landmark may take it during the
+    step), and every landmark that some particle predicts within reach of the step's
+    ranges. For any other landmark ``w_j < p0 / e`` for every measurement, so it can
+    never be chosen: ``nu^T S^-1 nu >= nu_r^2 / S_rr``, ``det S >= det Q``
+    (``S = H Sigma H^T + Q``) and ``S_rr <= Sigma_xx + Sigma_yy + Q_rr``.
+    """
+    free = ~seen.all(axis=0)
+    if z.shape[0] == 0 or seen.shape[1] == 0:
+        return np.flatnonzero(free)
+    c0 = max(-log_p0 - _LOG_2PI - 0.5 * math.log(Q[0, 0] * Q[1, 1] - Q[0, 1] * Q[1, 0]), 0.0) + 1.0
+    r = np.hypot(mu[..., 0] - x[:, None, 0], mu[..., 1] - x[:, None, 1])
+    reach = np.sqrt(2.0 * c0 * (Sigma[..., 0, 0] + Sigma[..., 1, 1] + Q[0, 0]))
+    near = seen & (r >= z[:, 0].min() - reach) & (r <= z[:, 0].max() + reach)
+    return np.flatnonzero(free | near.any(axis=0))
 
 
 def _unknown_window(state, K, name):

@@ -385,6 +385,28 @@ def test_held_states_never_change_and_the_run_equals_the_pure_steps(world, versi
         np.testing.assert_array_equal(a, b)
 
 
+@pytest.mark.parametrize("max_range", [None, 8.0])
+def test_unknown_association_scores_only_what_could_win_and_gives_the_same_run(world, max_range, monkeypatch):
+    # FastSLAM 1.0 scores the landmarks within reach of the step's ranges (and the free slots); the
+    # bound must never leave out a landmark that could beat p0: the run equals scoring every slot
+    from slamlib import fastslam as fs
+
+    run = sl.add_clutter(dataclasses.replace(world, u=world.u[:80], z=world.z[:80], ids=world.ids[:80],
+                                             x_true=world.x_true[:81]), 1.0, rng=np.random.default_rng(2))
+    kw = dict(n_particles=25, known=False, max_range=max_range, resample_threshold=0.5)
+    res = sl.run_fastslam(run, rng=np.random.default_rng(1), **kw)
+    scored = []
+    cand = fs._candidates
+    monkeypatch.setattr(fs, "_candidates", lambda *a: scored.append(cand(*a).size / a[3].shape[1]) or cand(*a))
+    sl.run_fastslam(run, rng=np.random.default_rng(1), **kw)
+    assert min(scored) < 0.9  # landmarks out of reach are left out
+    monkeypatch.setattr(fs, "_candidates", lambda x, mu, Sigma, seen, z, Q, log_p0: np.arange(seen.shape[1]))
+    every = sl.run_fastslam(run, rng=np.random.default_rng(1), **kw)
+    for a, b in zip(res.state, every.state):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(res.x_est, every.x_est)
+
+
 def test_state_from_arrays_behaves_as_the_named_tuple():
     rng = np.random.default_rng(12)
     st = _state_with_maps(4, 10, rng)
