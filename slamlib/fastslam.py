@@ -389,9 +389,9 @@ def _maps_from_dense(mu, Sigma, seen, counts):
 
 
 def _split(d):
-    """Dense ``(mu, Sigma, seen, counts)`` of gathered slots ``d (..., _NF)``."""
-    return (np.ascontiguousarray(d[..., _MU]), d[..., _SIG].reshape(d.shape[:-1] + (2, 2)),
-            d[..., _SEEN] > 0, d[..., _COUNT].astype(np.int64))
+    """Dense ``(mu, Sigma, seen, counts)`` of gathered slots ``d (..., _NF)`` (a fresh copy: `mu` and
+    `Sigma` are views of it)."""
+    return d[..., _MU], d[..., _SIG].reshape(d.shape[:-1] + (2, 2)), d[..., _SEEN] > 0, d[..., _COUNT].astype(np.int64)
 
 
 def _take(maps, cols, rows=None):
@@ -407,7 +407,8 @@ def _particle_map(state, k):
         return tuple(a[k].copy() for a in state._dense)
     maps = state._maps
     d = maps.pool.data[maps.table[k]].reshape(-1, _NF)[:maps.N]
-    return _split(d)
+    mu, Sigma, seen, counts = _split(d)
+    return np.ascontiguousarray(mu), np.ascontiguousarray(Sigma), seen, counts
 
 
 def _n_seen(state, k):
@@ -1137,13 +1138,13 @@ def _unknown_window(state, K, name):
     maps = state._blocks()
     M = state.n_particles
     used = _used_slots(maps)
-    d = maps.pool.data[maps.table[:, :_n_blocks(used)]].reshape(M, -1, _NF)  # whole blocks: one gather
+    d = np.take(maps.pool.data, maps.table[:, :_n_blocks(used)], axis=0).reshape(M, -1, _NF)  # whole blocks
     need = int(np.count_nonzero(d[..., _SEEN], axis=1).max(initial=0)) + K
     if need > maps.N:
         maps = _grow(state, need, name)._maps
     W = min(maps.N, used + K)
     if W > d.shape[1]:
-        d = maps.pool.data[maps.table[:, :_n_blocks(W)]].reshape(M, -1, _NF)
+        d = np.take(maps.pool.data, maps.table[:, :_n_blocks(W)], axis=0).reshape(M, -1, _NF)
     return maps, np.arange(W), _split(d[:, :W])
 
 
