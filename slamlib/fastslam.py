@@ -1050,6 +1050,8 @@ def _update_unknown_core(state, z, Q, log_p0, weight_cov, max_range, half_fov, c
     """Unknown-correspondence update; ``copy=False`` may write into `state`'s arrays."""
     z = z[z[:, 0] > 0]
     M = state.n_particles
+    if z.shape[0] == 0 and max_range is None:  # nothing to associate or prune: the maps stay as they are
+        return FastSLAMState._from_maps(state.poses, state._blocks(), _normalized(state.log_weights.copy()))
     maps, win, (mu, Sigma, seen, counts) = _unknown_window(state, z.shape[0], "ids")
     log_w = state.log_weights.copy()
     matched = np.zeros_like(seen)
@@ -1546,6 +1548,10 @@ def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rn
     K = z.shape[0]
     x_prev = state.poses
     x_hat, B = _motion_terms(x_prev, u, dt, L, motion)
+    if K == 0 and max_range is None:  # nothing to associate or prune: the motion sample, the maps unchanged
+        eta = _sample_eta((np.ones(n), np.zeros(n), np.ones(n)), (np.zeros(n), np.zeros(n)), rng, n)
+        return FastSLAMState._from_maps(_move(x_prev, u, dt, L, eta, motion), state._blocks(),
+                                        _normalized(state.log_weights.copy()))
     maps, win, (mu, Sigma, seen, counts) = _unknown_window(state, K, "the landmarks of a particle")
     log_w = state.log_weights.copy()
     rows = np.arange(n)
