@@ -476,8 +476,9 @@ def _put(maps, cols, mu, Sigma, seen, counts, changed=None, inplace=False):
         ub = np.flatnonzero(np.bincount(pb))
     if inplace:  # a block id lives in one column of the table: shared iff it appears twice there
         blocks = maps.table[pk, pb]
-        refs = np.bincount(maps.table[:, ub].ravel())
-        cow = (blocks == 0) | (refs[blocks] > 1)
+        ids = np.sort(maps.table[:, ub].ravel())  # every reference to a block of these columns
+        refs = np.searchsorted(ids, blocks, "right") - np.searchsorted(ids, blocks, "left")
+        cow = (blocks == 0) | (refs > 1)
         pk, pb = pk[cow], pb[cow]
     ids = maps.pool.alloc(pk.size)
     if ids is None:
@@ -489,6 +490,8 @@ def _put(maps, cols, mu, Sigma, seen, counts, changed=None, inplace=False):
     if ids.size:
         np.take(data, table[pk, pb], axis=0, out=data[ids[0]:ids[0] + ids.size])  # copy on write (ids: a range)
         table[pk, pb] = ids
+    if changed is not None:  # only the changed slots' values
+        mu, Sigma, seen, counts = mu[kk, cc], Sigma[kk, cc], seen[kk, cc], counts[kk, cc]
     d = np.empty(mu.shape[:-1] + (_NF,))
     d[..., _MU] = mu
     d[..., _SIG] = Sigma.reshape(mu.shape[:-1] + (4,))
@@ -497,7 +500,7 @@ def _put(maps, cols, mu, Sigma, seen, counts, changed=None, inplace=False):
     if changed is None:
         data[table[:, cb], cols % _BLOCK] = d
     else:
-        data[table[kk, cb[cc]], cols[cc] % _BLOCK] = d[kk, cc]
+        data[table[kk, cb[cc]], cols[cc] % _BLOCK] = d
     return _Maps(maps.pool, table, maps.N)
 
 
