@@ -30,7 +30,8 @@ of being coerced into a wrong answer.
 * :func:`small_ok`: every small argument of one filter step checked at once.
 
 Small float64 arrays take a fast path (no conversion, a Python pass over a few
-numbers, no eigendecomposition for a clearly positive definite 2x2 or 3x3), so
+numbers, no eigendecomposition for a clearly positive definite covariance up to
+8x8: Sylvester's criterion for 2x2 and 3x3, LAPACK's Cholesky from 4x4), so
 checking one filter step costs microseconds; nothing is built for a message
 unless a check fails.
 """
