@@ -1550,11 +1550,11 @@ def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rn
     n = state.n_particles
     K = z.shape[0]
     x_prev = state.poses
-    x_hat, B = _motion_terms(x_prev, u, dt, L, motion)
     if K == 0 and max_range is None:  # nothing to associate or prune: the motion sample, the maps unchanged
         eta = _sample_eta((np.ones(n), np.zeros(n), np.ones(n)), (np.zeros(n), np.zeros(n)), rng, n)
         return FastSLAMState._from_maps(_move(x_prev, u, dt, L, eta, motion), state._blocks(),
                                         _normalized(state.log_weights.copy()))
+    x_hat, B = _motion_terms(x_prev, u, dt, L, motion)
     maps, win, (mu, Sigma, seen, counts) = _unknown_window(state, K, "the landmarks of a particle")
     log_w = state.log_weights.copy()
     rows = np.arange(n)
