@@ -3,8 +3,8 @@
 Run ``python benchmarks/bench_fastslam.py`` (well under a minute). The figure of
 merit is the time per particle and per observation, for whole filter steps:
 motion sampling, the EKF update of every observed landmark in every particle
-with its importance weight, and low-variance resampling that copies each
-survivor's map (no two particles share storage afterwards). Figures, all
+with its importance weight, and low-variance resampling (each survivor's map is
+shared as blocks, copied when written; the maps a state shows share no storage). Figures, all
 measured in this process on the same simulated run:
 
 * :mod:`slamlib.fastslam` at ``M = 1000`` particles and ``N = 50`` landmarks
@@ -15,6 +15,10 @@ measured in this process on the same simulated run:
   file in the style of common tutorial code, at a small ``M``; its ratio to
   the vectorised filter is printed.
 
+* the step time at ``M = 1000`` against the landmark slots per particle (50 to 3200, the run's
+  landmarks in the first 50): the maps are shared blocks (copy-on-write), so the goal is the step at
+  3200 slots within 2x of the step at 50, for :func:`slamlib.run_fastslam` and for the pure step
+  functions;
 * FastSLAM 2.0 (``run_fastslam(..., version=2)``) on the same run and particle budget,
   with its ratio to FastSLAM 1.0 measured in the same process;
 * FastSLAM 2.0 with unknown correspondences at ``M = 100`` on worlds of 50 to 300
@@ -36,6 +40,7 @@ Course text, Algorithm 3; Thrun, Burgard & Fox, *Probabilistic Robotics*
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import statistics
@@ -125,6 +130,48 @@ def ms_per_step_unknown(n_landmarks, version, n_particles=100):
         times.append(time.perf_counter() - t0)
     return 1e3 * statistics.median(times) / run.n_steps, int(state.seen.sum(axis=1).max()), \
         sum(len(z) for z in run.z) / run.n_steps
+
+
+CAPACITIES = (50, 200, 800, 3200)
+CAPACITY_GOAL = 2.0  # the step at N = 3200 landmark slots within 2x the step at N = 50
+
+
+def ms_per_step_capacity(run, capacity, n_particles=M_FAST, steps=60, pure=False):
+    """Median ms per whole FastSLAM 1.0 step (predict, known-correspondence update, resampling) with
+    `capacity` landmark slots per particle; the run's landmarks use the first 50 of them.
+
+    ``pure=False`` times :func:`slamlib.run_fastslam` (resampling after every update); ``pure=True`` the
+    pure step functions, each returning a new particle set.
+    """
+    times = []
+    for r in range(REPEATS):
+        rng = np.random.default_rng(SEED + r)
+        t0 = time.perf_counter()
+        if pure:
+            state = sl.fastslam_initial_state(run.x0, n_particles, capacity)
+            for t in range(steps):
+                state = sl.fastslam_predict(state, run.u[t], run.dt, M=CONTROL_COV, rng=rng)
+                state = sl.fastslam_update_known(state, run.z[t], run.ids[t], Q)
+                state, _ = sl.fastslam_resample(state, rng=rng)
+        else:
+            short = dataclasses.replace(run, u=run.u[:steps], z=run.z[:steps], ids=run.ids[:steps])
+            sl.run_fastslam(short, n_particles=n_particles, M=CONTROL_COV, Q=Q, resample_threshold=1.0, rng=rng,
+                            capacity=capacity)
+        times.append(time.perf_counter() - t0)
+    return 1e3 * statistics.median(times) / steps
+
+
+def capacity_figures(run):
+    """Lines: the step time against the landmark capacity, with the 2x goal."""
+    lines = [f"FastSLAM 1.0 step (M = {M_FAST}, known correspondences, resampling every step) against the landmark "
+             f"slots per particle; goal: N = {CAPACITIES[-1]} within {CAPACITY_GOAL:g}x of N = {CAPACITIES[0]}"]
+    for pure in (False, True):
+        ms = [ms_per_step_capacity(run, n, pure=pure) for n in CAPACITIES]
+        ratio = ms[-1] / ms[0]
+        lines.append(f"  {'pure step functions' if pure else 'run_fastslam       '}: "
+                     + ", ".join(f"N = {n}: {m:6.2f} ms" for n, m in zip(CAPACITIES, ms))
+                     + f"; ratio {ratio:4.2f}x ({'met' if ratio <= CAPACITY_GOAL else 'MISSED'})")
+    return lines
 
 
 def run_steps(run, n_particles, n_steps, rng):
@@ -259,7 +306,9 @@ def fastslam_figures() -> list[str]:
     ok = _check_no_aliasing(run)
     verdict = "met" if filt_us <= TARGET_US else "MISSED"
     large = {(n, v): ms_per_step_unknown(n, v) for n in (50, 150, 300) for v in (1, 2)}
+    capacity = capacity_figures(run)
     return [
+        *capacity,
         f"FastSLAM 1.0, known correspondences, N = {N_LANDMARKS} landmarks; whole steps "
         "(predict, update, low-variance resampling copying every map)",
         f"  slamlib run_fastslam, M = {M_FAST}: {filt_us:6.2f} us per particle x observation "

@@ -15,7 +15,9 @@ Run ``python benchmarks/bench_small_calls.py`` (needs the ``bench`` extra:
 
 and prints microseconds per call and the ratios ``slamlib / filterpy`` (target
 <= 2) and ``slamlib / bare`` (target <= 3). The slamlib calls include their
-input validation. A second table times the batched calls (10,000 filters in
+input validation. A second table times ``kf_predict`` and ``kf_update`` at 2 to 6
+states (2 measurements, correlated covariances) against filterpy, with the goal
+``slamlib / filterpy <= 2`` at every size. A second table times the batched calls (10,000 filters in
 one call) in microseconds per filter, so a faster small path can be seen not to
 slow the large one.
 
@@ -193,6 +195,41 @@ def rows_small():
     return rows
 
 
+SIZES = (2, 3, 4, 5, 6)
+GOAL_FILTERPY = 2.0  # at every size: slamlib / filterpy <= 2
+
+
+def linear_problem(n, k=2, seed=SEED):
+    """A linear-Gaussian filter with `n` states and `k` measurements (covariances with correlations)."""
+    r = np.random.default_rng(seed + n)
+    A = r.normal(size=(n, n))
+    P = A @ A.T + n * np.eye(n)
+    F = np.eye(n) + 0.1 * r.normal(size=(n, n))
+    G = r.normal(size=(n, n))
+    Qn = 0.01 * (G @ G.T + np.eye(n))
+    H = np.eye(k, n) + 0.1 * r.normal(size=(k, n))
+    R = np.diag(r.uniform(0.1, 0.3, size=k))
+    return r.normal(size=n), P, F, Qn, H, R, r.normal(size=k)
+
+
+def rows_sizes():
+    """``kf_predict`` and ``kf_update`` at 2 to 6 states: slamlib, filterpy and bare NumPy, us per call."""
+    rows = []
+    for n in SIZES:
+        xn, Pn, Fn, Qn, Hn, Rn, zn = linear_problem(n)
+        for name, fns in (
+            ("kf_predict", [lambda: sl.kf_predict(xn, Pn, Fn, Qn), (lambda: fk.predict(xn, Pn, Fn, Qn)) if fk else None,
+                            lambda: bare_kf_predict(xn, Pn, Fn, Qn)]),
+            ("kf_update", [lambda: sl.kf_update(xn, Pn, zn, Hn, Rn), (lambda: fk.update(xn, Pn, zn, Rn, Hn)) if fk else None,
+                           lambda: bare_kf_update(xn, Pn, zn, Hn, Rn)]),
+        ):
+            t = interleaved([fn for fn in fns if fn is not None], rounds=9)
+            if fns[1] is None:
+                t.insert(1, float("nan"))
+            rows.append((name, n, *t))
+    return rows
+
+
 def interleaved(fns, *, block=1000, rounds=15):
     """Best mean time per call (us) of each of `fns`, timed in turn block by block, so that a
     change in the machine's load hits all of them alike."""
@@ -233,6 +270,14 @@ def main():
     print(f"{'call':<12} {'slamlib':>9} {'filterpy':>9} {'bare':>9} {'sl/filterpy':>12} {'sl/bare':>8}")
     for name, s, f, b in rows_small():
         print(f"{name:<12} {s:9.2f} {f:9.2f} {b:9.2f} {s / f:12.2f} {s / b:8.2f}")
+    print(f"\nthe linear Kalman filter at {SIZES[0]} to {SIZES[-1]} states (2 measurements; goal at every size: "
+          f"slamlib / filterpy <= {GOAL_FILTERPY:g})")
+    print(f"{'call':<12} {'n':>2} {'slamlib':>9} {'filterpy':>9} {'bare':>9} {'sl/filterpy':>12} {'sl/bare':>8}")
+    worst = 0.0
+    for name, n, s, f, b in rows_sizes():
+        worst = max(worst, s / f)
+        print(f"{name:<12} {n:2d} {s:9.2f} {f:9.2f} {b:9.2f} {s / f:12.2f} {s / b:8.2f}")
+    print(f"largest slamlib / filterpy: {worst:.2f} ({'met' if worst <= GOAL_FILTERPY else 'MISSED'})")
     print(f"\nbatched: {N_BATCH} filters in one call (us per filter)")
     for name, t in rows_batched():
         print(f"{name:<12} {t:9.3f}")

@@ -31,7 +31,8 @@ of being coerced into a wrong answer.
 * :func:`small_ok`: every small argument of one filter step checked at once.
 
 Small float64 arrays take a fast path (no conversion, a Python pass over a few
-numbers, no eigendecomposition for a clearly positive definite 2x2 or 3x3), so
+numbers, no eigendecomposition for a clearly positive definite covariance up to
+8x8: Sylvester's criterion for 2x2 and 3x3, LAPACK's Cholesky from 4x4), so
 checking one filter step costs microseconds; nothing is built for a message
 unless a check fails.
 """
@@ -42,6 +43,7 @@ import math
 import numbers
 
 import numpy as np
+from scipy.linalg.lapack import dpotrf as _dpotrf  # LAPACK's Cholesky: reports failure, warns nothing
 
 __all__: list[str] = []
 
@@ -285,16 +287,17 @@ def as_covariance(value, name, n=None, *, definite=False, batched=False, psd=Tru
     Symmetric means ``max |A - A^T| <= 1e-9 max(1, max |A|)``; semi-definite
     means the smallest eigenvalue is ``>= -1e-9 max(1, max |eig|)``. A 2x2 or
     3x3 matrix whose leading principal minors are clearly positive (Sylvester's
-    criterion), or a 2x2 one whose closed-form eigenvalues are clearly
-    non-negative (when semi-definite is enough), is accepted without an
-    eigendecomposition, so checking one small covariance costs about a
-    microsecond; anything else goes through ``numpy.linalg.eigvalsh``.
+    criterion), a 4x4 to 8x8 one whose Cholesky pivots are clearly positive, or
+    a 2x2 one whose closed-form eigenvalues are clearly non-negative (when
+    semi-definite is enough), is accepted without an eigendecomposition, so
+    checking one small covariance costs a microsecond or two; anything else
+    goes through ``numpy.linalg.eigvalsh``.
     """
     if type(value) is np.ndarray and value.dtype is _F64 and value.ndim == 2:
         k = value.shape[0]
-        if 2 <= k <= 3 and value.shape[1] == k and (n is None or n == k):
+        if 2 <= k <= SMALL_COV and value.shape[1] == k and (n is None or n == k):
             a = value.tolist()
-            if _small_pd(a, k) or (k == 2 and not definite and _small_psd2(a)):
+            if _small_pd(a, k, value) or (k == 2 and not definite and _small_psd2(a)):
                 return value.copy() if copy else value  # finite, symmetric and clearly positive (semi-)definite
     arr = as_matrix(value, name, n, n, copy=copy, ref=ref)
     if arr.shape[-1] != arr.shape[-2]:
@@ -302,7 +305,7 @@ def as_covariance(value, name, n=None, *, definite=False, batched=False, psd=Tru
     if arr.ndim > 2 and not batched:
         raise ValueError(f"{name} must have shape {_mat_str(n, n)}{_ref(ref)}, got {arr.shape}")
     k = arr.shape[-1]
-    if arr.ndim == 2 and 2 <= k <= 3 and _small_pd(arr.tolist(), k):
+    if arr.ndim == 2 and 2 <= k <= SMALL_COV and _small_pd(arr.tolist(), k, arr):
         return arr
     scale = np.maximum(1.0, np.abs(arr).max(axis=(-2, -1), initial=0.0))
     asym = np.abs(arr - np.swapaxes(arr, -1, -2)).max(axis=(-2, -1), initial=0.0)
@@ -345,8 +348,8 @@ def small_ok(vectors=(), matrices=(), covariances=()):
     """True when a call's small arguments pass every check at once (the fast path of one filter step).
 
     Every argument must be a float64 ndarray: `vectors` 1-D with at most 16
-    finite entries, `matrices` 2-D with at most 16 finite entries, and
-    `covariances` 2x2 or 3x3, symmetric and clearly positive definite (see
+    finite entries, `matrices` 2-D with at most 64 finite entries, and
+    `covariances` from 2x2 to 8x8, symmetric and clearly positive definite (see
     :func:`as_covariance`). The caller still compares the shapes. ``False``
     decides nothing: the caller then runs the full checks, which name what is
     wrong.
@@ -357,7 +360,7 @@ def small_ok(vectors=(), matrices=(), covariances=()):
             return False
         values += v.tolist()
     for m in matrices:
-        if type(m) is not np.ndarray or m.dtype is not _F64 or m.ndim != 2 or m.size > 16:
+        if type(m) is not np.ndarray or m.dtype is not _F64 or m.ndim != 2 or m.size > 64:
             return False
         values += m.ravel().tolist()
     if not math.isfinite(sum(values)) and not all(map(math.isfinite, values)):
@@ -366,19 +369,54 @@ def small_ok(vectors=(), matrices=(), covariances=()):
         if type(c) is not np.ndarray or c.dtype is not _F64 or c.ndim != 2:
             return False
         k = c.shape[0]
-        if not (2 <= k <= 3 and c.shape[1] == k and _small_pd(c.tolist(), k)):
+        if not (2 <= k <= SMALL_COV and c.shape[1] == k and _small_pd(c.tolist(), k, c)):
             return False
     return True
 
 
-def _small_pd(a, k):
+#: Largest covariance the small-matrix fast path checks (by Cholesky from 4 rows up).
+SMALL_COV = 8
+
+def _small_pd_chol(value, a, k):
+    """True if the float64 ``(k, k)`` array `value` (nested list `a`) is finite, symmetric and clearly
+    positive definite: LAPACK's Cholesky succeeds with every pivot ``U_ii^2 > 1e-12 max(1, max a_ii)``.
+
+    A successful Cholesky factorisation is backward stable (it factors ``A + E``
+    with ``|E|`` a few rounding errors of ``|A|``), so the smallest eigenvalue is
+    far above the full check's tolerance ``-1e-9``; the pivots' margin plays the
+    role of Sylvester's criterion for the 2x2 and 3x3 forms. False decides
+    nothing (the caller then runs the full check).
+    """
+    if not math.isfinite(sum(map(sum, a))):
+        return False
+    diag = range(0, k * k, k + 1)
+    scale = max(1.0, *map(value.item, diag))
+    if list(map(tuple, a)) != list(zip(*a)):  # not exactly symmetric: within the tolerance?
+        tol = SYM_RTOL * scale
+        for i in range(1, k):
+            ai = a[i]
+            for j in range(i):
+                if abs(ai[j] - a[j][i]) > tol:
+                    return False
+    U, info = _dpotrf(value.T, lower=0, clean=0)  # A = U^T U (A^T = A, read in Fortran order, no copy)
+    if info:
+        return False  # not positive definite (or not numerically)
+    return min(map(U.item, diag)) ** 2 > 1e-12 * scale  # pivots U_ii^2 clearly positive
+
+
+def _small_pd(a, k, value=None):
     """True if the nested list `a` (k = 2 or 3) is finite, symmetric and clearly positive definite.
+
+    From ``k = 4`` up to :data:`SMALL_COV` (with the array `value`), a
+    Cholesky factorisation decides (:func:`_small_pd_chol`).
 
     False for anything else (the caller then runs the full check). The scale of
     the tolerances is the largest diagonal entry: for a positive definite matrix
     every ``|a_ij| <= max a_ii``, and a matrix with a larger entry is not
     accepted here, so this test is never looser than the full one.
     """
+    if k > 3:
+        return value is not None and k <= SMALL_COV and _small_pd_chol(value, a, k)
     if k == 2:
         (a00, a01), (a10, a11) = a
         if not math.isfinite(a00 + a01 + a10 + a11):

@@ -114,10 +114,26 @@ def _predicted(mu, Sxx, Sxm, Smm, Q):
     """
     N = Smm.shape[0]
     lm = mu[3:3 + 2 * N].reshape(N, 2)
-    z_hat, Hx, Hm = landmark_measurement(mu[:3], lm)  # (Eq. 17.2, 17.3) for every landmark
-    cross = Hx @ Sxm @ Hm.transpose(0, 2, 1)
-    # S_k = H_k Sigma H_k^T + Q on the 5 non-zero columns  (Table 10.2 line 16: Psi_k)
-    Sk = Hx @ Sxx @ Hx.transpose(0, 2, 1) + cross + cross.transpose(0, 2, 1) + Hm @ Smm @ Hm.transpose(0, 2, 1) + Q
+    z_hat, _, Hm = landmark_measurement(mu[:3], lm)  # (Eq. 17.2, 17.3) for every landmark
+    # S_k = H_k Sigma H_k^T + Q on the 5 non-zero columns  (Table 10.2 line 16: Psi_k). The range-bearing
+    # model has H_x = [-H_m | c], c = (0, -1)^T, so H_k [x; m] = H_m (m - p) + c theta and
+    # S_k = H_m D H_m^T + H_m e c^T + c e^T H_m^T + Sigma_thth c c^T + Q with D = Cov(m - p), e = Cov(m - p, theta):
+    # written out per component over the landmarks (batched 2x3 matmuls cost several times more)
+    P = Sxm[:, :2, :]  # Cov(p, m)
+    d00 = Smm[:, 0, 0] - 2.0 * P[:, 0, 0] + Sxx[0, 0]
+    d01 = 0.5 * (Smm[:, 0, 1] + Smm[:, 1, 0]) - P[:, 0, 1] - P[:, 1, 0] + 0.5 * (Sxx[0, 1] + Sxx[1, 0])
+    d11 = Smm[:, 1, 1] - 2.0 * P[:, 1, 1] + Sxx[1, 1]
+    e0 = Sxm[:, 2, 0] - Sxx[0, 2]
+    e1 = Sxm[:, 2, 1] - Sxx[1, 2]
+    h00, h01, h10, h11 = Hm[:, 0, 0], Hm[:, 0, 1], Hm[:, 1, 0], Hm[:, 1, 1]
+    a00, a01 = h00 * d00 + h01 * d01, h00 * d01 + h01 * d11  # A = H_m D
+    a10, a11 = h10 * d00 + h11 * d01, h10 * d01 + h11 * d11
+    g0, g1 = h00 * e0 + h01 * e1, h10 * e0 + h11 * e1  # g = H_m e
+    Sk = np.empty((N, 2, 2))
+    Sk[:, 0, 0] = a00 * h00 + a01 * h01 + Q[0, 0]
+    Sk[:, 0, 1] = a00 * h10 + a01 * h11 - g0 + Q[0, 1]
+    Sk[:, 1, 0] = a10 * h00 + a11 * h01 - g0 + Q[1, 0]
+    Sk[:, 1, 1] = a10 * h10 + a11 * h11 - 2.0 * g1 + Sxx[2, 2] + Q[1, 1]
     return z_hat, Sk
 
 
@@ -778,6 +794,9 @@ class EKFSLAM:
 
     #: Motion model ``motion(x, u, dt) -> (x_next, G, V)``; None is the velocity model (exact arc).
     _motion = None
+    #: The blocks of ``Sigma`` that association reads (:meth:`_blocks`), kept up to date through the
+    #: updates of one scan (rank-2 downdates); None: compute them again (after a prediction or a new landmark).
+    _bc = None
 
     def __init__(self, x0, Sigma0=None, *, capacity=16, prior_var=DEFAULT_PRIOR_VAR):
         x0 = as_array(x0, "x0", (3,))
@@ -834,6 +853,7 @@ class EKFSLAM:
         self._S = np.zeros((size, size))
         self._Pt = np.zeros((_PENDING_COLS, size))  # P^T: pending corrections, one per row
         self._k = 0
+        self._bc = None
 
     def _grow(self):
         self._flush()
@@ -898,6 +918,7 @@ class EKFSLAM:
         new = object.__new__(EKFSLAM)
         new.__dict__.update(self.__dict__)
         new._mu, new._S, new._Pt = self._mu.copy(), self._S.copy(), self._Pt.copy()
+        new._bc = None
         return new
 
     # ----------------------------------------------------------------- steps
@@ -931,6 +952,7 @@ class EKFSLAM:
 
     def _predict(self, u, dt, M):
         n, k, S = self._n, self._k, self._S
+        self._bc = None  # the robot rows change
         if self._motion is None:
             x_next, G, V = _arc1(self._mu[:3], u, dt)
         else:  # a pluggable motion model, e.g. slamlib.AckermannModel: (x_next, G, V) of the pose
@@ -977,6 +999,7 @@ class EKFSLAM:
         if self.n_landmarks == self._cap:
             self._grow()
         j, a = self.n_landmarks, self._n
+        self._bc = None
         # mu_j = (x + r cos(phi + theta), y + r sin(phi + theta))  (Table 10.1 line 10)
         self._mu[a:a + 2] = landmark_from_measurement(self._mu[:3], z)
         self._S[a, a] = self._S[a + 1, a + 1] = self.prior_var
@@ -1046,6 +1069,12 @@ class EKFSLAM:
         mu[2] = _wrap1(mu[2])
         self._Pt[k:k + 2, :n] = Wt  # Sigma -= W W^T, applied in _flush  (Table 10.1 line 19)
         self._k = k + 2
+        if self._bc is not None:  # the same downdate of the blocks association reads, O(N)
+            Sxx, Sxm, Smm = self._bc
+            W3, Wl = Wt[:, :3], Wt[:, 3:n].reshape(2, -1, 2)
+            Sxx -= W3.T @ W3
+            Sxm -= np.einsum("ri,rlc->lic", W3, Wl)
+            Smm -= np.einsum("rli,rlj->lij", Wl, Wl)
         return True
 
     def step(self, u, dt, M, z, j, Q):
@@ -1138,7 +1167,9 @@ class EKFSLAM:
         N = self.n_landmarks
         if N == 0:
             return np.empty((Z.shape[0], 0))
-        z_hat, Sk = _predicted(self._mu[:self._n], *self._blocks(), Q)
+        if self._bc is None:  # once per scan: the updates of its detections keep the blocks up to date
+            self._bc = self._blocks()
+        z_hat, Sk = _predicted(self._mu[:self._n], *self._bc, Q)
         return _nis(Z, z_hat, Sk)
 
     def jcbb(self, z, Q, alpha):

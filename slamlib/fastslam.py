@@ -49,6 +49,7 @@ FastSLAM; Montemerlo et al. (2003), FastSLAM 2.0.
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -327,8 +328,184 @@ def fastslam_update_landmark(x, mu, Sigma, z, Q, *, weight_cov="S", log=False, g
     return mu_new, Sigma_new, (log_w if log else np.exp(log_w))
 
 
+# --------------------------------------------------------------------------- shared map storage
+# The maps of a particle set live in blocks of _BLOCK landmark slots, in a pool shared by the particles (and by
+# the states derived from one another): a particle's map is a row of block indices (its table). Resampling copies
+# tables, not maps; an update writes the slots it changes into fresh copies of their blocks (copy-on-write), so a
+# block, once written, never changes and states stay pure. A step costs the slots it touches, not the capacity.
+_BLOCK = 8  # landmark slots per block
+_MU, _SIG, _SEEN, _COUNT = slice(0, 2), slice(2, 6), 6, 7  # the float64 fields of a slot: mu, Sigma, seen, count
+_NF = 8
+
+
+class _Pool:
+    """Append-only block storage ``(capacity, _BLOCK, _NF)``; block 0 is the empty block and never written."""
+
+    __slots__ = ("data", "top")
+
+    def __init__(self, capacity):
+        self.data = np.empty((max(int(capacity), 2), _BLOCK, _NF))  # only written blocks are ever read
+        self.data[0] = 0.0
+        self.top = 1
+
+    def alloc(self, n):
+        """Indices of `n` fresh blocks (growing the storage in place: indices stay valid), or None if full."""
+        if self.top + n > self.data.shape[0]:
+            return None
+        ids = np.arange(self.top, self.top + n, dtype=np.int64)
+        self.top += n
+        return ids
+
+
+class _Maps(NamedTuple):
+    """A particle set's maps: ``table (M, nb)`` block indices into ``pool``; ``N`` slots per particle."""
+
+    pool: _Pool
+    table: np.ndarray
+    N: int
+
+
+def _n_blocks(N):
+    return -(-N // _BLOCK)
+
+
+def _empty_maps(M, N):
+    return _Maps(_Pool(64), np.zeros((M, _n_blocks(N)), dtype=np.int64), N)
+
+
+def _maps_from_dense(mu, Sigma, seen, counts):
+    """Block storage holding copies of dense maps (each particle its own blocks)."""
+    M, N = seen.shape
+    nb = _n_blocks(N)
+    d = np.zeros((M, nb * _BLOCK, _NF))
+    d[:, :N, _MU] = mu
+    d[:, :N, _SIG] = Sigma.reshape(M, N, 4)
+    d[:, :N, _SEEN] = seen
+    d[:, :N, _COUNT] = counts
+    pool = _Pool(1 + M * nb)
+    pool.data[1:] = d.reshape(M * nb, _BLOCK, _NF)
+    pool.top = 1 + M * nb
+    return _Maps(pool, np.arange(1, 1 + M * nb, dtype=np.int64).reshape(M, nb), N)
+
+
+def _split(d):
+    """Dense ``(mu, Sigma, seen, counts)`` of gathered slots ``d (..., _NF)`` (a fresh copy: `mu` and
+    `Sigma` are views of it)."""
+    return d[..., _MU], d[..., _SIG].reshape(d.shape[:-1] + (2, 2)), d[..., _SEEN] > 0, d[..., _COUNT].astype(np.int64)
+
+
+def _take(maps, cols, rows=None):
+    """Slots `cols` of every particle (or of `rows`) as dense copies ``(mu, Sigma, seen, counts)``."""
+    table = maps.table if rows is None else maps.table[rows]
+    cols = np.asarray(cols, dtype=np.int64)
+    return _split(maps.pool.data[table[:, cols // _BLOCK], cols % _BLOCK])
+
+
+def _particle_map(state, k):
+    """Particle `k`'s dense map ``(mu (N, 2), Sigma (N, 2, 2), seen (N,), counts (N,))``."""
+    if state._maps is None:
+        return tuple(a[k].copy() for a in state._dense)
+    maps = state._maps
+    d = maps.pool.data[maps.table[k]].reshape(-1, _NF)[:maps.N]
+    mu, Sigma, seen, counts = _split(d)
+    return np.ascontiguousarray(mu), np.ascontiguousarray(Sigma), seen, counts
+
+
+def _n_seen(state, k):
+    """Number of landmarks in particle `k`'s map."""
+    if state._maps is None:
+        return int(state._dense[2][k].sum())
+    maps = state._maps
+    return int(np.count_nonzero(maps.pool.data[maps.table[k], :, _SEEN]))
+
+
+def _used_slots(maps):
+    """One past the last slot any particle may hold a landmark in (a bound: whole blocks)."""
+    nz = np.flatnonzero((maps.table != 0).any(axis=0))
+    return min(maps.N, (int(nz[-1]) + 1) * _BLOCK) if nz.size else 0
+
+
+def _compact(maps, extra, inplace=False):
+    """The same maps in a pool holding only their live blocks, with room for `extra` more.
+
+    With `inplace` (no other state uses the pool) the pool's own storage is reused when it is large
+    enough: fresh memory costs page faults on first write, reused memory does not.
+    """
+    pool = maps.pool
+    live = np.zeros(pool.top, dtype=bool)
+    live[maps.table.ravel()] = True
+    live[0] = True
+    keep = np.flatnonzero(live)
+    size = 2 * keep.size + 16 * extra + 64  # room for many steps before the next compaction
+    if inplace and size <= pool.data.shape[0]:
+        new = pool
+        new.data[:keep.size] = np.take(pool.data, keep, axis=0)
+    else:
+        new = _Pool(size)
+        np.take(pool.data, keep, axis=0, out=new.data[:keep.size])
+    new.top = keep.size
+    remap = np.cumsum(live) - 1
+    return _Maps(new, remap[maps.table], maps.N)
+
+
+def _put(maps, cols, mu, Sigma, seen, counts, changed=None, inplace=False):
+    """`maps` with slots `cols` of every particle set to the dense ``(M, len(cols))`` values.
+
+    Only the pairs (particle, slot) where `changed` (default: all) are written; each block holding one
+    is copied to a fresh block first (copy-on-write). With `inplace` the caller gives `maps` up (no other
+    state uses its table or its pool's blocks): the table is reused, and a block that no other particle
+    refers to is written where it is (the empty block 0 never is).
+    """
+    cols = np.asarray(cols, dtype=np.int64)
+    if cols.size == 0:
+        return maps
+    M, nb = maps.table.shape
+    cb = cols // _BLOCK
+    if changed is None:
+        ub = np.flatnonzero(np.bincount(cb))  # the blocks written, in every particle
+        pk, pb = np.repeat(np.arange(M), ub.size), np.tile(ub, M)
+    else:
+        kk, cc = np.nonzero(changed)
+        if kk.size == 0:
+            return maps
+        key = kk * nb + cb[cc]
+        if np.any(key[1:] < key[:-1]):
+            key = np.sort(key)
+        key = key[np.r_[True, key[1:] != key[:-1]]]  # the (particle, block) pairs written (np.unique is slow)
+        pk, pb = np.divmod(key, nb)
+        ub = np.flatnonzero(np.bincount(pb))
+    if inplace:  # a block id lives in one column of the table: shared iff it appears twice there
+        blocks = maps.table[pk, pb]
+        ids = np.sort(maps.table[:, ub].ravel())  # every reference to a block of these columns
+        refs = np.searchsorted(ids, blocks, "right") - np.searchsorted(ids, blocks, "left")
+        cow = (blocks == 0) | (refs > 1)
+        pk, pb = pk[cow], pb[cow]
+    ids = maps.pool.alloc(pk.size)
+    if ids is None:
+        maps = _compact(maps, pk.size, inplace)
+        inplace = True  # the compacted table is a new array
+        ids = maps.pool.alloc(pk.size)
+    table = maps.table if inplace else maps.table.copy()
+    data = maps.pool.data
+    if ids.size:
+        np.take(data, table[pk, pb], axis=0, out=data[ids[0]:ids[0] + ids.size])  # copy on write (ids: a range)
+        table[pk, pb] = ids
+    if changed is not None:  # only the changed slots' values
+        mu, Sigma, seen, counts = mu[kk, cc], Sigma[kk, cc], seen[kk, cc], counts[kk, cc]
+    d = np.empty(mu.shape[:-1] + (_NF,))
+    d[..., _MU] = mu
+    d[..., _SIG] = Sigma.reshape(mu.shape[:-1] + (4,))
+    d[..., _SEEN] = seen
+    d[..., _COUNT] = counts
+    if changed is None:
+        data[table[:, cb], cols % _BLOCK] = d
+    else:
+        data[table[kk, cb[cc]], cols[cc] % _BLOCK] = d
+    return _Maps(maps.pool, table, maps.N)
+
+
 # --------------------------------------------------------------------------- the particle set
-class FastSLAMState(NamedTuple):
+class FastSLAMState:
     """The FastSLAM 1.0 particle set, one array per quantity.
 
     Attributes
@@ -350,22 +527,89 @@ class FastSLAMState(NamedTuple):
     Notes
     -----
     ``N`` is a preallocated capacity; with known correspondences slot ``j``
-    is landmark ``j``. Every particle owns its arrays' rows: no two particles
-    share storage, and the step functions return new arrays instead of
-    writing into a state.
+    is landmark ``j``. A state behaves as the named tuple of these six
+    arrays (``FastSLAMState(poses, mu, Sigma, seen, counts, log_weights)``,
+    iteration, ``_replace``) and is never modified: the step functions
+    return new states.
+
+    Inside, the maps are stored the way Montemerlo et al. share them between
+    particles: blocks of landmark slots in a pool, each particle a table of
+    block indices. Resampling copies the tables, an update copies only the
+    blocks it writes (copy-on-write), so a step costs the landmarks it
+    touches, not the capacity ``N``. The dense arrays ``mu``, ``Sigma``,
+    ``seen`` and ``counts`` are assembled (read-only) when first read.
 
     References
     ----------
     Thrun, Burgard & Fox (2005), Chapter 13 (a particle: path sample and N
-    landmark Gaussians), Table 13.2 (counters).
+    landmark Gaussians; Section 13.8, efficient implementation with shared
+    landmark trees), Table 13.2 (counters). Montemerlo et al. (2002).
     """
 
-    poses: np.ndarray
-    mu: np.ndarray
-    Sigma: np.ndarray
-    seen: np.ndarray
-    counts: np.ndarray
-    log_weights: np.ndarray
+    __slots__ = ("poses", "log_weights", "_maps", "_dense")
+    _fields = ("poses", "mu", "Sigma", "seen", "counts", "log_weights")
+
+    def __init__(self, poses, mu, Sigma, seen, counts, log_weights):
+        self.poses = poses
+        self.log_weights = log_weights
+        self._dense = (mu, Sigma, seen, counts)
+        self._maps = None
+
+    @classmethod
+    def _from_maps(cls, poses, maps, log_weights):
+        new = cls.__new__(cls)
+        new.poses, new.log_weights, new._maps, new._dense = poses, log_weights, maps, None
+        return new
+
+    def _blocks(self):
+        """The block storage of the maps (built once from dense arrays given by a caller)."""
+        if self._maps is None:
+            self._maps = _maps_from_dense(*(np.asarray(a) for a in self._dense))
+        return self._maps
+
+    def _arrays(self):
+        if self._dense is None:
+            maps = self._maps
+            M = maps.table.shape[0]
+            d = maps.pool.data[maps.table].reshape(M, -1, _NF)[:, :maps.N]
+            dense = _split(d)
+            for a in dense:
+                a.setflags(write=False)
+            self._dense = dense
+        return self._dense
+
+    mu = property(lambda self: self._arrays()[0], doc="Landmark means, shape (M, N, 2).")
+    Sigma = property(lambda self: self._arrays()[1], doc="Landmark covariances, shape (M, N, 2, 2).")
+    seen = property(lambda self: self._arrays()[2], doc="Which slots hold a landmark, shape (M, N).")
+    counts = property(lambda self: self._arrays()[3], doc="Observation counters, shape (M, N).")
+
+    def __iter__(self):
+        return iter((self.poses, self.mu, self.Sigma, self.seen, self.counts, self.log_weights))
+
+    def __len__(self):
+        return 6
+
+    def __getitem__(self, i):
+        return tuple(self)[i]
+
+    def _replace(self, **fields):
+        """A copy with some of the six fields replaced (as for a named tuple)."""
+        unknown = set(fields) - set(self._fields)
+        if unknown:
+            raise ValueError(f"FastSLAMState has no field(s) {sorted(unknown)}")
+        if not set(fields) & {"mu", "Sigma", "seen", "counts"}:  # poses or weights only: share the maps
+            new = FastSLAMState.__new__(FastSLAMState)
+            new.poses = fields.get("poses", self.poses)
+            new.log_weights = fields.get("log_weights", self.log_weights)
+            new._maps, new._dense = self._maps, self._dense
+            return new
+        return FastSLAMState(*(fields.get(f, getattr(self, f)) for f in self._fields))
+
+    def _asdict(self):
+        return dict(zip(self._fields, self))
+
+    def __repr__(self):
+        return f"FastSLAMState(n_particles={self.n_particles}, capacity={self.capacity})"
 
     @property
     def n_particles(self) -> int:
@@ -375,7 +619,7 @@ class FastSLAMState(NamedTuple):
     @property
     def capacity(self) -> int:
         """Landmark slots per particle ``N``."""
-        return self.mu.shape[1]
+        return self._maps.N if self._maps is not None else np.shape(self._dense[2])[1]
 
     @property
     def weights(self) -> np.ndarray:
@@ -385,7 +629,14 @@ class FastSLAMState(NamedTuple):
 
 def _check_state(state, name="state"):
     check_type(state, FastSLAMState, name, "from fastslam_initial_state")
-    M, N = state.seen.shape
+    if state._maps is not None:
+        M = state._maps.table.shape[0]
+        check_field_shapes(state, name, {"poses": (M, 3), "log_weights": (M,)})
+        return state
+    seen = state._dense[2]
+    if np.ndim(seen) != 2:
+        raise ValueError(f"{name}.seen must have shape (M, N), got {np.shape(seen)}")
+    M, N = np.shape(seen)
     shapes = {"poses": (M, 3), "mu": (M, N, 2), "Sigma": (M, N, 2, 2), "counts": (M, N), "log_weights": (M,)}
     return check_field_shapes(state, name, shapes)
 
@@ -420,14 +671,8 @@ def fastslam_initial_state(x0, n_particles, capacity):
     _check_capacity(M, N, "capacity")
     x0 = x0.copy()
     x0[2] = wrap_angle(x0[2])
-    return FastSLAMState(
-        poses=np.tile(x0, (M, 1)),
-        mu=np.zeros((M, N, 2)),
-        Sigma=np.zeros((M, N, 2, 2)),
-        seen=np.zeros((M, N), dtype=bool),
-        counts=np.zeros((M, N), dtype=np.int64),
-        log_weights=np.full(M, -np.log(M)),
-    )
+    # every particle's map: the empty block in every place (shared storage, see FastSLAMState)
+    return FastSLAMState._from_maps(np.tile(x0, (M, 1)), _empty_maps(M, N), np.full(M, -np.log(M)))
 
 
 def fastslam_predict(state, u, dt, *, rng, M=None, alpha=None):
@@ -510,19 +755,17 @@ def _check_capacity(M, N, name):
 
 def _grow(state, need, name="ids"):
     """Copy of `state` with at least `need` landmark slots."""
-    M, N = state.seen.shape
+    M, N = state.n_particles, state.capacity
     if need <= N:
         return state
     _check_capacity(M, need, name)
     N2 = min(max(need, 2 * N), MAX_LANDMARKS)
     if M * N2 * _SLOT_BYTES > MAX_SLOT_BYTES:
         N2 = need
-    mu = np.zeros((M, N2, 2))
-    Sigma = np.zeros((M, N2, 2, 2))
-    seen = np.zeros((M, N2), dtype=bool)
-    counts = np.zeros((M, N2), dtype=np.int64)
-    mu[:, :N], Sigma[:, :N], seen[:, :N], counts[:, :N] = state.mu, state.Sigma, state.seen, state.counts
-    return state._replace(mu=mu, Sigma=Sigma, seen=seen, counts=counts)
+    maps = state._blocks()  # slots beyond N in the last block are empty: no write reaches them
+    extra = np.zeros((M, _n_blocks(N2) - maps.table.shape[1]), dtype=np.int64)  # the empty block
+    grown = _Maps(maps.pool, np.concatenate([maps.table, extra], axis=1), N2)
+    return FastSLAMState._from_maps(state.poses, grown, state.log_weights)
 
 
 def _ids_arg(ids, K):
@@ -606,15 +849,22 @@ def _update_known_core(state, z, ids, Q, weight_cov, copy=True, gate=None):
     Returns the new state and the outlier mask ``(M, K)`` of the per-particle
     gate (all False without a `gate`).
     """
-    if copy:
-        mu, Sigma = state.mu.copy(), state.Sigma.copy()
-        seen, counts = state.seen.copy(), state.counts.copy()
-    else:
-        mu, Sigma, seen, counts = state.mu, state.Sigma, state.seen, state.counts
-    log_w = state.log_weights.copy()
-    M = state.n_particles
+    maps = state._blocks()
+    cols, lid = np.unique(ids, return_inverse=True)  # the slots this step touches, and each one's column
+    mu, Sigma, seen, counts = _take(maps, cols)
+    log_w, outliers = _known_local(state.poses, mu, Sigma, seen, counts, z, lid, Q, weight_cov, gate,
+                                   state.log_weights)
+    maps = _put(maps, cols, mu, Sigma, seen, counts, inplace=not copy)
+    return FastSLAMState._from_maps(state.poses, maps, _normalized(log_w)), outliers
+
+
+def _known_local(poses, mu, Sigma, seen, counts, z, ids, Q, weight_cov, gate, log_w):
+    """The body of :func:`_update_known_core` on dense maps ``(M, C)`` (written in place); `ids` are
+    columns of them. Returns the (unnormalised) log weights and the outlier mask ``(M, K)``."""
+    log_w = log_w.copy()
+    M = poses.shape[0]
     outliers = np.zeros((M, ids.size), dtype=bool)
-    x = state.poses[:, None, :]  # (M, 1, 3)
+    x = poses[:, None, :]  # (M, 1, 3)
     for obs in _rounds(ids):
         j, zk = ids[obs], z[obs]  # (k,), (k, 2)
         new = ~seen[:, j]  # (M, k): never seen before  (Table 13.1 line 6)
@@ -646,7 +896,7 @@ def _update_known_core(state, z, ids, Q, weight_cov, copy=True, gate=None):
                 counts[:, j] -= out
         seen[:, j] = True
         counts[:, j] += 1
-    return FastSLAMState(state.poses, mu, Sigma, seen, counts, _normalized(log_w)), outliers
+    return log_w, outliers
 
 
 def _fastslam_steps(init, update):
@@ -677,7 +927,9 @@ def _stepwise_known_core(state, z, ids, Q, weight_cov, gate, init, update):
     Sigma_new, log_w)`` (from :func:`_fastslam_steps`) replace the cores where
     given; with None the cores do that part (and only they apply the `gate`).
     """
-    mu, Sigma, seen, counts = state.mu, state.Sigma, state.seen, state.counts
+    maps = state._blocks()
+    cols, ids = np.unique(ids, return_inverse=True)  # the slots this step touches; ids: their columns
+    mu, Sigma, seen, counts = _take(maps, cols)
     x = state.poses
     log_w = state.log_weights.copy()
     outliers = np.zeros((x.shape[0], ids.size), dtype=bool)
@@ -700,7 +952,8 @@ def _stepwise_known_core(state, z, ids, Q, weight_cov, gate, init, update):
         seen[:, j] = True
         counts[:, j] += 1
     check_log_weights(log_w, "the log-weights after fastslam_update_landmark's weights")
-    return FastSLAMState(state.poses, mu, Sigma, seen, counts, _normalized(log_w)), outliers
+    maps = _put(maps, cols, mu, Sigma, seen, counts, inplace=True)
+    return FastSLAMState._from_maps(state.poses, maps, _normalized(log_w)), outliers
 
 
 def fastslam_default_p0(Q, gate=13.815510557964274):
@@ -800,13 +1053,9 @@ def _update_unknown_core(state, z, Q, log_p0, weight_cov, max_range, half_fov, c
     """Unknown-correspondence update; ``copy=False`` may write into `state`'s arrays."""
     z = z[z[:, 0] > 0]
     M = state.n_particles
-    need = int(state.seen.sum(axis=1).max(initial=0)) + z.shape[0]
-    grown = _grow(state, need)
-    if copy and grown is state:
-        mu, Sigma = state.mu.copy(), state.Sigma.copy()
-        seen, counts = state.seen.copy(), state.counts.copy()
-    else:
-        mu, Sigma, seen, counts = grown.mu, grown.Sigma, grown.seen, grown.counts
+    if z.shape[0] == 0 and max_range is None:  # nothing to associate or prune: the maps stay as they are
+        return FastSLAMState._from_maps(state.poses, state._blocks(), _normalized(state.log_weights.copy()))
+    maps, win, (mu, Sigma, seen, counts) = _unknown_window(state, z.shape[0], "ids")
     log_w = state.log_weights.copy()
     matched = np.zeros_like(seen)
     x = state.poses
@@ -815,25 +1064,29 @@ def _update_unknown_core(state, z, Q, log_p0, weight_cov, max_range, half_fov, c
     # slots at and beyond hi stay empty in every particle during this step (a new landmark takes the
     # particle's first free slot, at most one more per measurement)
     hi = min(seen.shape[1], (int(used[-1]) + 1 if used.size else 0) + z.shape[0])
-    # the pose is fixed within the step: predict every landmark once, then refresh only what changes
-    # z_hat_j = h(mu_j, x), H_j = h'(mu_j, x), S_j = H_j Sigma_j H_j^T + Q for every landmark j  (Table 13.2)
-    mu_safe = np.where(seen[:, :hi, None], mu[:, :hi], x[:, None, :2] + 1.0)  # keep h defined on empty slots
+    cols = _candidates(x, mu[:, :hi], Sigma[:, :hi], seen[:, :hi], z, Q, log_p0)
+    pos = np.full(hi, -1)
+    pos[cols] = np.arange(cols.size)  # column of each candidate slot in z_hat, S and ll
+    # the pose is fixed within the step: predict every candidate once, then refresh only what changes
+    # z_hat_j = h(mu_j, x), H_j = h'(mu_j, x), S_j = H_j Sigma_j H_j^T + Q for every candidate j  (Table 13.2)
+    mu_safe = np.where(seen[:, cols, None], mu[:, cols], x[:, None, :2] + 1.0)  # keep h defined on empty slots
     z_hat, _, H = landmark_measurement(x[:, None, :], mu_safe)
-    _, S_parts, _ = _innovation(H, Sigma[:, :hi], Q)
-    S = np.stack(S_parts, axis=-1)  # (M, hi, 3): S00, S01, S11
+    _, S_parts, _ = _innovation(H, Sigma[:, cols], Q)
+    S = np.stack(S_parts, axis=-1)  # (M, C, 3): S00, S01, S11
 
     def refresh(k, jk):
         zh, _, Hk = landmark_measurement(x[k], mu[k, jk])
-        z_hat[k, jk] = zh
-        S[k, jk] = np.stack(_innovation(Hk, Sigma[k, jk], Q)[1], axis=-1)
+        z_hat[k, pos[jk]] = zh
+        S[k, pos[jk]] = np.stack(_innovation(Hk, Sigma[k, jk], Q)[1], axis=-1)
 
     for zk in z:
-        sn = seen[:, :hi]
+        sn = seen[:, cols]
         nu1 = wrap_angle(zk[1] - z_hat[..., 1])
         # w_j = N(nu_j; 0, S_j)  (Table 13.2)
         ll = np.where(sn, _log_gauss_2(zk[0] - z_hat[..., 0], nu1, S[..., 0], S[..., 1], S[..., 2]), -np.inf)
-        j = np.argmax(ll, axis=1)  # ties: smallest index
-        best = ll[rows, j]
+        c = np.argmax(ll, axis=1)  # ties: smallest index (the candidates are in increasing order)
+        best = ll[rows, c]
+        j = cols[c]
         is_new = best < log_p0  # c_hat = new landmark when p0 beats every w_j  (Table 13.2)
         old = ~is_new
         if old.any():
@@ -856,9 +1109,48 @@ def _update_unknown_core(state, z, Q, log_p0, weight_cov, max_range, half_fov, c
             matched[k, slot] = True
             log_w[k] += log_p0  # w = p0  (Table 13.2)
             refresh(k, slot)
+    changed = matched  # updated and new landmarks, and below those that lost a count
     if max_range is not None:
-        seen, counts = _prune(x, mu, seen, counts, matched, max_range, half_fov)
-    return FastSLAMState(x, mu, Sigma, seen, counts, _normalized(log_w))
+        seen, counts, miss = _prune(x, mu, seen, counts, matched, max_range, half_fov)
+        changed = changed | miss
+    maps = _put(maps, win, mu, Sigma, seen, counts, changed=changed, inplace=not copy)
+    return FastSLAMState._from_maps(x, maps, _normalized(log_w))
+
+
+def _candidates(x, mu, Sigma, seen, z, Q, log_p0):
+    """The slots a step's maximum-likelihood association must score (FastSLAM 1.0), in increasing order.
+
+    Every slot that is free in some particle (a new landmark may take it during the
+    step), and every landmark that some particle predicts within reach of the step's
+    ranges. For any other landmark ``w_j < p0 / e`` for every measurement, so it can
+    never be chosen: ``nu^T S^-1 nu >= nu_r^2 / S_rr``, ``det S >= det Q``
+    (``S = H Sigma H^T + Q``) and ``S_rr <= Sigma_xx + Sigma_yy + Q_rr``.
+    """
+    free = ~seen.all(axis=0)
+    if z.shape[0] == 0 or seen.shape[1] == 0:
+        return np.flatnonzero(free)
+    c0 = max(-log_p0 - _LOG_2PI - 0.5 * math.log(Q[0, 0] * Q[1, 1] - Q[0, 1] * Q[1, 0]), 0.0) + 1.0
+    r = np.hypot(mu[..., 0] - x[:, None, 0], mu[..., 1] - x[:, None, 1])
+    reach = np.sqrt(2.0 * c0 * (Sigma[..., 0, 0] + Sigma[..., 1, 1] + Q[0, 0]))
+    near = seen & (r >= z[:, 0].min() - reach) & (r <= z[:, 0].max() + reach)
+    return np.flatnonzero(free | near.any(axis=0))
+
+
+def _unknown_window(state, K, name):
+    """The maps grown for `K` new landmarks per particle and, as dense copies, the slots a step with unknown
+    correspondences can touch: those some particle uses and the next `K` (a new landmark takes the first
+    free slot). Returns ``(maps, cols, (mu, Sigma, seen, counts))``."""
+    maps = state._blocks()
+    M = state.n_particles
+    used = _used_slots(maps)
+    d = np.take(maps.pool.data, maps.table[:, :_n_blocks(used)], axis=0).reshape(M, -1, _NF)  # whole blocks
+    need = int(np.count_nonzero(d[..., _SEEN], axis=1).max(initial=0)) + K
+    if need > maps.N:
+        maps = _grow(state, need, name)._maps
+    W = min(maps.N, used + K)
+    if W > d.shape[1]:
+        d = np.take(maps.pool.data, maps.table[:, :_n_blocks(W)], axis=0).reshape(M, -1, _NF)
+    return maps, np.arange(W), _split(d[:, :W])
 
 
 def _prune(x, mu, seen, counts, matched, max_range, half_fov):
@@ -871,7 +1163,7 @@ def _prune(x, mu, seen, counts, matched, max_range, half_fov):
     counts = counts - miss  # i_j = i_j - 1 for unmatched landmarks in range  (Table 13.2)
     drop = seen & (counts < 0)  # discard landmark j when i_j < 0  (Table 13.2)
     seen = seen & ~drop
-    return seen, np.where(seen, counts, 0)
+    return seen, np.where(seen, counts, 0), miss
 
 
 # --------------------------------------------------------------------------- FastSLAM 2.0
@@ -1140,11 +1432,9 @@ def _update2_known_core(state, u, dt, L, z, ids, Q, rng, gate=None, copy=True, m
     if ids.size == 0:
         eta = _sample_eta((np.ones(n), np.zeros(n), np.ones(n)), (np.zeros(n), np.zeros(n)), rng, n)
         return state._replace(poses=_move(x_prev, u, dt, L, eta, motion)), outliers
-    if copy:
-        mu, Sigma = state.mu.copy(), state.Sigma.copy()
-        seen, counts = state.seen.copy(), state.counts.copy()
-    else:
-        mu, Sigma, seen, counts = state.mu, state.Sigma, state.seen, state.counts
+    maps = state._blocks()
+    cols, ids = np.unique(ids, return_inverse=True)  # the slots this step touches; ids: their columns
+    mu, Sigma, seen, counts = _take(maps, cols)
     log_w = state.log_weights.copy()
     rounds = _rounds(ids)
     first = rounds[0]
@@ -1185,12 +1475,13 @@ def _update2_known_core(state, u, dt, L, z, ids, Q, rng, gate=None, copy=True, m
     Sigma[:, j] = np.where(use[..., None, None], Sigma_u, np.where(new[..., None, None], Sigma_i, Sigma[:, j]))
     seen[:, j] = True
     counts[:, j] += use | new  # i_j = i_j + 1, or 1 for a new landmark
-    mid = FastSLAMState(x, mu, Sigma, seen, counts, _normalized(log_w))
     if len(rounds) > 1:  # repeated landmarks: FastSLAM 1.0 updates at the sampled pose
         rest = np.concatenate(rounds[1:])
-        mid, out2 = _update_known_core(mid, z[rest], ids[rest], Q, "S", copy=False, gate=gate)
+        log_w, out2 = _known_local(x, mu, Sigma, seen, counts, z[rest], ids[rest], Q, "S", gate,
+                                   _normalized(log_w))
         outliers[:, rest] = out2
-    return mid, outliers
+    maps = _put(maps, cols, mu, Sigma, seen, counts, inplace=not copy)
+    return FastSLAMState._from_maps(x, maps, _normalized(log_w)), outliers
 
 
 def fastslam2_update_unknown(state, u, dt, z, Q, *, M, rng, p0=None, max_range=None, fov=None):
@@ -1259,14 +1550,12 @@ def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rn
     n = state.n_particles
     K = z.shape[0]
     x_prev = state.poses
+    if K == 0 and max_range is None:  # nothing to associate or prune: the motion sample, the maps unchanged
+        eta = _sample_eta((np.ones(n), np.zeros(n), np.ones(n)), (np.zeros(n), np.zeros(n)), rng, n)
+        return FastSLAMState._from_maps(_move(x_prev, u, dt, L, eta, motion), state._blocks(),
+                                        _normalized(state.log_weights.copy()))
     x_hat, B = _motion_terms(x_prev, u, dt, L, motion)
-    need = int(state.seen.sum(axis=1).max(initial=0)) + K
-    grown = _grow(state, need, "the landmarks of a particle")
-    if copy and grown is state:
-        mu, Sigma = state.mu.copy(), state.Sigma.copy()
-        seen, counts = state.seen.copy(), state.counts.copy()
-    else:
-        mu, Sigma, seen, counts = grown.mu, grown.Sigma, grown.seen, grown.counts
+    maps, win, (mu, Sigma, seen, counts) = _unknown_window(state, K, "the landmarks of a particle")
     log_w = state.log_weights.copy()
     rows = np.arange(n)
     P = [np.ones(n), np.zeros(n), np.ones(n)]  # information of the proposal over eta, prior N(0, I)
@@ -1338,13 +1627,16 @@ def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rn
             seen[k, slot] = True
             counts[k, slot] = 1  # i_j = 1
             matched[k, slot] = True
+    changed = matched  # updated and new landmarks, and below those that lost a count
     if max_range is not None:
-        seen, counts = _prune(x, mu, seen, counts, matched, max_range, half_fov)
-    return FastSLAMState(x, mu, Sigma, seen, counts, _normalized(log_w))
+        seen, counts, miss = _prune(x, mu, seen, counts, matched, max_range, half_fov)
+        changed = changed | miss
+    maps = _put(maps, win, mu, Sigma, seen, counts, changed=changed, inplace=not copy)
+    return FastSLAMState._from_maps(x, maps, _normalized(log_w))
 
 
 def fastslam_resample(state, *, rng, indices=None):
-    """Resample the particles, copying each survivor's whole map.
+    """Resample the particles: each new particle takes a survivor's pose and map.
 
     Parameters
     ----------
@@ -1358,10 +1650,13 @@ def fastslam_resample(state, *, rng, indices=None):
     Returns
     -------
     new_state : FastSLAMState
-        Particles ``indices[k]`` of `state`, with uniform log weights. Every
-        array is a new one built by fancy indexing, so each particle owns its
-        map: changing one particle's landmark never changes another's, even
-        where both descend from the same ancestor.
+        Particles ``indices[k]`` of `state`, with uniform log weights. The
+        maps are shared, not copied: each new particle gets its ancestor's
+        table of landmark blocks, and a later update copies only the blocks
+        it writes (copy-on-write), so changing one particle's landmark never
+        changes another's, even where both descend from the same ancestor,
+        and resampling costs ``O(M N / 8)`` indices instead of ``O(M N)``
+        landmark Gaussians.
     indices : ndarray of int, shape (M,)
         The ancestor of each new particle.
 
@@ -1382,15 +1677,10 @@ def fastslam_resample(state, *, rng, indices=None):
         if np.any(idx < 0) or np.any(idx >= M):
             raise ValueError(f"indices must lie in [0, {M})")
         idx = idx.astype(np.int64)
-    # fancy indexing copies: each new particle gets its own rows  (Table 13.1 lines 25-27)
-    new = FastSLAMState(
-        poses=state.poses[idx],
-        mu=state.mu[idx],
-        Sigma=state.Sigma[idx],
-        seen=state.seen[idx],
-        counts=state.counts[idx],
-        log_weights=np.full(M, -np.log(M)),
-    )
+    # each new particle takes its ancestor's pose and map  (Table 13.1 lines 25-27); the maps are shared
+    # block tables, copied on write, so a later change to one particle's landmark never reaches another's
+    maps = state._blocks()
+    new = FastSLAMState._from_maps(state.poses[idx], maps._replace(table=maps.table[idx]), np.full(M, -np.log(M)))
     return new, idx
 
 
@@ -1458,14 +1748,15 @@ def fastslam_map_moments(state, slots):
         return np.zeros(0), np.zeros((0, 0))
     if np.any(idx < 0) or np.any(idx >= state.capacity):
         raise ValueError(f"slots must lie in [0, {state.capacity})")
-    if not state.seen[:, idx].all():
+    mu, Sigma, seen, _ = _take(state._blocks(), idx)
+    if not seen.all():
         raise ValueError("every landmark in slots must be seen in every particle")
     w = state.weights
-    mu = state.mu[:, idx].reshape(state.n_particles, -1)
+    mu = mu.reshape(state.n_particles, -1)
     mean = w @ mu
     d = mu - mean
     cov = np.einsum("k,ki,kj->ij", w, d, d)  # spread of the particles' maps
-    within = np.einsum("k,klij->lij", w, state.Sigma[:, idx])  # E[Sigma^[k]], one 2x2 block per landmark
+    within = np.einsum("k,klij->lij", w, Sigma)  # E[Sigma^[k]], one 2x2 block per landmark
     for a in range(idx.size):
         cov[2 * a:2 * a + 2, 2 * a:2 * a + 2] += within[a]
     return mean, cov
@@ -1754,7 +2045,7 @@ def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=Non
         w = np.exp(state.log_weights)  # normalised: logsumexp(log_weights) = 0
         x_est[t + 1], x_cov[t + 1] = particle_gaussian(state.poses, state.log_weights, angles=(2,))
         best = int(np.argmax(w))
-        n_lm[t + 1] = int(state.seen[best].sum())
+        n_lm[t + 1] = _n_seen(state, best)
         ess[t] = effective_sample_size(w)
         if t == T - 1:
             break  # keep the last weights: they pick the final most likely particle
@@ -1779,13 +2070,14 @@ def _finish(last, poses_hist, parents, x_est, x_cov, ess, resampled, n_lm, rejec
         if h > 0:
             b = parents[h][b]
             lineage = parents[h][lineage]
+    mu, Sigma, seen, _ = _particle_map(last, best)
     return FastSLAMResult(
         x_est=x_est,
         x_cov=x_cov,
         path_best=path,
-        landmarks=last.mu[best].copy(),
-        landmark_cov=last.Sigma[best].copy(),
-        seen=last.seen[best].copy(),
+        landmarks=mu,
+        landmark_cov=Sigma,
+        seen=seen,
         ess=ess,
         resampled=resampled,
         n_landmarks=n_lm,

@@ -238,6 +238,9 @@ def kf_update(x, P, z, H, R):
     ----------
     Thrun, Burgard & Fox (2005), Table 3.1 lines 4-6.
     """
+    if small_ok((x, z), (H,), (P, R)) and P.shape == (x.size,) * 2 and H.shape == (z.size, x.size) \
+            and R.shape == (z.size,) * 2:
+        return _kf_update(x, P, z, H, R)  # one small filter, every check passed at once
     x = as_vector(x, "x", copy=False)
     n = x.shape[-1]
     P = as_covariance(P, "P", n, batched=True, copy=False, ref="x")

@@ -93,7 +93,7 @@ def _full_check(A, definite):
     return eig.min() >= -c.PSD_RTOL * max(1.0, np.abs(eig).max())
 
 
-@pytest.mark.parametrize("n", [2, 3])
+@pytest.mark.parametrize("n", [2, 3, 4, 6, 8])
 def test_as_covariance_small_path_agrees_with_eigenvalues(n):
     rng = np.random.default_rng(n)
     accepted = rejected = 0
@@ -262,7 +262,31 @@ def test_small_ok_never_passes_what_the_full_checks_refuse():
     assert passed > 300
     assert not c.small_ok((np.zeros(3, dtype=np.float32),))  # anything unusual goes the long way
     assert not c.small_ok((), (np.zeros(3),))
-    assert not c.small_ok((), (), (np.eye(4),))
+    assert not c.small_ok((), (), (np.eye(c.SMALL_COV + 1),))
+
+
+@pytest.mark.parametrize("n", [4, 5, 6, 8])
+def test_small_covariances_up_to_8x8_are_checked_without_an_eigendecomposition(n, monkeypatch):
+    # a Cholesky factorisation decides from 4x4 to 8x8, so one filter step's checks stay cheap at every size
+    rng = np.random.default_rng(n)
+    B = rng.normal(size=(n, n))
+    P = B @ B.T + np.eye(n)
+    x, F = rng.normal(size=n), rng.normal(size=(n, n))
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("eigvalsh called")
+
+    monkeypatch.setattr(np.linalg, "eigvalsh", refuse)
+    assert c.small_ok((x,), (F,), (P, P))
+    c.as_covariance(P, "P", n, definite=True)
+    c.as_covariance(P.tolist(), "P", n)  # the general path too
+    # what the factorisation cannot accept still goes the long way, and is refused there
+    monkeypatch.undo()
+    for bad, match in ((P - 10 * np.abs(P).max() * np.eye(n), "positive semi-definite"),
+                       (P + np.triu(np.ones((n, n)), 1), "symmetric")):
+        assert not c.small_ok((x,), (F,), (bad, P))
+        with pytest.raises(ValueError, match=match):
+            c.as_covariance(bad, "P", n)
 
 
 # --------------------------------------------------------------------------- checks the filters and graphs share

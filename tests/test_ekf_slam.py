@@ -892,3 +892,40 @@ def test_run_refuses_bad_plugged_in_functions_naming_them(run):
         sl.run_ekf_slam(short, fast=False, ekf_slam_update=lambda mu, S, z, j, Q: (mu + np.inf, S))
     with pytest.raises(ValueError, match=r"ekf_slam_associate\(\.\.\.\) must be in \[0, 1\)"):
         sl.run_ekf_slam(short, fast=False, known=False, ekf_slam_associate=lambda mu, S, z, n, Q, a: n + 1)
+
+
+def test_predicted_measurements_are_H_Sigma_Ht_plus_Q_with_the_full_jacobian():
+    # _predicted writes S_k out per component; it must equal H_k Sigma H_k^T + Q with the full (2, 3+2N) H_k
+    rng = np.random.default_rng(3)
+    N = 12
+    n = 3 + 2 * N
+    A = rng.normal(size=(n, n))
+    Sigma = A @ A.T / n + 0.1 * np.eye(n)
+    mu = rng.normal(size=n) * 5.0
+    Q = np.diag([0.1, 0.02])
+    z_hat, Sk = es._predicted(mu, *es._dense_blocks(Sigma, N), Q)
+    for k in range(N):
+        zk, Hx, Hm = sl.landmark_measurement(mu[:3], mu[3 + 2 * k:5 + 2 * k])
+        H = np.zeros((2, n))
+        H[:, :3], H[:, 3 + 2 * k:5 + 2 * k] = Hx, Hm
+        np.testing.assert_allclose(z_hat[k], zk, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(Sk[k], H @ Sigma @ H.T + Q, rtol=1e-12, atol=1e-12)
+
+
+def test_association_blocks_follow_the_updates_of_a_scan():
+    # the blocks association reads are computed once per scan and downdated with each update: the
+    # distances after some updates equal those of a filter rebuilt from the same state
+    rng = np.random.default_rng(4)
+    f = sl.EKFSLAM(np.zeros(3), 0.01 * np.eye(3))
+    Q = np.diag([0.05, 0.01])
+    for k in range(8):
+        zk = np.array([3.0 + k, -1.5 + 0.4 * k])
+        f.update(zk, f.add_landmark(zk), Q)
+    f.predict(np.array([1.0, 0.1]), 0.5, np.diag([0.01, 0.001]))
+    z = np.array([4.0, 0.2])
+    f.mahalanobis(z, Q)  # computes the blocks for this scan
+    assert f._bc is not None
+    for k in (2, 5, 5):
+        f.update(np.array([3.0 + k, -1.5 + 0.4 * k]) + rng.normal(scale=0.05, size=2), k, Q)
+        fresh = sl.EKFSLAM.from_state(f.mu, f.Sigma)
+        np.testing.assert_allclose(f.mahalanobis(z, Q), fresh.mahalanobis(z, Q), rtol=1e-9)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import numpy as np
 import pytest
 from scipy import stats
@@ -310,11 +311,11 @@ def test_resampling_gives_every_particle_its_own_map():
     for field in ("poses", "mu", "Sigma", "seen", "counts"):
         assert not np.shares_memory(getattr(new, field), getattr(st, field))
         assert not _maps_alias([getattr(new, field)[k] for k in range(6)])
-    # writing into one copy changes no other copy of the same ancestor, nor the ancestor
-    new.mu[0, 1] += 100.0
-    new.Sigma[3, 2] *= 7.0
+    # the maps a state shows are read-only: a change goes through a step, which returns a new state
+    for field in ("mu", "Sigma", "seen", "counts"):
+        with pytest.raises(ValueError, match="read-only"):
+            getattr(new, field)[0, 1] = 0
     np.testing.assert_array_equal(new.mu[1], st.mu[0])
-    np.testing.assert_array_equal(new.mu[2], st.mu[0])
     np.testing.assert_array_equal(new.Sigma[4], st.Sigma[2])
     for a, b in zip(st, before):
         np.testing.assert_array_equal(a, b)
@@ -335,6 +336,91 @@ def test_resampled_copies_diverge_under_later_updates():
     moved = upd.mu[:, 2]
     assert all(np.linalg.norm(moved[i] - moved[j]) > 1e-3 for i in range(4) for j in range(i + 1, 4))
     np.testing.assert_array_equal(new.mu[:, 2], np.tile(st.mu[1, 2], (4, 1)))  # the input is untouched
+
+
+def test_resampling_copies_block_tables_not_maps():
+    # the maps live in shared blocks: resampling hands out block tables, and only an update copies
+    # the blocks it writes (copy-on-write), so a step's cost does not grow with the capacity
+    rng = np.random.default_rng(11)
+    st = sl.fastslam_update_known(sl.fastslam_initial_state(np.zeros(3), 20, 3000), np.array([[3.0, 0.2]]),
+                                  np.array([2500]), Q)
+    before = st._maps.pool.top
+    new, _ = sl.fastslam_resample(st, rng=rng, indices=np.zeros(20, dtype=np.int64))
+    assert new._maps.pool is st._maps.pool and new._maps.pool.top == before  # no block copied
+    upd = sl.fastslam_update_known(new, np.array([[3.0, 0.25]]), np.array([2500]), Q)
+    assert upd._maps.pool.top - before == 20  # one block per particle, not 3000 slots
+    np.testing.assert_array_equal(new.mu, np.tile(st.mu[0], (20, 1, 1)))
+
+
+@pytest.mark.parametrize("version, known", [(1, True), (1, False), (2, True), (2, False)])
+def test_held_states_never_change_and_the_run_equals_the_pure_steps(world, version, known):
+    # run_fastslam writes blocks no other particle uses in place and compacts its pool; the step
+    # functions copy on write: both must give the same particles, and every state a caller holds
+    # must keep its maps through later steps, resampling and compactions
+    run = world
+    n, T = 15, 60
+    M, Qr = run.M, run.Q
+    rng = np.random.default_rng(5)
+    state = sl.fastslam_initial_state(run.x0, n, 4)  # small: the slots grow as landmarks appear
+    held = []
+    for t in range(T):
+        if version == 2:
+            state = (sl.fastslam2_update_known(state, run.u[t], run.dt, run.z[t], run.ids[t], Qr, M=M, rng=rng)
+                     if known else sl.fastslam2_update_unknown(state, run.u[t], run.dt, run.z[t], Qr, M=M, rng=rng))
+        else:
+            state = sl.fastslam_predict(state, run.u[t], run.dt, M=M, rng=rng)
+            state = (sl.fastslam_update_known(state, run.z[t], run.ids[t], Qr) if known
+                     else sl.fastslam_update_unknown(state, run.z[t], Qr))
+        held.append((state, [np.array(a) for a in state]))
+        if t < T - 1:
+            state, _ = sl.fastslam_resample(state, rng=rng)
+    for st, copies in held:
+        for a, b in zip(st, copies):
+            np.testing.assert_array_equal(a, b)
+    short = dataclasses.replace(run, u=run.u[:T], z=run.z[:T], ids=run.ids[:T])
+    res = sl.run_fastslam(short, n_particles=n, rng=np.random.default_rng(5), known=known, version=version,
+                          resample_threshold=2.0, capacity=4)
+    assert res.resampled[:-1].all()
+    for a, b in zip(res.state, state):
+        np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("max_range", [None, 8.0])
+def test_unknown_association_scores_only_what_could_win_and_gives_the_same_run(world, max_range, monkeypatch):
+    # FastSLAM 1.0 scores the landmarks within reach of the step's ranges (and the free slots); the
+    # bound must never leave out a landmark that could beat p0: the run equals scoring every slot
+    from slamlib import fastslam as fs
+
+    run = sl.add_clutter(dataclasses.replace(world, u=world.u[:80], z=world.z[:80], ids=world.ids[:80],
+                                             x_true=world.x_true[:81]), 1.0, rng=np.random.default_rng(2))
+    kw = dict(n_particles=25, known=False, max_range=max_range, resample_threshold=0.5)
+    res = sl.run_fastslam(run, rng=np.random.default_rng(1), **kw)
+    scored = []
+    cand = fs._candidates
+    monkeypatch.setattr(fs, "_candidates", lambda *a: scored.append(cand(*a).size / a[3].shape[1]) or cand(*a))
+    sl.run_fastslam(run, rng=np.random.default_rng(1), **kw)
+    assert min(scored) < 0.9  # landmarks out of reach are left out
+    monkeypatch.setattr(fs, "_candidates", lambda x, mu, Sigma, seen, z, Q, log_p0: np.arange(seen.shape[1]))
+    every = sl.run_fastslam(run, rng=np.random.default_rng(1), **kw)
+    for a, b in zip(res.state, every.state):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(res.x_est, every.x_est)
+
+
+def test_state_from_arrays_behaves_as_the_named_tuple():
+    rng = np.random.default_rng(12)
+    st = _state_with_maps(4, 10, rng)
+    fields = list(st)
+    assert len(st) == 6 and st._fields == ("poses", "mu", "Sigma", "seen", "counts", "log_weights")
+    again = sl.FastSLAMState(*fields)
+    for a, b in zip(again, fields):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(st[1], st.mu)
+    assert set(st._asdict()) == set(st._fields)
+    with pytest.raises(ValueError, match="no field"):
+        st._replace(weights=np.zeros(4))
+    with pytest.raises(ValueError, match="state.mu must have shape"):
+        sl.fastslam_predict(st._replace(mu=np.zeros((4, 9, 2))), np.ones(2), 0.1, M=np.eye(2), rng=rng)
 
 
 def test_low_variance_resampling_is_used():
