@@ -600,7 +600,25 @@ def fastslam_update_known(state, z, ids, Q, *, weight_cov="S", gate=None, return
     return (new, outliers) if return_outliers else new
 
 
-def _update_known_core(state, z, ids, Q, weight_cov, copy=True, gate=None):
+def _reinit_lost(x, z, Q, mu, Sigma, counts, j):
+    """Re-initialise, in each particle, the landmarks ``j`` whose gated sightings have outnumbered their
+    accepted ones (``i_j <= 0``): from the sighting ``z`` at hand, as a new landmark with ``i_j = 1``.
+
+    With known correspondences the per-particle gate keeps gross sightings out of a landmark, and the
+    counter ``i_j`` (Table 13.2's landmark existence evidence: +1 for a sighting the gate accepts, -1
+    for one it rejects) lets a landmark recover from a wrong first sighting: a landmark placed by a
+    misidentified sighting rejects every true one, and the second rejection re-creates it where they
+    put it. ``x (M, 1, 3)`` or ``(M, 3)``; ``z (k, 2)``; ``j (k,)``; writes into `mu`, `Sigma`, `counts`.
+    """
+    lost = counts[:, j] <= 0  # (M, k)
+    if lost.any():
+        mu_i, Sigma_i = _init_core(x, z, Q)  # mu_j = h^-1(z, x), Sigma_j = H^-1 Q H^-T  (Table 13.1 lines 7-9)
+        mu[:, j] = np.where(lost[..., None], mu_i, mu[:, j])
+        Sigma[:, j] = np.where(lost[..., None, None], Sigma_i, Sigma[:, j])
+        counts[:, j] = np.where(lost, 1, counts[:, j])
+
+
+def _update_known_core(state, z, ids, Q, weight_cov, copy=True, gate=None, reinit=True):
     """Known-correspondence update of all particles; ``copy=False`` writes into `state`'s arrays.
 
     Returns the new state and the outlier mask ``(M, K)`` of the per-particle
@@ -627,7 +645,7 @@ def _update_known_core(state, z, ids, Q, weight_cov, copy=True, gate=None):
                 log_w = log_w + lw.sum(axis=1)  # (Table 13.1 line 18), several measurements multiply
                 if out is not None:
                     outliers[:, obs[known]] = out
-                    counts[:, jk] -= out  # an outlier is not a sighting of the landmark
+                    counts[:, jk] -= 2 * out  # an outlier is evidence against the landmark: i_j - 1 with the + 1 below
             if fresh.any():
                 # mu_j = h^-1(z, x), Sigma_j = H^-1 Q H^-T; w = p0, equal for all particles  (Table 13.1 lines 7-10)
                 mu[:, j[fresh]], Sigma[:, j[fresh]] = _init_core(x, zk[fresh], Q)
@@ -643,9 +661,11 @@ def _update_known_core(state, z, ids, Q, weight_cov, copy=True, gate=None):
             if out is not None:
                 out = out & ~new
                 outliers[:, obs] = out
-                counts[:, j] -= out
+                counts[:, j] -= 2 * out
         seen[:, j] = True
         counts[:, j] += 1
+        if gate is not None and reinit:
+            _reinit_lost(x, zk, Q, mu, Sigma, counts, j)
     return FastSLAMState(state.poses, mu, Sigma, seen, counts, _normalized(log_w)), outliers
 
 
@@ -670,7 +690,7 @@ def _fastslam_steps(init, update):
     return init_step, update_step
 
 
-def _stepwise_known_core(state, z, ids, Q, weight_cov, gate, init, update):
+def _stepwise_known_core(state, z, ids, Q, weight_cov, gate, init, update, reinit=True):
     """:func:`_update_known_core` one measurement at a time, writing into `state`'s arrays.
 
     ``init(x, z, Q) -> (mu, Sigma)`` and ``update(x, mu, Sigma, z, Q) -> (mu_new,
@@ -693,12 +713,14 @@ def _stepwise_known_core(state, z, ids, Q, weight_cov, gate, init, update):
             log_w[old] += lw  # (Table 13.1 line 18)
             if out is not None:
                 outliers[old, k] = out
-                counts[old, j] -= out  # an outlier is not a sighting of the landmark
+                counts[old, j] -= 2 * out  # an outlier is evidence against the landmark: i_j - 1 with the + 1 below
         if new.any():
             # mu_j = h^-1(z, x), Sigma_j = H^-1 Q H^-T; w = p0, equal for all particles  (Table 13.1 lines 7-10)
             mu[new, j], Sigma[new, j] = (_init_core if init is None else init)(x[new], zk, Q)
         seen[:, j] = True
         counts[:, j] += 1
+        if gate is not None and update is None and reinit:
+            _reinit_lost(x[:, None], zk[None], Q, mu, Sigma, counts, np.array([j]))
     check_log_weights(log_w, "the log-weights after fastslam_update_landmark's weights")
     return FastSLAMState(state.poses, mu, Sigma, seen, counts, _normalized(log_w)), outliers
 
@@ -1131,7 +1153,7 @@ def fastslam2_update_known(state, u, dt, z, ids, Q, *, M, rng, gate=None, return
     return (new, outliers) if return_outliers else new
 
 
-def _update2_known_core(state, u, dt, L, z, ids, Q, rng, gate=None, copy=True, motion=None):
+def _update2_known_core(state, u, dt, L, z, ids, Q, rng, gate=None, copy=True, motion=None, reinit=True):
     """FastSLAM 2.0 step with known correspondences; returns the state and the outlier mask ``(M, K)``."""
     n = state.n_particles
     x_prev = state.poses
@@ -1185,10 +1207,14 @@ def _update2_known_core(state, u, dt, L, z, ids, Q, rng, gate=None, copy=True, m
     Sigma[:, j] = np.where(use[..., None, None], Sigma_u, np.where(new[..., None, None], Sigma_i, Sigma[:, j]))
     seen[:, j] = True
     counts[:, j] += use | new  # i_j = i_j + 1, or 1 for a new landmark
+    if gate is not None:
+        counts[:, j] -= outliers[:, first]  # i_j = i_j - 1 for a gated sighting
+        if reinit:
+            _reinit_lost(xs, zk, Q, mu, Sigma, counts, j)
     mid = FastSLAMState(x, mu, Sigma, seen, counts, _normalized(log_w))
     if len(rounds) > 1:  # repeated landmarks: FastSLAM 1.0 updates at the sampled pose
         rest = np.concatenate(rounds[1:])
-        mid, out2 = _update_known_core(mid, z[rest], ids[rest], Q, "S", copy=False, gate=gate)
+        mid, out2 = _update_known_core(mid, z[rest], ids[rest], Q, "S", copy=False, gate=gate, reinit=reinit)
         outliers[:, rest] = out2
     return mid, outliers
 
@@ -1534,7 +1560,7 @@ def _run_attr(run, name):
 
 def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=None, p0=None, weight_cov="S",
                  resample_threshold=0.5, capacity=None, max_range=None, fov=None, version=1, gate=None,
-                 motion=None, fastslam_init_landmark=None, fastslam_update_landmark=None, on_step=None):
+                 reinit_lost=True, motion=None, fastslam_init_landmark=None, fastslam_update_landmark=None, on_step=None):
     """Run FastSLAM 1.0 or 2.0 over a landmark run (simulated or a real log).
 
     Parameters
@@ -1597,6 +1623,16 @@ def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=Non
         gate caps such a measurement's influence at that of an innovation on
         the gate. Not used with unknown correspondences (there ``p0`` plays
         that role).
+    reinit_lost : bool, keyword-only
+        With known correspondences and a `gate`: count, per particle and
+        landmark, the sightings the gate accepts (+1) and rejects (-1), Table
+        13.2's existence evidence ``i_j``, and re-initialise a landmark from
+        the sighting at hand when ``i_j`` reaches 0 (default ``True``). A
+        misidentified sighting that is the first of its barcode places the
+        landmark where no true sighting fits; without this every later true
+        sighting is rejected, the landmark never recovers, and the robot
+        drives blind where it stands. ``False`` keeps a landmark where it was
+        placed (FastSLAM with one particle then equals gated EKF SLAM).
     motion : callable, optional, keyword-only
         Motion model ``motion(x, u, dt) -> (x_next, G, V)`` vectorised over
         poses ``(M, 3)`` and controls ``(M, 2)``, e.g.
@@ -1731,7 +1767,7 @@ def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=Non
         if version == 2:
             if known:
                 state, out = _update2_known_core(state, u[t], dt, L, zt, idt, Q, rng, gate=gate, copy=False,
-                                                 motion=motion)
+                                                 motion=motion, reinit=reinit_lost)
             else:
                 state = _update2_unknown_core(state, u[t], dt, L, zt, Q, log_p0, max_range, half_fov, rng,
                                               copy=False, motion=motion)
@@ -1743,9 +1779,11 @@ def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=Non
             state = state._replace(poses=poses)
             if known:
                 if zt.shape[0] and stepwise:
-                    state, out = _stepwise_known_core(state, zt, idt, Q, weight_cov, gate, init_step, update_step)
+                    state, out = _stepwise_known_core(state, zt, idt, Q, weight_cov, gate, init_step, update_step,
+                                                      reinit_lost)
                 elif zt.shape[0]:
-                    state, out = _update_known_core(state, zt, idt, Q, weight_cov, copy=False, gate=gate)
+                    state, out = _update_known_core(state, zt, idt, Q, weight_cov, copy=False, gate=gate,
+                                                    reinit=reinit_lost)
             else:
                 state = _update_unknown_core(state, zt, Q, log_p0, weight_cov, max_range, half_fov, copy=False)
         if out is not None and out.size:
