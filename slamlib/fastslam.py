@@ -600,22 +600,21 @@ def fastslam_update_known(state, z, ids, Q, *, weight_cov="S", gate=None, return
     return (new, outliers) if return_outliers else new
 
 
-def _reinit_lost(x, z, Q, mu, Sigma, counts, j):
-    """Re-initialise, in each particle, the landmarks ``j`` whose gated sightings have outnumbered their
-    accepted ones (``i_j <= 0``): from the sighting ``z`` at hand, as a new landmark with ``i_j = 1``.
+def _drop_lost(seen, counts, j):
+    """Discard, in each particle, the landmarks ``j`` whose gated sightings have caught up with their
+    accepted ones (``i_j <= 0``): the slot becomes unseen, and the next sighting re-creates it.
 
     With known correspondences the per-particle gate keeps gross sightings out of a landmark, and the
     counter ``i_j`` (Table 13.2's landmark existence evidence: +1 for a sighting the gate accepts, -1
     for one it rejects) lets a landmark recover from a wrong first sighting: a landmark placed by a
-    misidentified sighting rejects every true one, and the second rejection re-creates it where they
-    put it. ``x (M, 1, 3)`` or ``(M, 3)``; ``z (k, 2)``; ``j (k,)``; writes into `mu`, `Sigma`, `counts`.
+    misidentified sighting rejects every true one, the first rejection discards it, and the next
+    sighting places it anew. A landmark confirmed by many sightings survives as many rejections.
+    ``j (k,)`` distinct landmark indices; writes into `seen` and `counts`.
     """
-    lost = counts[:, j] <= 0  # (M, k)
+    lost = seen[:, j] & (counts[:, j] <= 0)  # (M, k)
     if lost.any():
-        mu_i, Sigma_i = _init_core(x, z, Q)  # mu_j = h^-1(z, x), Sigma_j = H^-1 Q H^-T  (Table 13.1 lines 7-9)
-        mu[:, j] = np.where(lost[..., None], mu_i, mu[:, j])
-        Sigma[:, j] = np.where(lost[..., None, None], Sigma_i, Sigma[:, j])
-        counts[:, j] = np.where(lost, 1, counts[:, j])
+        seen[:, j] = seen[:, j] & ~lost  # discard landmark j when i_j <= 0  (Table 13.2)
+        counts[:, j] = np.where(lost, 0, counts[:, j])
 
 
 def _update_known_core(state, z, ids, Q, weight_cov, copy=True, gate=None, reinit=True):
@@ -665,7 +664,7 @@ def _update_known_core(state, z, ids, Q, weight_cov, copy=True, gate=None, reini
         seen[:, j] = True
         counts[:, j] += 1
         if gate is not None and reinit:
-            _reinit_lost(x, zk, Q, mu, Sigma, counts, j)
+            _drop_lost(seen, counts, j)
     return FastSLAMState(state.poses, mu, Sigma, seen, counts, _normalized(log_w)), outliers
 
 
@@ -720,7 +719,7 @@ def _stepwise_known_core(state, z, ids, Q, weight_cov, gate, init, update, reini
         seen[:, j] = True
         counts[:, j] += 1
         if gate is not None and update is None and reinit:
-            _reinit_lost(x[:, None], zk[None], Q, mu, Sigma, counts, np.array([j]))
+            _drop_lost(seen, counts, np.array([j]))
     check_log_weights(log_w, "the log-weights after fastslam_update_landmark's weights")
     return FastSLAMState(state.poses, mu, Sigma, seen, counts, _normalized(log_w)), outliers
 
@@ -1210,7 +1209,7 @@ def _update2_known_core(state, u, dt, L, z, ids, Q, rng, gate=None, copy=True, m
     if gate is not None:
         counts[:, j] -= outliers[:, first]  # i_j = i_j - 1 for a gated sighting
         if reinit:
-            _reinit_lost(xs, zk, Q, mu, Sigma, counts, j)
+            _drop_lost(seen, counts, j)
     mid = FastSLAMState(x, mu, Sigma, seen, counts, _normalized(log_w))
     if len(rounds) > 1:  # repeated landmarks: FastSLAM 1.0 updates at the sampled pose
         rest = np.concatenate(rounds[1:])
@@ -1626,8 +1625,9 @@ def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=Non
     reinit_lost : bool, keyword-only
         With known correspondences and a `gate`: count, per particle and
         landmark, the sightings the gate accepts (+1) and rejects (-1), Table
-        13.2's existence evidence ``i_j``, and re-initialise a landmark from
-        the sighting at hand when ``i_j`` reaches 0 (default ``True``). A
+        13.2's existence evidence ``i_j``, and discard a landmark when
+        ``i_j`` reaches 0, so that the next sighting re-creates it (default
+        ``True``). A
         misidentified sighting that is the first of its barcode places the
         landmark where no true sighting fits; without this every later true
         sighting is rejected, the landmark never recovers, and the robot

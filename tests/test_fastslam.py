@@ -753,7 +753,7 @@ def test_landmark_placed_by_a_wrong_first_sighting_is_recreated(world, version):
     # The first sighting of every landmark is a gross error (bearing off by pi, range + 3 m), as a misread
     # barcode is: each landmark starts where no true sighting fits. With the gate alone every later true
     # sighting is rejected and the landmark stays wrong for good; with the existence counter (+1 accepted,
-    # -1 rejected) the first rejection brings i_j to 0 and re-creates the landmark from a true sighting.
+    # -1 rejected) the first rejection brings i_j to 0 and discards the landmark; the next sighting re-creates it.
     import dataclasses
     z, first = [], set()
     for zt, it in zip(world.z, world.ids):
