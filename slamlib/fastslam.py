@@ -557,7 +557,11 @@ def fastslam_update_known(state, z, ids, Q, *, weight_cov="S", gate=None, return
         for demonstrations only (see :func:`fastslam_update_landmark`).
     gate : float, optional, keyword-only
         Per-particle chi-square gate on ``nu^T S^-1 nu`` (see
-        :func:`fastslam_update_landmark`); off by default.
+        :func:`fastslam_update_landmark`); off by default. With a gate the
+        landmark counters ``counts`` go up for an accepted sighting and down
+        for a rejected one, and a landmark whose counter reaches 0 is
+        discarded (``seen`` False), as in :func:`run_fastslam`'s
+        `reinit_lost`.
     return_outliers : bool, keyword-only
         Also return the outlier mask.
 
@@ -1105,7 +1109,8 @@ def fastslam2_update_known(state, u, dt, z, ids, Q, *, M, rng, gate=None, return
         Per-particle chi-square gate on ``nu^T L^-1 nu`` (``L`` the
         innovation covariance with the pose uncertainty, Table 13.3):
         a measurement beyond it is an outlier for that particle: left out of
-        its proposal, no landmark update, weight the density at the gate.
+        its proposal, no landmark update, weight the density at the gate; the
+        landmark counters work as in :func:`fastslam_update_known`.
     return_outliers : bool, keyword-only
         Also return the outlier mask ``(M, K)``.
 
@@ -1627,8 +1632,7 @@ def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=Non
         landmark, the sightings the gate accepts (+1) and rejects (-1), Table
         13.2's existence evidence ``i_j``, and discard a landmark when
         ``i_j`` reaches 0, so that the next sighting re-creates it (default
-        ``True``). A
-        misidentified sighting that is the first of its barcode places the
+        ``True``). A misidentified sighting that is the first of its barcode places the
         landmark where no true sighting fits; without this every later true
         sighting is rejected, the landmark never recovers, and the robot
         drives blind where it stands. ``False`` keeps a landmark where it was

@@ -23,8 +23,10 @@ This study asks what carries over, with the five robots of MRCLAM Dataset 6 only
    (``reinit_lost=True``, the default) and without it; EKF SLAM with known correspondences runs once
    for reference. A run whose aligned ATE exceeds 1 m counts as a failure.
 
-It prints a summary and writes ``chapters/data/mrclam_assoc_study.json``, which chapter 9 reads. On
-two shared cores it takes about ten minutes, most of it FastSLAM.
+It prints a summary and writes ``chapters/data/mrclam_assoc_study.json``, which chapters 8 and 9 read.
+It takes about ten minutes of CPU, most of it FastSLAM; on a loaded machine split it between
+processes (``--skip-fastslam``; ``--fastslam-robots 3``; ``--fastslam-robots 5``) and ``--merge``
+the outputs.
 """
 
 from __future__ import annotations
@@ -115,9 +117,11 @@ def association_part(runs, res):
     return out
 
 
-def fastslam_part(runs, res, seeds, seeds_v2):
+def fastslam_part(runs, res, seeds, seeds_v2, only=None):
     gross = {k: int(res[k][1].sum()) for k in runs}
     worst = sorted(runs, key=lambda k: (-gross[k], k))[:2]
+    if only is not None:  # one share of the work (--fastslam-robots), merged later with --merge
+        worst = [k for k in worst if k in only]
     out = {"gross_sightings": {str(k): g for k, g in gross.items()}, "robots": [int(k) for k in worst],
            "rates": list(RATES), "cases": {}}
     for k in worst:
@@ -143,23 +147,45 @@ def fastslam_part(runs, res, seeds, seeds_v2):
     return out
 
 
+def merge(paths, out):
+    parts = [json.loads(Path(p).read_text()) for p in paths]
+    data = next(p for p in parts if p["association"] is not None)
+    fs = [p["fastslam"] for p in parts if p["fastslam"] is not None]
+    data["fastslam"] = dict(fs[0], robots=sorted({k for f in fs for k in f["robots"]}),
+                            cases={c: v for f in fs for c, v in f["cases"].items()})
+    data["command"] = " + ".join(p["command"] for p in parts)
+    out.write_text(json.dumps(data, indent=1) + "\n")
+    print(f"merged {len(parts)} files into {out}")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--seeds-v2", type=int, default=3)
+    ap.add_argument("--skip-fastslam", action="store_true", help="parts 1 and 2 only")
+    ap.add_argument("--fastslam-robots", type=int, nargs="+", default=None,
+                    help="part 3 only, on these of the two robots (to split the work between processes)")
+    ap.add_argument("--merge", type=Path, nargs="+", default=None,
+                    help="combine the outputs of split runs (parts 1-2 from the one that has them, part 3's cases "
+                         "from all) into --out, and do nothing else")
     ap.add_argument("--fastslam-from", type=Path, default=None,
                     help="copy part 3 (FastSLAM) from this earlier output instead of recomputing it")
     ap.add_argument("--out", type=Path, default=ROOT / "chapters" / "data" / "mrclam_assoc_study.json")
     args = ap.parse_args(argv)
+    if args.merge:
+        return merge(args.merge, args.out)
     t0 = time.perf_counter()
     runs = {k: load_mrclam(k) for k in MRCLAM_ROBOTS}
     res = {k: residuals(r) for k, r in runs.items()}
-    data = {"command": f"python tools/mrclam_assoc_study.py --seeds {args.seeds} --seeds-v2 {args.seeds_v2}", "fail_ate": FAIL_ATE,
-            "alpha": sl.DEFAULT_ALPHA, "association": association_part(runs, res)}
+    data = {"command": f"python tools/mrclam_assoc_study.py --seeds {args.seeds} --seeds-v2 {args.seeds_v2}",
+            "fail_ate": FAIL_ATE, "alpha": sl.DEFAULT_ALPHA,
+            "association": None if args.fastslam_robots else association_part(runs, res)}
     if args.fastslam_from is not None:
         data["fastslam"] = json.loads(args.fastslam_from.read_text())["fastslam"]
+    elif args.skip_fastslam:
+        data["fastslam"] = None
     else:
-        data["fastslam"] = fastslam_part(runs, res, args.seeds, args.seeds_v2)
+        data["fastslam"] = fastslam_part(runs, res, args.seeds, args.seeds_v2, args.fastslam_robots)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(data, indent=1) + "\n")
     print(f"wrote {args.out} after {time.perf_counter() - t0:.0f} s")
