@@ -34,6 +34,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -130,7 +131,7 @@ def fastslam_part(runs, res, seeds, seeds_v2, only=None):
             bad = misread(run, rate, np.random.default_rng(1000 + k))
             e = sl.run_ekf_slam(bad, known=True)
             case = {"ekf_known_ate": sl.score_trajectory(e.x, run.x_true).ate, "ekf_known_gated": e.n_gated}
-            for version, reinit in ((1, False), (1, True), (2, False), (2, True)):
+            for version, reinit in ((1, False), (1, True)) + (((2, False), (2, True)) if seeds_v2 else ()):
                 ates = []
                 for s in range(seeds if version == 1 else seeds_v2):
                     f = sl.run_fastslam(bad, n_particles=50, rng=np.random.default_rng(s), version=version,
@@ -177,7 +178,10 @@ def main(argv=None):
     t0 = time.perf_counter()
     runs = {k: load_mrclam(k) for k in MRCLAM_ROBOTS}
     res = {k: residuals(r) for k, r in runs.items()}
-    data = {"command": f"python tools/mrclam_assoc_study.py --seeds {args.seeds} --seeds-v2 {args.seeds_v2}",
+    given = [a for a in (sys.argv[1:] if argv is None else argv)]
+    if "--out" in given:  # the command that reproduces the numbers, wherever they were written
+        del given[given.index("--out"):given.index("--out") + 2]
+    data = {"command": " ".join(["python tools/mrclam_assoc_study.py", *given]),
             "fail_ate": FAIL_ATE, "alpha": sl.DEFAULT_ALPHA,
             "association": None if args.fastslam_robots else association_part(runs, res)}
     if args.fastslam_from is not None:
