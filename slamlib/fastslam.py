@@ -800,7 +800,11 @@ def fastslam_update_known(state, z, ids, Q, *, weight_cov="S", gate=None, return
         for demonstrations only (see :func:`fastslam_update_landmark`).
     gate : float, optional, keyword-only
         Per-particle chi-square gate on ``nu^T S^-1 nu`` (see
-        :func:`fastslam_update_landmark`); off by default.
+        :func:`fastslam_update_landmark`); off by default. With a gate the
+        landmark counters ``counts`` go up for an accepted sighting and down
+        for a rejected one, and a landmark whose counter reaches 0 is
+        discarded (``seen`` False), as in :func:`run_fastslam`'s
+        `reinit_lost`.
     return_outliers : bool, keyword-only
         Also return the outlier mask.
 
@@ -843,7 +847,24 @@ def fastslam_update_known(state, z, ids, Q, *, weight_cov="S", gate=None, return
     return (new, outliers) if return_outliers else new
 
 
-def _update_known_core(state, z, ids, Q, weight_cov, copy=True, gate=None):
+def _drop_lost(seen, counts, j):
+    """Discard, in each particle, the landmarks ``j`` whose gated sightings have caught up with their
+    accepted ones (``i_j <= 0``): the slot becomes unseen, and the next sighting re-creates it.
+
+    With known correspondences the per-particle gate keeps gross sightings out of a landmark, and the
+    counter ``i_j`` (Table 13.2's landmark existence evidence: +1 for a sighting the gate accepts, -1
+    for one it rejects) lets a landmark recover from a wrong first sighting: a landmark placed by a
+    misidentified sighting rejects every true one, the first rejection discards it, and the next
+    sighting places it anew. A landmark confirmed by many sightings survives as many rejections.
+    ``j (k,)`` distinct landmark indices; writes into `seen` and `counts`.
+    """
+    lost = seen[:, j] & (counts[:, j] <= 0)  # (M, k)
+    if lost.any():
+        seen[:, j] = seen[:, j] & ~lost  # discard landmark j when i_j <= 0  (Table 13.2)
+        counts[:, j] = np.where(lost, 0, counts[:, j])
+
+
+def _update_known_core(state, z, ids, Q, weight_cov, copy=True, gate=None, reinit=True):
     """Known-correspondence update of all particles; ``copy=False`` writes into `state`'s arrays.
 
     Returns the new state and the outlier mask ``(M, K)`` of the per-particle
@@ -853,14 +874,15 @@ def _update_known_core(state, z, ids, Q, weight_cov, copy=True, gate=None):
     cols, lid = np.unique(ids, return_inverse=True)  # the slots this step touches, and each one's column
     mu, Sigma, seen, counts = _take(maps, cols)
     log_w, outliers = _known_local(state.poses, mu, Sigma, seen, counts, z, lid, Q, weight_cov, gate,
-                                   state.log_weights)
+                                   state.log_weights, reinit=reinit)
     maps = _put(maps, cols, mu, Sigma, seen, counts, inplace=not copy)
     return FastSLAMState._from_maps(state.poses, maps, _normalized(log_w)), outliers
 
 
-def _known_local(poses, mu, Sigma, seen, counts, z, ids, Q, weight_cov, gate, log_w):
+def _known_local(poses, mu, Sigma, seen, counts, z, ids, Q, weight_cov, gate, log_w, reinit=True):
     """The body of :func:`_update_known_core` on dense maps ``(M, C)`` (written in place); `ids` are
-    columns of them. Returns the (unnormalised) log weights and the outlier mask ``(M, K)``."""
+    columns of them. Returns the (unnormalised) log weights and the outlier mask ``(M, K)``. With a
+    `gate` and `reinit`, a landmark whose counter reaches 0 is discarded (:func:`_drop_lost`)."""
     log_w = log_w.copy()
     M = poses.shape[0]
     outliers = np.zeros((M, ids.size), dtype=bool)
@@ -877,7 +899,7 @@ def _known_local(poses, mu, Sigma, seen, counts, z, ids, Q, weight_cov, gate, lo
                 log_w = log_w + lw.sum(axis=1)  # (Table 13.1 line 18), several measurements multiply
                 if out is not None:
                     outliers[:, obs[known]] = out
-                    counts[:, jk] -= out  # an outlier is not a sighting of the landmark
+                    counts[:, jk] -= 2 * out  # an outlier is evidence against the landmark: i_j - 1 with the + 1 below
             if fresh.any():
                 # mu_j = h^-1(z, x), Sigma_j = H^-1 Q H^-T; w = p0, equal for all particles  (Table 13.1 lines 7-10)
                 mu[:, j[fresh]], Sigma[:, j[fresh]] = _init_core(x, zk[fresh], Q)
@@ -893,9 +915,11 @@ def _known_local(poses, mu, Sigma, seen, counts, z, ids, Q, weight_cov, gate, lo
             if out is not None:
                 out = out & ~new
                 outliers[:, obs] = out
-                counts[:, j] -= out
+                counts[:, j] -= 2 * out
         seen[:, j] = True
         counts[:, j] += 1
+        if gate is not None and reinit:
+            _drop_lost(seen, counts, j)
     return log_w, outliers
 
 
@@ -920,7 +944,7 @@ def _fastslam_steps(init, update):
     return init_step, update_step
 
 
-def _stepwise_known_core(state, z, ids, Q, weight_cov, gate, init, update):
+def _stepwise_known_core(state, z, ids, Q, weight_cov, gate, init, update, reinit=True):
     """:func:`_update_known_core` one measurement at a time, writing into `state`'s arrays.
 
     ``init(x, z, Q) -> (mu, Sigma)`` and ``update(x, mu, Sigma, z, Q) -> (mu_new,
@@ -945,12 +969,14 @@ def _stepwise_known_core(state, z, ids, Q, weight_cov, gate, init, update):
             log_w[old] += lw  # (Table 13.1 line 18)
             if out is not None:
                 outliers[old, k] = out
-                counts[old, j] -= out  # an outlier is not a sighting of the landmark
+                counts[old, j] -= 2 * out  # an outlier is evidence against the landmark: i_j - 1 with the + 1 below
         if new.any():
             # mu_j = h^-1(z, x), Sigma_j = H^-1 Q H^-T; w = p0, equal for all particles  (Table 13.1 lines 7-10)
             mu[new, j], Sigma[new, j] = (_init_core if init is None else init)(x[new], zk, Q)
         seen[:, j] = True
         counts[:, j] += 1
+        if gate is not None and update is None and reinit:
+            _drop_lost(seen, counts, np.array([j]))
     check_log_weights(log_w, "the log-weights after fastslam_update_landmark's weights")
     maps = _put(maps, cols, mu, Sigma, seen, counts, inplace=True)
     return FastSLAMState._from_maps(state.poses, maps, _normalized(log_w)), outliers
@@ -1376,7 +1402,8 @@ def fastslam2_update_known(state, u, dt, z, ids, Q, *, M, rng, gate=None, return
         Per-particle chi-square gate on ``nu^T L^-1 nu`` (``L`` the
         innovation covariance with the pose uncertainty, Table 13.3):
         a measurement beyond it is an outlier for that particle: left out of
-        its proposal, no landmark update, weight the density at the gate.
+        its proposal, no landmark update, weight the density at the gate; the
+        landmark counters work as in :func:`fastslam_update_known`.
     return_outliers : bool, keyword-only
         Also return the outlier mask ``(M, K)``.
 
@@ -1423,7 +1450,7 @@ def fastslam2_update_known(state, u, dt, z, ids, Q, *, M, rng, gate=None, return
     return (new, outliers) if return_outliers else new
 
 
-def _update2_known_core(state, u, dt, L, z, ids, Q, rng, gate=None, copy=True, motion=None):
+def _update2_known_core(state, u, dt, L, z, ids, Q, rng, gate=None, copy=True, motion=None, reinit=True):
     """FastSLAM 2.0 step with known correspondences; returns the state and the outlier mask ``(M, K)``."""
     n = state.n_particles
     x_prev = state.poses
@@ -1475,10 +1502,14 @@ def _update2_known_core(state, u, dt, L, z, ids, Q, rng, gate=None, copy=True, m
     Sigma[:, j] = np.where(use[..., None, None], Sigma_u, np.where(new[..., None, None], Sigma_i, Sigma[:, j]))
     seen[:, j] = True
     counts[:, j] += use | new  # i_j = i_j + 1, or 1 for a new landmark
+    if gate is not None:
+        counts[:, j] -= outliers[:, first]  # i_j = i_j - 1 for a gated sighting
+        if reinit:
+            _drop_lost(seen, counts, j)
     if len(rounds) > 1:  # repeated landmarks: FastSLAM 1.0 updates at the sampled pose
         rest = np.concatenate(rounds[1:])
         log_w, out2 = _known_local(x, mu, Sigma, seen, counts, z[rest], ids[rest], Q, "S", gate,
-                                   _normalized(log_w))
+                                   _normalized(log_w), reinit=reinit)
         outliers[:, rest] = out2
     maps = _put(maps, cols, mu, Sigma, seen, counts, inplace=not copy)
     return FastSLAMState._from_maps(x, maps, _normalized(log_w)), outliers
@@ -1825,7 +1856,7 @@ def _run_attr(run, name):
 
 def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=None, p0=None, weight_cov="S",
                  resample_threshold=0.5, capacity=None, max_range=None, fov=None, version=1, gate=None,
-                 motion=None, fastslam_init_landmark=None, fastslam_update_landmark=None, on_step=None):
+                 reinit_lost=True, motion=None, fastslam_init_landmark=None, fastslam_update_landmark=None, on_step=None):
     """Run FastSLAM 1.0 or 2.0 over a landmark run (simulated or a real log).
 
     Parameters
@@ -1888,6 +1919,16 @@ def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=Non
         gate caps such a measurement's influence at that of an innovation on
         the gate. Not used with unknown correspondences (there ``p0`` plays
         that role).
+    reinit_lost : bool, keyword-only
+        With known correspondences and a `gate`: count, per particle and
+        landmark, the sightings the gate accepts (+1) and rejects (-1), Table
+        13.2's existence evidence ``i_j``, and discard a landmark when
+        ``i_j`` reaches 0, so that the next sighting re-creates it (default
+        ``True``). A misidentified sighting that is the first of its barcode places the
+        landmark where no true sighting fits; without this every later true
+        sighting is rejected, the landmark never recovers, and the robot
+        drives blind where it stands. ``False`` keeps a landmark where it was
+        placed (FastSLAM with one particle then equals gated EKF SLAM).
     motion : callable, optional, keyword-only
         Motion model ``motion(x, u, dt) -> (x_next, G, V)`` vectorised over
         poses ``(M, 3)`` and controls ``(M, 2)``, e.g.
@@ -2022,7 +2063,7 @@ def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=Non
         if version == 2:
             if known:
                 state, out = _update2_known_core(state, u[t], dt, L, zt, idt, Q, rng, gate=gate, copy=False,
-                                                 motion=motion)
+                                                 motion=motion, reinit=reinit_lost)
             else:
                 state = _update2_unknown_core(state, u[t], dt, L, zt, Q, log_p0, max_range, half_fov, rng,
                                               copy=False, motion=motion)
@@ -2034,9 +2075,11 @@ def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=Non
             state = state._replace(poses=poses)
             if known:
                 if zt.shape[0] and stepwise:
-                    state, out = _stepwise_known_core(state, zt, idt, Q, weight_cov, gate, init_step, update_step)
+                    state, out = _stepwise_known_core(state, zt, idt, Q, weight_cov, gate, init_step, update_step,
+                                                      reinit_lost)
                 elif zt.shape[0]:
-                    state, out = _update_known_core(state, zt, idt, Q, weight_cov, copy=False, gate=gate)
+                    state, out = _update_known_core(state, zt, idt, Q, weight_cov, copy=False, gate=gate,
+                                                    reinit=reinit_lost)
             else:
                 state = _update_unknown_core(state, zt, Q, log_p0, weight_cov, max_range, half_fov, copy=False)
         if out is not None and out.size:

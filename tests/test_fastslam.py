@@ -834,6 +834,31 @@ def test_gate_none_reads_the_runs_gate_as_ekf_slam_does(world, version):
     _same_run(run(_GatedRun(bad, np.inf)), off)  # a run whose gate is inf (load_mrclam(gate=np.inf)): no gate
 
 
+@pytest.mark.parametrize("version", [1, 2])
+def test_landmark_placed_by_a_wrong_first_sighting_is_recreated(world, version):
+    # The first sighting of every landmark is a gross error (bearing off by pi, range + 3 m), as a misread
+    # barcode is: each landmark starts where no true sighting fits. With the gate alone every later true
+    # sighting is rejected and the landmark stays wrong for good; with the existence counter (+1 accepted,
+    # -1 rejected) the first rejection brings i_j to 0 and discards the landmark; the next sighting re-creates it.
+    import dataclasses
+    z, first = [], set()
+    for zt, it in zip(world.z, world.ids):
+        zt = zt.copy()
+        for i, j in enumerate(it):
+            if j >= 0 and int(j) not in first:
+                first.add(int(j))
+                zt[i] = [zt[i, 0] + 3.0, sl.wrap_angle(zt[i, 1] + np.pi)]
+        z.append(zt)
+    bad = dataclasses.replace(world, z=tuple(z))
+    err = {}
+    for reinit in (False, True):
+        res = sl.run_fastslam(bad, n_particles=20, gate=sl.fastslam.DEFAULT_GATE, version=version,
+                              reinit_lost=reinit, rng=np.random.default_rng(5))
+        err[reinit] = np.median(np.linalg.norm(res.landmarks[res.seen] - world.landmarks[res.seen], axis=1))
+    assert err[False] > 5.0, err
+    assert err[True] < 1.0, err
+
+
 @pytest.mark.parametrize("gate", [sl.fastslam.DEFAULT_GATE, stats.chi2.ppf(0.99, 2)])
 def test_gate_threshold_is_ekf_slams_with_one_particle(world, gate):
     # One particle, no motion noise: FastSLAM 1.0 is EKF SLAM with decoupled landmarks (see the test above), and
@@ -843,7 +868,7 @@ def test_gate_threshold_is_ekf_slams_with_one_particle(world, gate):
     gated = _GatedRun(bad, gate)
     zero = np.zeros((2, 2))
     ekf = sl.run_ekf_slam(gated, known=True, M=zero)  # gate=None: the run's gate
-    fs = sl.run_fastslam(gated, n_particles=1, M=zero, rng=np.random.default_rng(0))
+    fs = sl.run_fastslam(gated, n_particles=1, M=zero, rng=np.random.default_rng(0), reinit_lost=False)
     assert ekf.n_gated > 0.8 * n_bad
     assert fs.rejected.sum() == ekf.n_gated
     np.testing.assert_allclose(fs.landmarks[ekf.landmark_ids], ekf.landmarks, rtol=0, atol=1e-4)
