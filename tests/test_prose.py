@@ -26,17 +26,7 @@ from tools.prose_check import ALLOWED, HISTORY, check_notebook, clean_prose  # n
 CHAPTERS = sorted((ROOT / "chapters").glob("[0-9][0-9]_*.ipynb"))
 PAGES = sorted((ROOT / "chapters").glob("*.md"))
 
-#: Chapters whose owners fix their prose on other branches; the lead removes this set after merging them.
-PENDING_OWNERS = {"08_fastslam.ipynb", "09_real_data_mrclam.ipynb"}
-
-
-def _chapter_param(path):
-    marks = [pytest.mark.xfail(reason="prose fixed on its owner's branch", strict=False)] \
-        if path.name in PENDING_OWNERS else []
-    return pytest.param(path, id=path.name, marks=marks)
-
-
-@pytest.mark.parametrize("path", [_chapter_param(p) for p in CHAPTERS])
+@pytest.mark.parametrize("path", CHAPTERS, ids=lambda p: p.name)
 def test_chapter_prose_is_backed_by_code(path):
     findings = check_notebook(path)
     assert not findings, "unbacked prose:\n" + "\n".join(map(str, findings))
@@ -197,7 +187,7 @@ def test_notation_symbols_appear_in_the_chapters():
                 assert first in book, f"notation.md lists {math!r}, which no chapter uses"
 
 
-@pytest.mark.parametrize("path", [_chapter_param(p) for p in CHAPTERS])
+@pytest.mark.parametrize("path", CHAPTERS, ids=lambda p: p.name)
 def test_one_seed_policy(path):
     """notation.md states it: each chapter sets SEED = its number once, every generator derives from it."""
     policy = (ROOT / "chapters" / "notation.md").read_text(encoding="utf-8")
@@ -212,7 +202,7 @@ def test_one_seed_policy(path):
     assert not literal, f"{path.name}: default_rng({literal[0]}): derive every generator from SEED"
 
 
-@pytest.mark.parametrize("path", [_chapter_param(p) for p in CHAPTERS if p.name != "00_intro.ipynb"])
+@pytest.mark.parametrize("path", [p for p in CHAPTERS if p.name != "00_intro.ipynb"], ids=lambda p: p.name)
 def test_every_question_has_an_answer(path):
     text = _markdown(path)
     assert "## Questions" in text, f"{path.name} has no questions"
