@@ -93,8 +93,6 @@ class RecordingCaller(InProcessCaller):
             except Exception:  # noqa: BLE001 - an input slamlib rejects: nothing to record
                 out = None
             if out is not None:
-                if hasattr(out, "toarray"):
-                    out = out.toarray()
                 self.answers[k] = (fn, out)
         return super().call(fn, args, kwargs, timeout=timeout, names=names, global_seed=global_seed)
 
@@ -146,6 +144,8 @@ def audit(exercise, seed_a=1111, seed_b=2222):
 
 
 def _enc(v):
+    if hasattr(v, "toarray"):  # a scipy.sparse result: its dense form
+        v = v.toarray()
     if isinstance(v, tuple):
         return {"tuple": [_enc(x) for x in v]}
     if isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_)):
