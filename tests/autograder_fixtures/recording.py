@@ -219,10 +219,14 @@ def lookup_submission(callers, path):
 
 def main():
     for name in EXERCISES:
-        found = audit(name)
-        print(f"{name}: {len(found)} test(s) with the same inputs under two seeds")
-        for t, n in found.items():
-            print(f"  {t} ({n} calls)")
+        a, b = record(name, 1111), record(name, 2222)
+        seen = set(k for ks in a.calls.values() for k in ks)
+        same = {t: ks for t, ks in b.calls.items() if all(k in seen for k in ks)}
+        print(f"{name}: {len(same)} test(s) with the same inputs under two seeds")
+        for t, ks in b.calls.items():
+            shared = sum(k in seen for k in ks)
+            if shared:
+                print(f"  {'SAME ' if t in same else 'mixed'} {t}: {shared} of {len(ks)} calls shared")
 
 
 if __name__ == "__main__":
