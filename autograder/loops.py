@@ -31,8 +31,8 @@ import numpy as np
 
 import slamlib as sl
 
-__all__ = ["LoopError", "Scenario", "scenario", "reference", "ekf_localization_loop", "particle_filter_loop", "ekf_slam_loop",
-           "fastslam_loop", "ate"]
+__all__ = ["LoopError", "Scenario", "scenario", "reference", "ekf_localization_loop", "particle_filter_loop",
+           "ekf_slam_loop", "fastslam_loop", "ate"]
 
 
 class LoopError(Exception):

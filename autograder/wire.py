@@ -579,7 +579,7 @@ def control_message(data):
 
 
 def is_sparse(obj):
-    """Whether ``obj`` is a SciPy sparse matrix or array (any subclass), without importing SciPy when it is not loaded."""
+    """Whether ``obj`` is a SciPy sparse matrix or array (any subclass); SciPy is not imported if it is not loaded."""
     mod = _sys.modules.get("scipy.sparse")
     if mod is None:
         return False
