@@ -9,6 +9,12 @@ in the child process, through the test's checks) for the one under test and
 ``slamlib``'s functions into all of them, so both runs take exactly the same path
 through the driver.
 
+Every scenario is drawn from the test's seeded generator (:func:`scenario`), which
+follows the per-submission seed: the landmarks, the circuit, the noise and the
+filters' own draws differ between gradings, and the reference run is computed for
+each scenario. Nothing a loop passes to a student's function is the same for every
+submission, so answers recorded in one grading do not fit the next.
+
 The student's functions are called as ``f(t, *contract arguments)``, ``t`` the step
 (the drivers' ``on_step`` says which). A reference function that rejects what the
 student's function produced (say, a covariance that is not symmetric), or a driver
@@ -19,13 +25,14 @@ at that step.
 from __future__ import annotations
 
 from functools import lru_cache
+from typing import NamedTuple
 
 import numpy as np
 
 import slamlib as sl
 
-__all__ = ["LoopError", "scenario", "ekf_localization_loop", "particle_filter_loop", "ekf_slam_loop",
-           "fastslam_loop", "ate"]
+__all__ = ["LoopError", "Scenario", "scenario", "reference", "ekf_localization_loop", "particle_filter_loop",
+           "ekf_slam_loop", "fastslam_loop", "ate"]
 
 
 class LoopError(Exception):
@@ -67,24 +74,65 @@ def _drive(step, driver, *args, **kwargs):
         raise LoopError(f"step {step.t}: the filter could not use your result ({exc})") from None
 
 
-@lru_cache(maxsize=None)
-def scenario(name):
-    """A seeded :class:`~slamlib.sim.LandmarkRun` (cached; the same in every grading)."""
-    if name == "localization":
-        rng = np.random.default_rng(4242)
-        landmarks = sl.make_landmark_world(10, extent=14.0, min_separation=2.0, rng=rng)
-        u = sl.loop_controls(80, v=1.0, omega=0.35)
-        return sl.simulate_landmark_run(landmarks, u, 0.2, x0=np.array([0.0, -2.857, 0.0]),
-                                        M=np.diag([0.02, 0.01]), Q=np.diag([0.15**2, 0.04**2]),
-                                        max_range=6.0, fov=1.2 * np.pi, rng=rng)
-    if name == "slam":
-        rng = np.random.default_rng(5151)
-        landmarks = sl.make_landmark_world(8, extent=12.0, min_separation=2.5, rng=rng)
-        u = sl.loop_controls(70, v=1.0, omega=0.4)
-        return sl.simulate_landmark_run(landmarks, u, 0.2, x0=np.array([0.0, -2.5, 0.0]),
-                                        M=np.diag([0.01, 0.005]), Q=np.diag([0.1**2, 0.02**2]),
-                                        max_range=7.0, fov=1.5 * np.pi, rng=rng)
-    raise KeyError(name)
+class Scenario(NamedTuple):
+    """One end-to-end scenario of one test: a simulated run and the seeds of the filters' own draws.
+
+    Built by :func:`scenario` from the test's seeded generator, so that it follows
+    the per-submission seed: nothing in it is the same from one grading to the next.
+    """
+
+    name: str
+    seed: int
+
+    @property
+    def run(self):
+        """The simulated :class:`~slamlib.sim.LandmarkRun` (built once per seed, cached)."""
+        return _simulate(self.name, self.seed)
+
+    @property
+    def filter_seed(self):
+        """Seed of a particle filter's own generator (initial particles, motion noise)."""
+        return _derive(self.seed, 1)
+
+
+def _derive(seed, *path):
+    """A 63-bit seed derived from ``seed`` and ``path`` (independent streams of one scenario)."""
+    return int(np.random.SeedSequence([int(seed), *path]).generate_state(1, np.uint64)[0] >> np.uint64(1))
+
+
+def scenario(name, rng):
+    """The scenario ``name`` (``"localization"`` or ``"slam"``) drawn from the test's generator ``rng``.
+
+    The seed comes from ``rng`` (the test's generator, itself derived from the
+    submission's seed): the landmarks, the circuit (speed, turn rate, start heading),
+    the noise of the controls and measurements and the filters' draws all change
+    with it.
+    """
+    if name not in _SCENARIOS:
+        raise KeyError(name)
+    return Scenario(name, int(rng.integers(2**62)))
+
+
+#: name -> (landmarks, extent, min_separation, steps, v range, omega range, M, Q, max_range, fov)
+_SCENARIOS = {
+    "localization": (10, 14.0, 2.0, 80, (0.9, 1.1), (0.32, 0.38), np.diag([0.02, 0.01]),
+                     np.diag([0.15**2, 0.04**2]), 6.0, 1.2 * np.pi),
+    "slam": (8, 12.0, 2.5, 70, (0.9, 1.1), (0.37, 0.43), np.diag([0.01, 0.005]), np.diag([0.1**2, 0.02**2]),
+             7.0, 1.5 * np.pi),
+}
+
+
+@lru_cache(maxsize=16)
+def _simulate(name, seed):
+    n, extent, sep, steps, v_range, w_range, M, Q, max_range, fov = _SCENARIOS[name]
+    rng = np.random.default_rng(seed)
+    landmarks = sl.make_landmark_world(n, extent=extent, min_separation=sep, rng=rng)
+    v, omega = rng.uniform(*v_range), rng.uniform(*w_range)
+    th0 = rng.uniform(-np.pi, np.pi)
+    r = v / omega  # a counter-clockwise circle of radius r around the origin, entered at heading th0
+    x0 = np.array([r * np.sin(th0), -r * np.cos(th0), th0])
+    u = sl.loop_controls(steps, v=v, omega=omega)
+    return sl.simulate_landmark_run(landmarks, u, 0.2, x0=x0, M=M, Q=Q, max_range=max_range, fov=fov, rng=rng)
 
 
 def ate(est, run):
@@ -93,7 +141,7 @@ def ate(est, run):
 
 
 # --------------------------------------------------------------------------- EKF localization
-def ekf_localization_loop(run, *, known=True, predict=None, update=None, associate=None):
+def ekf_localization_loop(sc, *, known=True, predict=None, update=None, associate=None):
     """EKF localization with known correspondences (Table 7.2) or unknown ones (Table 7.3).
 
     :func:`slamlib.ekf_localization_run` with ``ekf_predict``, ``ekf_update`` and
@@ -109,7 +157,7 @@ def ekf_localization_loop(run, *, known=True, predict=None, update=None, associa
     if known and associate is not None:
         raise ValueError("associate needs known=False")
     step = _Step()
-    res = _drive(step, sl.ekf_localization_run, run, known=known, gate=None if known else GATE,
+    res = _drive(step, sl.ekf_localization_run, sc.run, known=known, gate=None if known else GATE,
                  ekf_predict=_plug(step, predict, sl.ekf_predict, "EKF prediction"),
                  ekf_update=_plug(step, update, sl.ekf_update, "EKF update"),
                  associate_ml=None if known else _plug(step, associate, sl.associate_ml, "association"))
@@ -117,7 +165,7 @@ def ekf_localization_loop(run, *, known=True, predict=None, update=None, associa
 
 
 # --------------------------------------------------------------------------- particle filter
-def particle_filter_loop(run, *, likelihood=None, normalize=None, ess=None, resample=None, n_particles=300, seed=77):
+def particle_filter_loop(sc, *, likelihood=None, normalize=None, ess=None, resample=None, n_particles=300):
     """Particle-filter localization with known landmark correspondences (Table 4.3).
 
     :func:`slamlib.run_particle_filter` from ``n_particles`` particles drawn around
@@ -134,7 +182,8 @@ def particle_filter_loop(run, *, likelihood=None, normalize=None, ess=None, resa
     traj : ndarray, shape (T+1, 3)
         Weighted mean pose (circular mean heading) after each step.
     """
-    rng = np.random.default_rng(seed)
+    run = sc.run
+    rng = np.random.default_rng(sc.filter_seed)
     particles = np.array(run.x0) + rng.normal(0.0, [0.1, 0.1, 0.03], size=(n_particles, 3))
     particles[:, 2] = sl.wrap_angle(particles[:, 2])
     step = _Step()
@@ -142,7 +191,7 @@ def particle_filter_loop(run, *, likelihood=None, normalize=None, ess=None, resa
                   "resampler")
 
     def resampler(w, *, rng):  # the step's seeded generator, not the filter's rng
-        return draws(w, 10_000 + 97 * step.t)
+        return draws(w, _derive(sc.seed, 2, step.t))
 
     res = _drive(step, sl.run_particle_filter, run, particles, rng=rng, resample=resampler, ess_threshold=0.5,
                  landmark_likelihood=_plug(step, likelihood, sl.landmark_likelihood, "landmark likelihood"),
@@ -152,7 +201,7 @@ def particle_filter_loop(run, *, likelihood=None, normalize=None, ess=None, resa
 
 
 # --------------------------------------------------------------------------- EKF SLAM
-def ekf_slam_loop(run, *, predict=None, init=None, update=None, prior_var=1e4):
+def ekf_slam_loop(sc, *, predict=None, init=None, update=None, prior_var=1e4):
     """EKF SLAM with known correspondences (Algorithm 1), sequential updates.
 
     :func:`slamlib.run_ekf_slam` (the teaching version, ``fast=False``: the state
@@ -165,6 +214,7 @@ def ekf_slam_loop(run, *, predict=None, init=None, update=None, prior_var=1e4):
     landmarks : ndarray, shape (N, 2)
         Final landmark estimates by the run's landmark index (NaN for landmarks never seen).
     """
+    run = sc.run
     step = _Step()
     res = _drive(step, sl.run_ekf_slam, run, known=True, fast=False, prior_var=prior_var,
                  ekf_slam_predict=_plug(step, predict, sl.ekf_slam_predict, "EKF SLAM prediction"),
@@ -176,7 +226,7 @@ def ekf_slam_loop(run, *, predict=None, init=None, update=None, prior_var=1e4):
 
 
 # --------------------------------------------------------------------------- FastSLAM
-def fastslam_loop(run, *, init=None, update=None, n_particles=60, seed=99):
+def fastslam_loop(sc, *, init=None, update=None, n_particles=60):
     """FastSLAM 1.0 with known correspondences (Algorithm 3), vectorised over particles.
 
     :func:`slamlib.run_fastslam` with ``fastslam_init_landmark`` and
@@ -191,27 +241,32 @@ def fastslam_loop(run, *, init=None, update=None, n_particles=60, seed=99):
         Weighted mean pose after each step.
     """
     step = _Step()
-    res = _drive(step, sl.run_fastslam, run, n_particles=n_particles, rng=np.random.default_rng(seed), known=True,
+    res = _drive(step, sl.run_fastslam, sc.run, n_particles=n_particles, rng=np.random.default_rng(sc.filter_seed),
+                 known=True,
                  resample_threshold=0.5,
                  fastslam_init_landmark=_plug(step, init, sl.fastslam_init_landmark, "landmark initialisation"),
                  fastslam_update_landmark=_plug(step, update, sl.fastslam_update_landmark, "landmark update"))
     return res.x_est
 
 
-@lru_cache(maxsize=None)
-def reference(name):
-    """Reference results of each loop on its scenario (cached per process): the same drivers, slamlib's functions."""
+@lru_cache(maxsize=32)
+def reference(name, sc):
+    """Reference results of loop ``name`` on scenario ``sc``: the same drivers, slamlib's functions.
+
+    Computed for each grading's own scenario (a scenario follows the submission's
+    seed); cached only while the same scenario is graded again in this process.
+    """
     if name == "ekf_known":
-        return ekf_localization_loop(scenario("localization"))[0]
+        return ekf_localization_loop(sc)[0]
     if name == "ekf_unknown":
-        traj, ids = ekf_localization_loop(scenario("localization"), known=False)
+        traj, ids = ekf_localization_loop(sc, known=False)
         return traj, tuple(ids)
     if name == "pf":
-        return particle_filter_loop(scenario("localization"))
+        return particle_filter_loop(sc)
     if name == "ekf_slam":
-        return ekf_slam_loop(scenario("slam"))
+        return ekf_slam_loop(sc)
     if name == "fastslam":
-        return fastslam_loop(scenario("slam"))
+        return fastslam_loop(sc)
     raise KeyError(name)
 
 

@@ -52,7 +52,7 @@ from pathlib import Path
 import numpy as np
 
 from . import wire
-from .wire import ProtocolError, RngSeed, decode_result, encode_args, pack_frame, parse_frame
+from .wire import ProtocolError, RngSeed, control_message, encode_args, pack_frame, parse_result_frame, read_reply
 
 __all__ = ["Limits", "Sandbox", "Worker", "CallOutcome", "ChildFailed", "RngSeed", "isolation_report",
            "describe_isolation", "protection_level"]
@@ -351,6 +351,7 @@ class Sandbox:
                            "the top level? put experiments under `if __name__ == \"__main__\":`)",
                 "statement": f"loading the submission took longer than {lim.import_timeout:g} s",
                 "output": f"the submission printed more than {lim.output} bytes while loading",
+                "protocol": f"the process loading the submission sent a malformed message ({where})",
             }.get(status, f"the process loading the submission ended unexpectedly ({where or status})")
             raise ChildFailed(CallOutcome(status if status in ("timeout", "output") else "crashed", error=what,
                                           output=out))
@@ -443,11 +444,9 @@ class Sandbox:
                             pass
                         return ("eof", _exit_text(code))
                     try:
-                        msg = json.loads(data.decode("utf-8"))
-                    except (UnicodeDecodeError, ValueError):
-                        continue
-                    if not isinstance(msg, dict):
-                        continue
+                        msg = control_message(data)  # untrusted: checked against its schema (autograder.wire)
+                    except ProtocolError as exc:
+                        return ("protocol", str(exc))
                     if msg.get("ev") == "stmt":
                         try:
                             current = (int(msg["unit"]), int(msg["stmt"]), int(msg.get("line", 0)), time.monotonic())
@@ -596,7 +595,8 @@ class Worker:
             header["global_seed"] = int(global_seed)
         self._out = bytearray()
         self._out_total = 0
-        reply, rpayload, status, err = self._exchange(pack_frame(header, payload), time.monotonic() + timeout)
+        deadline = time.monotonic() + timeout
+        reply, rpayload, status, err = self._exchange(pack_frame(header, payload), deadline)
         out = self._output_text()
         if reply is None:
             self.close()
@@ -611,22 +611,17 @@ class Worker:
             return CallOutcome("crashed", error=f"the process running the function ended during the call ({err})",
                                output=out)
         try:
-            st = reply.get("status")
-            if st not in ("ok", "error", "protocol"):
-                raise ProtocolError(f"unexpected status {st!r}")
-            mutated = [str(m)[:40] for m in reply.get("mutated") or []][:10]
-            blocked = [str(b)[:200] for b in reply.get("blocked") or []][:20]
-            elapsed = float(reply.get("elapsed") or 0.0)
-            if st == "protocol":
-                raise ProtocolError(str(reply.get("error"))[:200])
-            if st == "error":
-                return CallOutcome("error", error=str(reply.get("error"))[:2000], where=str(reply.get("where") or "")[:3000],
-                                   mutated=mutated, blocked=blocked, output=out, elapsed=elapsed)
-            returned = decode_result(reply.get("result"), rpayload, np)
-        except (ProtocolError, TypeError, ValueError, AttributeError) as exc:
+            r = read_reply(reply, rpayload, np, deadline=deadline + 1.0)  # untrusted: schema, extents, byte cap
+            if r["status"] == "protocol":
+                raise ProtocolError(r["error"][:200])
+        except ProtocolError as exc:
             self.close()
             return CallOutcome("protocol", error=f"the grader could not read the function's result ({exc})", output=out)
-        return CallOutcome("ok", returned=returned, mutated=mutated, blocked=blocked, output=out, elapsed=elapsed)
+        if r["status"] == "error":
+            return CallOutcome("error", error=r["error"], where=r["where"], mutated=r["mutated"], blocked=r["blocked"],
+                               output=out, elapsed=r["elapsed"])
+        return CallOutcome("ok", returned=r["returned"], mutated=r["mutated"], blocked=r["blocked"], output=out,
+                           elapsed=r["elapsed"])
 
     def _output_text(self):
         return bytes(self._out[-4000:]).decode("utf-8", "replace")
@@ -649,7 +644,7 @@ class Worker:
             res_open = True
             while True:
                 try:
-                    got = parse_frame(self._res)
+                    got = parse_result_frame(self._res)
                 except ProtocolError as exc:
                     return None, None, "protocol", str(exc)
                 if got is not None:

@@ -154,7 +154,7 @@ def _load_notebook(path, raw):
 
     try:
         data = json.loads(raw.decode("utf-8-sig"))
-    except (UnicodeDecodeError, ValueError) as exc:
+    except (UnicodeDecodeError, ValueError, RecursionError) as exc:
         raise SubmissionError(f"{path.name}: not a Jupyter notebook (invalid JSON: {exc})") from None
     if not isinstance(data, dict) or not ("cells" in data or "worksheets" in data):
         raise SubmissionError(f"{path.name}: not a Jupyter notebook (no cells)")

@@ -346,6 +346,14 @@ def _alive(pid):
     return state != "Z"
 
 
+def _cmdline(pid):
+    """The command line of process ``pid`` (empty once it has exited: listing and reading /proc race)."""
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes()
+    except (FileNotFoundError, ProcessLookupError):
+        return b""
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT, signal.SIGKILL])
 def test_killing_batch_leaves_no_process_behind(tmp_path, sig):
@@ -372,7 +380,7 @@ def normalize_log_weights(log_w):
         while time.monotonic() < deadline:
             desc = _descendants(proc.pid)
             seen.update(desc)
-            runners = [p for p in desc if b"_runner.py" in Path(f"/proc/{p}/cmdline").read_bytes()] if desc else []
+            runners = [p for p in desc if b"_runner.py" in _cmdline(p)] if desc else []
             if len(runners) >= 2:
                 break
             time.sleep(0.2)
@@ -386,7 +394,7 @@ def normalize_log_weights(log_w):
         while time.monotonic() < deadline and any(_alive(p) for p in seen):
             time.sleep(0.2)
         survivors = [p for p in seen if _alive(p)]
-        assert survivors == [], [Path(f"/proc/{p}/cmdline").read_bytes()[:200] for p in survivors]
+        assert survivors == [], [_cmdline(p)[:200] for p in survivors]
     finally:
         if proc.poll() is None:
             proc.kill()

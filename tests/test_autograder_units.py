@@ -209,23 +209,25 @@ def test_statistical_checks_calibrated_on_the_reference():
 # --------------------------------------------------------------------------- end-to-end loops: slamlib's own drivers
 def test_loops_reproduce_slamlib_runners():
     """The reference loops are the drivers' own runs (slamlib's functions plugged in change nothing)."""
-    run = loops.scenario("localization")
-    traj = loops.reference("ekf_known")
+    sc = loops.scenario("localization", np.random.default_rng(3))
+    run = sc.run
+    traj = loops.reference("ekf_known", sc)
     np.testing.assert_allclose(traj, sl.ekf_localization_run(run, known=True).mu, atol=1e-9)
-    traj, ids = loops.reference("ekf_unknown")
+    traj, ids = loops.reference("ekf_unknown", sc)
     ref = sl.ekf_localization_run(run, known=False, gate=loops.GATE)
     np.testing.assert_allclose(traj, ref.mu, atol=1e-9)
     assert list(ids) == [int(i) for step in ref.ids for i in step]
-    srun = loops.scenario("slam")
-    traj, lm = loops.reference("ekf_slam")
+    ssc = loops.scenario("slam", np.random.default_rng(4))
+    srun = ssc.run
+    traj, lm = loops.reference("ekf_slam", ssc)
     ref = sl.run_ekf_slam(srun, known=True, fast=False, prior_var=1e4)
     np.testing.assert_allclose(traj, ref.x, atol=1e-9)
     np.testing.assert_allclose(lm[ref.landmark_ids], ref.landmarks, atol=1e-9)
     assert np.isnan(lm).sum() == 2 * (srun.landmarks.shape[0] - ref.landmark_ids.size)
-    fs = sl.run_fastslam(srun, n_particles=60, rng=np.random.default_rng(99), known=True)
-    np.testing.assert_allclose(loops.reference("fastslam"), fs.x_est, atol=1e-9)
-    for name in ("pf", "fastslam"):
-        assert loops.ate(loops.reference(name), run if name == "pf" else srun) < 0.5
+    fs = sl.run_fastslam(srun, n_particles=60, rng=np.random.default_rng(ssc.filter_seed), known=True)
+    np.testing.assert_allclose(loops.reference("fastslam", ssc), fs.x_est, atol=1e-9)
+    assert loops.ate(loops.reference("pf", sc), run) < 0.5
+    assert loops.ate(loops.reference("fastslam", ssc), srun) < 0.5
 
 
 class _Calls:
@@ -241,31 +243,32 @@ class _Calls:
 
 def test_loops_plug_the_student_function_into_the_driver():
     """Every loop calls the student's function at every step that needs it and, given slamlib's, matches the reference."""
-    run, srun = loops.scenario("localization"), loops.scenario("slam")
+    sc, ssc = loops.scenario("localization", np.random.default_rng(5)), loops.scenario("slam", np.random.default_rng(6))
+    run, srun = sc.run, ssc.run
     predict = _Calls(sl.ekf_predict)
-    np.testing.assert_array_equal(loops.ekf_localization_loop(run, predict=predict)[0], loops.reference("ekf_known"))
+    np.testing.assert_array_equal(loops.ekf_localization_loop(sc, predict=predict)[0], loops.reference("ekf_known", sc))
     assert predict.steps == list(range(run.n_steps))
     associate = _Calls(sl.associate_ml)
-    traj, ids = loops.ekf_localization_loop(run, known=False, associate=associate)
-    assert tuple(ids) == loops.reference("ekf_unknown")[1] and len(associate.steps) == len(ids)
+    traj, ids = loops.ekf_localization_loop(sc, known=False, associate=associate)
+    assert tuple(ids) == loops.reference("ekf_unknown", sc)[1] and len(associate.steps) == len(ids)
     assert associate.steps == [t for t in range(run.n_steps) for _ in run.z[t]]
     lik = _Calls(sl.landmark_likelihood)
-    np.testing.assert_array_equal(loops.particle_filter_loop(run, likelihood=lik), loops.reference("pf"))
+    np.testing.assert_array_equal(loops.particle_filter_loop(sc, likelihood=lik), loops.reference("pf", sc))
     assert lik.steps == [t for t in range(run.n_steps) for _ in run.z[t]]
     draws = _Calls(lambda w, seed: sl.low_variance_resample(w, rng=np.random.default_rng(seed)))
-    np.testing.assert_array_equal(loops.particle_filter_loop(run, resample=draws), loops.reference("pf"))
+    np.testing.assert_array_equal(loops.particle_filter_loop(sc, resample=draws), loops.reference("pf", sc))
     assert 0 < len(draws.steps) < run.n_steps
     init = _Calls(sl.ekf_slam_init_landmark)
-    traj, lm = loops.ekf_slam_loop(srun, init=init)
-    np.testing.assert_array_equal(traj, loops.reference("ekf_slam")[0])
+    traj, lm = loops.ekf_slam_loop(ssc, init=init)
+    np.testing.assert_array_equal(traj, loops.reference("ekf_slam", ssc)[0])
     assert len(init.steps) == int(np.sum(~np.isnan(lm[:, 0])))
     update = _Calls(sl.fastslam_update_landmark)
-    np.testing.assert_array_equal(loops.fastslam_loop(srun, update=update), loops.reference("fastslam"))
+    np.testing.assert_array_equal(loops.fastslam_loop(ssc, update=update), loops.reference("fastslam", ssc))
     assert update.steps == sorted(update.steps) and len(update.steps) > srun.n_steps
 
 
 def test_loops_report_a_value_the_reference_rejects_at_its_step():
-    run = loops.scenario("localization")
+    run = loops.scenario("localization", np.random.default_rng(7))
 
     def predict(t, mu, Sigma, u, dt, M):
         mu_bar, S = sl.ekf_predict(mu, Sigma, u, dt, M)

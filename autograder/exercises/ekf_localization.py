@@ -122,17 +122,17 @@ def _(ctx):
          hint="Your ekf_predict, combined with the reference ekf_update on a simulated run, must track the robot "
               "as well as the reference filter.")
 def _(ctx):
-    run = loops.scenario("localization")
+    sc = loops.scenario("localization", ctx.rng)
 
     def predict(t, mu, Sigma, u, dt, M):
         return _check_predict(ctx, mu, Sigma, u, dt, M, scaled=True)
 
     try:
-        traj, _ = loops.ekf_localization_loop(run, predict=predict)
+        traj, _ = loops.ekf_localization_loop(sc, predict=predict)
     except loops.LoopError as exc:
         ctx.fail(str(exc))
     ctx.last_call = None
-    loops.compare_ate(ctx, "EKF localization", traj, loops.reference("ekf_known"), run)
+    loops.compare_ate(ctx, "EKF localization", traj, loops.reference("ekf_known", sc), sc.run)
 
 
 # =========================================================================== ekf_update
@@ -225,17 +225,17 @@ def _(ctx):
          hint="Your ekf_update, combined with the reference ekf_predict on a simulated run, must track the robot "
               "as well as the reference filter.")
 def _(ctx):
-    run = loops.scenario("localization")
+    sc = loops.scenario("localization", ctx.rng)
 
     def update(t, mu, Sigma, z, m, Q):
         return _check_update(ctx, mu, Sigma, z, m, Q, scaled=True)
 
     try:
-        traj, _ = loops.ekf_localization_loop(run, update=update)
+        traj, _ = loops.ekf_localization_loop(sc, update=update)
     except loops.LoopError as exc:
         ctx.fail(str(exc))
     ctx.last_call = None
-    loops.compare_ate(ctx, "EKF localization", traj, loops.reference("ekf_known"), run)
+    loops.compare_ate(ctx, "EKF localization", traj, loops.reference("ekf_known", sc), sc.run)
 
 
 # =========================================================================== associate_ml
@@ -333,7 +333,7 @@ def _(ctx):
          hint="Plugged into EKF localization with unknown correspondences, your association must choose the "
               "same landmarks as the reference.")
 def _(ctx):
-    run = loops.scenario("localization")
+    sc = loops.scenario("localization", ctx.rng)
 
     def associate(t, mu, Sigma, z, landmarks, Q, gate):
         got = _assoc(ctx, mu, Sigma, z, landmarks, Q, gate)
@@ -345,13 +345,13 @@ def _(ctx):
         return got
 
     try:
-        traj, ids = loops.ekf_localization_loop(run, known=False, associate=associate)
+        traj, ids = loops.ekf_localization_loop(sc, known=False, associate=associate)
     except loops.LoopError as exc:
         ctx.fail(str(exc))
     ctx.last_call = None
-    ref_traj, ref_ids = loops.reference("ekf_unknown")
+    ref_traj, ref_ids = loops.reference("ekf_unknown", sc)
     agree = float(np.mean(np.array(ids) == np.array(ref_ids))) if len(ids) == len(ref_ids) else 0.0
     if agree < 0.98:
         ctx.fail(f"your associations agree with the reference's for {100 * agree:.1f} % of the measurements "
                  "(98 % needed)")
-    loops.compare_ate(ctx, "EKF localization with unknown correspondences", traj, ref_traj, run)
+    loops.compare_ate(ctx, "EKF localization with unknown correspondences", traj, ref_traj, sc.run)

@@ -101,21 +101,22 @@ def _(ctx):
          hint="Plugged into EKF SLAM on a simulated run, your prediction must track the robot as well as the "
               "reference.")
 def _(ctx):
-    run = loops.scenario("slam")
+    sc = loops.scenario("slam", ctx.rng)
 
     def predict(t, mu, Sigma, u, dt, M):
         return _check_predict(ctx, mu, Sigma, u, dt, M)
 
-    _slam_e2e(ctx, run, predict=predict)
+    _slam_e2e(ctx, sc, predict=predict)
 
 
-def _slam_e2e(ctx, run, *, predict=None, init=None, update=None):
+def _slam_e2e(ctx, sc, *, predict=None, init=None, update=None):
     try:
-        traj, lm = loops.ekf_slam_loop(run, predict=predict, init=init, update=update)
+        traj, lm = loops.ekf_slam_loop(sc, predict=predict, init=init, update=update)
     except loops.LoopError as exc:
         ctx.fail(str(exc))
     ctx.last_call = None
-    ref_traj, ref_lm = loops.reference("ekf_slam")
+    ref_traj, ref_lm = loops.reference("ekf_slam", sc)
+    run = sc.run
     loops.compare_ate(ctx, "EKF SLAM", traj, ref_traj, run)
     seen = ~np.isnan(ref_lm[:, 0])
     err = np.sqrt(np.mean(np.sum((lm[seen] - run.landmarks[seen]) ** 2, axis=1)))
@@ -233,7 +234,7 @@ def _(ctx):
     def init(t, mu, z, j):
         return _check_init(ctx, mu, z, j)
 
-    _slam_e2e(ctx, loops.scenario("slam"), init=init)
+    _slam_e2e(ctx, loops.scenario("slam", ctx.rng), init=init)
 
 
 # =========================================================================== ekf_slam_update
@@ -318,7 +319,7 @@ def _(ctx):
     def update(t, mu, Sigma, z, j, Q):
         return _check_update(ctx, mu, Sigma, z, j, Q)
 
-    _slam_e2e(ctx, loops.scenario("slam"), update=update)
+    _slam_e2e(ctx, loops.scenario("slam", ctx.rng), update=update)
 
 
 # =========================================================================== ekf_slam_associate

@@ -98,13 +98,13 @@ def _(ctx):
 
 
 def _fs_e2e(ctx, *, init=None, update=None):
-    run = loops.scenario("slam")
+    sc = loops.scenario("slam", ctx.rng)
     try:
-        traj = loops.fastslam_loop(run, init=init, update=update)
+        traj = loops.fastslam_loop(sc, init=init, update=update)
     except loops.LoopError as exc:
         ctx.fail(str(exc))
     ctx.last_call = None
-    loops.compare_ate(ctx, "FastSLAM", traj, loops.reference("fastslam"), run, rel=0.1, abs_tol=0.02)
+    loops.compare_ate(ctx, "FastSLAM", traj, loops.reference("fastslam", sc), sc.run, rel=0.1, abs_tol=0.02)
 
 
 # =========================================================================== fastslam_update_landmark

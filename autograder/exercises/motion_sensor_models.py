@@ -71,9 +71,15 @@ def _(ctx):
 @EX.test("velocity_motion", "heading wrapped to [-pi, pi)", weight=3,
          hint="Wrap the new heading theta + omega dt to [-pi, pi), e.g. (a + pi) % (2 pi) - pi.")
 def _(ctx):
-    for th, w, dt in ((3.0, 1.0, 0.5), (-3.0, -1.2, 0.5), (np.pi - 1e-3, 0.4, 0.25), (-3.1, 6.0, 1.0)):
-        x = np.array([1.0, -2.0, th])
-        u = np.array([0.7, w])
+    rng = ctx.rng
+    cases = [(3.0, 1.0, 0.5), (-3.0, -1.2, 0.5), (np.pi - 1e-3, 0.4, 0.25), (-3.1, 6.0, 1.0)]
+    # seeded cases across the cut as well: the heading before the step and theta + omega dt on either side of +-pi
+    for s in (1.0, -1.0):
+        th = s * (np.pi - rng.uniform(1e-3, 0.3))
+        cases.append((th, s * rng.uniform(1.0, 3.0), float(rng.uniform(0.2, 0.6))))
+    for th, w, dt in cases:
+        x = np.array([rng.uniform(-5.0, 5.0), rng.uniform(-5.0, 5.0), th])
+        u = np.array([rng.uniform(0.2, 1.5), w])
         x_next, _, _ = _vm(ctx, x, u, dt)
         ref = sl.velocity_motion(x, u, dt)
         ctx.wrapped("the heading x_next[2]", x_next[2])

@@ -60,6 +60,14 @@ def _(ctx):
     _check_norm(ctx, np.array([-3.7]))
     _check_norm(ctx, np.full(64, 12.5))
     _check_norm(ctx, np.full(10, -700.0))
+    # seeded: a single particle and equal log-weights of any value, and log-weights equal up to 1e-3 (a function
+    # that returns 1/M whatever it is given passes the special cases but not these)
+    rng = ctx.rng
+    _check_norm(ctx, rng.uniform(-800.0, 800.0, size=1))
+    for M in rng.integers(2, 200, size=2):
+        c = rng.uniform(-800.0, 800.0)
+        _check_norm(ctx, np.full(int(M), c))
+        _check_norm(ctx, c + rng.normal(0.0, 1e-3, size=int(M)))
 
 
 # =========================================================================== effective_sample_size
@@ -94,6 +102,14 @@ def _(ctx):
     w[7] = 1.0
     _check_ess(ctx, w)
     _check_ess(ctx, np.array([0.0, 2.0, 0.0, 2.0]))
+    # seeded: nearly uniform weights, and nearly degenerate ones (one dominant particle, a few small weights, zeros
+    # elsewhere); counting the non-zero weights passes the special cases above but not these
+    rng = ctx.rng
+    M = int(rng.integers(10, 200))
+    _check_ess(ctx, rng.uniform(0.1, 10.0) * (1.0 + rng.uniform(-0.05, 0.05, size=M)))
+    w = np.zeros(M)
+    w[rng.choice(M, size=4, replace=False)] = np.r_[1.0, rng.uniform(1e-3, 1e-2, size=3)] * rng.uniform(0.1, 10.0)
+    _check_ess(ctx, w)
 
 
 # =========================================================================== low_variance_resample
@@ -197,17 +213,17 @@ def _(ctx):
 @EX.test("low_variance_resample", "particle filter run with your resampler", weight=5, visibility="hidden",
          hint="Plugged into a particle filter, your resampler must give the reference filter's track.")
 def _(ctx):
-    run = loops.scenario("localization")
+    sc = loops.scenario("localization", ctx.rng)
 
     def resample(t, w, seed):
         return _check_lvr(ctx, w, seed)
 
     try:
-        traj = loops.particle_filter_loop(run, resample=resample)
+        traj = loops.particle_filter_loop(sc, resample=resample)
     except loops.LoopError as exc:
         ctx.fail(str(exc))
     ctx.last_call = None
-    loops.compare_ate(ctx, "particle filter", traj, loops.reference("pf"), run, rel=0.1, abs_tol=0.02)
+    loops.compare_ate(ctx, "particle filter", traj, loops.reference("pf", sc), sc.run, rel=0.1, abs_tol=0.02)
 
 
 # =========================================================================== landmark_likelihood
@@ -266,14 +282,14 @@ def _(ctx):
 @EX.test("landmark_likelihood", "particle filter run with your landmark_likelihood", weight=6, visibility="hidden",
          hint="Plugged into a particle filter, your likelihood must give the reference filter's track.")
 def _(ctx):
-    run = loops.scenario("localization")
+    sc = loops.scenario("localization", ctx.rng)
 
     def likelihood(t, particles, z, m, Q):
         return _check_lik(ctx, particles, z, m, Q)
 
     try:
-        traj = loops.particle_filter_loop(run, likelihood=likelihood)
+        traj = loops.particle_filter_loop(sc, likelihood=likelihood)
     except loops.LoopError as exc:
         ctx.fail(str(exc))
     ctx.last_call = None
-    loops.compare_ate(ctx, "particle filter", traj, loops.reference("pf"), run, rel=0.1, abs_tol=0.02)
+    loops.compare_ate(ctx, "particle filter", traj, loops.reference("pf", sc), sc.run, rel=0.1, abs_tol=0.02)
