@@ -313,7 +313,7 @@ EQUIVALENT = {
         "_triangulate: [A = np.stack(*] uv2[:, 1:] * P2[2] - P2[1] -> P2[1] - uv2[:, 1:] * P2[2]": ROW_SIGN,
     },
     "project": {
-        "_skew: [return np.stack([np.stack([z, -w[..., 2], w[..., 1]], -1)*] -1 -> 1*":
+        "_skew: [return np.stack([np.stack([z, -c, y], -1)*] -1 -> 1*":
             "axis=1 instead of -1 when stacking the (N,) entries of [p_c]x for the contract's (N, 3) points: the "
             "same (N, 3, 3)",
         "_project: [Jc = np.stack([np.stack([fx * iz, zero, -fx * X * iz * iz], -1), np.stack([zero, fy * i...] "

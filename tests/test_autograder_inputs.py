@@ -109,6 +109,38 @@ def test_code_right_only_on_fixed_cases_scores_zero(exercise, tmp_path):
     assert all(v == 0 for v in scores.values()), [(t.name, t.output[:300]) for t in result.tests if t.score > 0]
 
 
+def test_the_guards_catch_a_fixed_input_test_in_bundle_adjustment(monkeypatch, tmp_path):
+    """The guards can fail on exercise 7: so3_exp's tiny-angle test with fixed rotation vectors is flagged.
+
+    With that test's inputs fixed (w = 0 and four fixed tiny vectors), the audit lists
+    it, and both a recorded-answers submission and one right only on the fixed cases
+    earn its points under another seed; the grader's seeded version leaves them nothing.
+    """
+    from autograder.exercises import bundle_adjustment as B
+
+    ex = get_exercise("bundle_adjustment")
+    name = "so3_exp: w = 0 and tiny angles"
+
+    def fixed(ctx):
+        B._check_exp(ctx, np.zeros(3))
+        for a in (1e-12, 1e-8, 1e-6, 1e-4):
+            B._check_exp(ctx, a * np.array([0.6, 0.0, 0.8]), small=True)
+
+    assert name in [t.name for t in ex.tests]
+    monkeypatch.setattr(ex, "tests", [dataclasses.replace(t, run=fixed) if t.name == name else t for t in ex.tests])
+    assert recording.audit("bundle_adjustment", 1111, 2222) == {name: 5}
+    a = recording.record("bundle_adjustment", SEED_A, functions=["so3_exp"])
+    c = recording.record("bundle_adjustment", 99991, functions=["so3_exp"])
+    shared = set(k for ks in a.calls.values() for k in ks) & set(k for ks in c.calls.values() for k in ks)
+    table = recording.lookup_submission([a], tmp_path / "table.py")
+    a.answers = {k: v for k, v in a.answers.items() if k in shared}
+    special = recording.lookup_submission([a], tmp_path / "special_cases.py")
+    for path in (table, special):
+        result = grade(path, "bundle_adjustment", limits=limits(), functions=["so3_exp"], seed=SEED_B)
+        assert [t.name for t in result.tests if t.score > 0] == [name], (path.name, [
+            (t.name, t.output[:200]) for t in result.tests])
+
+
 TRIVIAL_PF = '''
 import numpy as np
 
