@@ -589,8 +589,9 @@ _NR_AARCH64 = {
 }
 
 #: what a numerical function never needs: kernel keyrings, namespaces, tracing, BPF, io_uring, mounts,
-#: other processes' memory, kernel modules, SysV and POSIX IPC, sockets (the grader's pipes and control
-#: socket exist already), clock and host settings
+#: other processes' memory, kernel modules, SysV and POSIX IPC, socket pairs, clock and host settings; sockets
+#: other than IPv4/IPv6 (UNIX, netlink, packet, AF_ALG ...: see _base_rules), which the network namespace
+#: leaves without a route
 DENIED = ("keyctl", "add_key", "request_key", "unshare", "setns", "ptrace", "bpf", "perf_event_open",
           "io_uring_setup", "io_uring_enter", "io_uring_register", "mount", "umount2", "pivot_root", "chroot",
           "userfaultfd", "process_vm_readv", "process_vm_writev", "kexec_load", "kexec_file_load", "init_module",
@@ -599,7 +600,7 @@ DENIED = ("keyctl", "add_key", "request_key", "unshare", "setns", "ptrace", "bpf
           "quotactl", "quotactl_fd", "pidfd_getfd", "kcmp", "syslog", "vhangup", "iopl", "ioperm", "modify_ldt",
           "lookup_dcookie", "shmget", "shmat", "shmctl", "shmdt", "semget", "semop", "semctl", "semtimedop",
           "msgget", "msgsnd", "msgrcv", "msgctl", "mq_open", "mq_unlink", "mq_timedsend", "mq_timedreceive",
-          "mq_notify", "mq_getsetattr", "socket", "socketpair", "fanotify_init", "setdomainname", "sethostname",
+          "mq_notify", "mq_getsetattr", "socketpair", "fanotify_init", "setdomainname", "sethostname",
           "settimeofday", "clock_settime", "adjtimex", "clock_adjtime", "migrate_pages", "move_pages", "mbind",
           "nfsservctl", "uselib")
 #: namespace flags of clone(): a process may fork, not make new namespaces
@@ -612,6 +613,7 @@ def _base_rules():
     rules = [(name, EPERM, []) for name in DENIED]
     rules += [("clone", EPERM, [(0, "masked_eq", f, f)]) for f in CLONE_NS_FLAGS]
     rules.append(("clone3", ENOSYS, []))  # flags sit in memory a filter cannot read: C libraries fall back to clone
+    rules.append(("socket", EPERM, [(0, "not_in", (2, 10), 0)]))  # AF_INET and AF_INET6 only
     return rules
 
 
@@ -686,7 +688,17 @@ def _seccomp_libseccomp(lib, rules):
         return "seccomp_init failed"
     try:
         lib.seccomp_attr_set(ctx, 4, 1)  # SCMP_FLTATR_CTL_TSYNC: every thread of the process
+        expanded = []
         for name, errno, args in rules:
+            if args and args[0][1] == "not_in":  # as several rules: below, between and above the allowed values
+                arg, _, allowed, _ = args[0]
+                lo, hi = min(allowed), max(allowed)
+                expanded.append((name, errno, [(arg, "lt", lo, 0)]))
+                expanded.append((name, errno, [(arg, "gt", hi, 0)]))
+                expanded += [(name, errno, [(arg, "eq", v, 0)]) for v in range(lo + 1, hi) if v not in allowed]
+            else:
+                expanded.append((name, errno, args))
+        for name, errno, args in expanded:
             nr = lib.seccomp_syscall_resolve_name(name.encode())
             if nr < 0:
                 continue  # not a system call on this architecture
@@ -738,6 +750,13 @@ def _seccomp_bpf(rules):
         if op == "masked_eq":
             # nr matches and (arg & a) == b, with a == b a single flag: JSET
             prog += [(JEQ, 0, 4, nr), (LD, 0, 0, lo), (JSET, 0, 1, a & 0xFFFFFFFF), ret, (LD, 0, 0, 0)]
+        elif op == "not_in":
+            vals = list(a)
+            n = len(vals)
+            # nr matches and the low 32 bits are none of vals: refuse; a match jumps to the reload of the number
+            prog += [(JEQ, 0, n + 3, nr), (LD, 0, 0, lo)]
+            prog += [(JEQ, n - k, 0, v & 0xFFFFFFFF) for k, v in enumerate(vals)]
+            prog += [ret, (LD, 0, 0, 0)]
         elif op == "ne":
             # nr matches and the low 32 bits differ, or the high 32 bits are not those of a (sign-extended) int
             hi = (a >> 32) & 0xFFFFFFFF
@@ -855,6 +874,7 @@ def _private_scratch(wid, fs_paths):
         for name in os.listdir("/"):
             if "/" + name not in private:
                 allow("/" + name, LL_RO)
+        allow("/proc", 8)  # READ_DIR: pids can be listed; files of other processes cannot be read
         for p in fs_paths:  # interpreter, NumPy/SciPy and library folders that live under /tmp or /dev
             if isinstance(p, str) and any(p == r or p.startswith(r + "/") for r in private) and os.path.exists(p):
                 allow(p, LL_RO)
@@ -1360,7 +1380,8 @@ def main(argv):
     iso = {}
     _CTL_FD[0] = ctl_fd
     _LIBC[0] = _libc_early
-    _SECCOMP_LIB[0] = _load_libseccomp() if job.get("seccomp", True) else None
+    # seccomp: True (libseccomp when installed, else the filter built here), "bpf" (the filter built here), False
+    _SECCOMP_LIB[0] = _load_libseccomp() if job.get("seccomp", True) is True else None
     if job.get("isolate", True):
         _LIBC[0] = _isolate(job, iso, np)
     _SECCOMP_ON[0] = bool(iso.get("seccomp"))

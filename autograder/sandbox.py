@@ -55,7 +55,7 @@ from . import wire
 from .wire import ProtocolError, RngSeed, decode_result, encode_args, pack_frame, parse_frame
 
 __all__ = ["Limits", "Sandbox", "Worker", "CallOutcome", "ChildFailed", "RngSeed", "isolation_report",
-           "describe_isolation", "protection_level"]
+           "describe_isolation", "protection_level", "check_sandbox", "require_sandbox", "SandboxBroken"]
 
 _PKG_DIR = Path(__file__).resolve().parent
 #: The child's script; it loads ``wire.py`` from the same folder before it isolates itself.
@@ -101,8 +101,9 @@ class Limits:
     block_processes : bool
         Let the audit hook refuse new processes (tests switch it off to check
         that the OS limits alone contain a fork).
-    seccomp : bool
-        Install the system-call filters (zygote and workers).
+    seccomp : bool or "bpf"
+        Install the system-call filters (zygote and workers): through libseccomp
+        when it is installed, else (and with ``"bpf"``) as a BPF program built by the runner.
     """
 
     call_timeout: float | None = None
@@ -791,7 +792,7 @@ def isolation_report(limits=None):
     submission).
     """
     limits = limits or Limits()
-    key = (limits.network, limits.audit, limits.filesystem)
+    key = (limits.network, limits.audit, limits.filesystem, limits.seccomp)
     with _ISO_LOCK:
         if key not in _ISO_CACHE:
             box = Sandbox([{"source": "", "filename": "<probe>", "label": "probe"}], [], limits)
@@ -844,11 +845,29 @@ def describe_isolation(iso):
     else:
         lines.append("files: NOT isolated (" + str(iso.get("fs_error") or iso.get("mountns_error") or "no mount "
                                                                                                     "namespace") + ")")
+    abi = iso.get("landlock_abi") or 0
+    if abi >= 1:
+        lines.append(f"scratch: each worker has its own /tmp and /dev/shm folders and sees no other (Landlock ABI {abi}"
+                     + (": nor can it signal processes outside its domain" if abi >= 6 else "") + ")")
+    else:
+        lines.append("scratch: workers of one submission share /tmp and /dev/shm (no Landlock on this kernel)")
     if iso.get("pidns"):
         lines.append("processes: new PID namespace (the submission cannot see or signal processes outside it; "
                      "everything in it dies with it)")
+        if iso.get("init"):
+            lines.append("process 1: a minimal init that runs no submission code and cannot be signalled from inside; "
+                         "it ends the namespace when the grader or its control socket goes away")
     else:
-        lines.append("processes: NO PID namespace (" + str(iso.get("pidns_error", "unavailable")) + ")")
+        lines.append("processes: NO PID namespace (" + str(iso.get("pidns_error", "unavailable")) + "): processes a "
+                     "submission starts in its own session may outlive grading")
+    if iso.get("seccomp"):
+        lines.append(f"system calls: seccomp filter ({iso.get('seccomp_backend', '?')}) refuses keyrings, new "
+                     "namespaces, ptrace, bpf, perf events, io_uring, mounts, other processes' memory, kernel modules, "
+                     "SysV/POSIX IPC and sockets; workers may signal only themselves")
+    else:
+        lines.append("system calls: NO seccomp filter (" + str(iso.get("seccomp_error", "unavailable")) + ")")
+    lines.append("kernel keyrings: " + ("a fresh session keyring per sandbox" if iso.get("session_keyring")
+                                        else "the grader's session keyring (joining a fresh one failed)"))
     if iso.get("netns"):
         lines.append("network: new network namespace" + (" (inside a user namespace)" if iso.get("userns") else ""))
     else:
@@ -857,8 +876,9 @@ def describe_isolation(iso):
         if "uid_error" in iso:
             lines.append(f"privileges: root, and dropping them FAILED ({iso['uid_error']}): RLIMIT_NPROC does not apply")
         else:
-            lines.append("privileges: dropped from root to a fresh unprivileged uid/gid per submission (RLIMIT_NPROC "
-                         "applies; submissions cannot signal each other or the grader)")
+            lines.append("privileges: dropped from root to a fresh unprivileged uid/gid per submission, drawn at random "
+                         "and never repeated by this grader (RLIMIT_NPROC applies; submissions cannot signal each "
+                         "other or the grader)")
     else:
         lines.append("privileges: runs as the grader's own (unprivileged) user"
                      + (", in a new user namespace without capabilities" if iso.get("userns") else ""))
@@ -867,3 +887,112 @@ def describe_isolation(iso):
     lines.append("audit hook (second line): " + ("imports of slamlib/autograder, their files, processes, sockets, "
                                                  "ctypes lookups refused" if iso.get("audit_hook") else "off"))
     return lines
+
+
+# --------------------------------------------------------------------------- the grader's self-check
+class SandboxBroken(RuntimeError):
+    """The sandbox cannot run a known-correct function on this machine: grading must not start."""
+
+
+_PROBE_SOURCE = """
+import numpy as np
+import scipy
+import scipy.linalg
+import scipy.sparse
+import scipy.special
+
+
+def probe(a, b):
+    factor = scipy.linalg.cho_factor(a)
+    x = scipy.linalg.cho_solve(factor, b)
+    y = scipy.sparse.csr_matrix(a) @ x
+    return np.concatenate([x, y, [scipy.special.ndtr(0.0), scipy.special.erfc(0.0)]])
+"""
+_PROBE_A = np.array([[4.0, 1.0, 0.5], [1.0, 3.0, 0.25], [0.5, 0.25, 2.0]])
+_PROBE_B = np.array([1.0, -2.0, 0.5])
+_CHECKS = {}
+_CHECK_LOCK = threading.Lock()
+
+
+def _probe_expected():
+    x = np.linalg.solve(_PROBE_A, _PROBE_B)
+    return np.concatenate([x, _PROBE_A @ x, [0.5, 1.0]])
+
+
+def check_sandbox(limits=None, *, refresh=False):
+    """Run one known-correct function in a sandbox, as a submission's would run; report what happened.
+
+    The probe imports NumPy, SciPy and four SciPy subpackages at its top level
+    (the grader's NumPy and SciPy, wherever they are installed: a virtual
+    environment under ``/tmp``, ``~/.local``, ``/usr/local``, a conda prefix) and
+    its function solves a small system with ``scipy.linalg``, multiplies with a
+    ``scipy.sparse`` matrix and evaluates two special functions; the answer is compared
+    with NumPy's in this process. The result is cached per process and set of
+    limits.
+
+    Returns
+    -------
+    dict
+        ``ok`` (bool), ``problem`` (str or None: what failed), ``isolation``
+        (the probe's isolation report), ``seconds``.
+    """
+    limits = limits or Limits()
+    key = (limits.network, limits.filesystem, limits.audit, limits.seccomp, limits.tmp_size, limits.memory)
+    with _CHECK_LOCK:
+        if key in _CHECKS and not refresh:
+            return dict(_CHECKS[key])
+        t0 = time.monotonic()
+        probe_limits = Limits(import_timeout=max(30.0, limits.import_timeout), statement_timeout=30.0,
+                              memory=limits.memory, tmp_size=limits.tmp_size, network=limits.network,
+                              filesystem=limits.filesystem, audit=limits.audit, seccomp=limits.seccomp)
+        box = Sandbox([{"source": _PROBE_SOURCE, "filename": "<sandbox self-check>", "label": "sandbox self-check"}],
+                      ["probe"], probe_limits, "sandbox self-check")
+        problem, iso = None, {}
+        try:
+            ready = box.start()
+            iso = dict(ready.get("isolation") or {})
+            notes = [str(n) for n in ready.get("notes") or []]
+            if notes:
+                problem = "loading NumPy and SciPy in the sandbox failed: " + "; ".join(notes)[:1500]
+            elif not (ready.get("functions") or {}).get("probe", {}).get("defined"):
+                problem = "the probe function was not defined in the sandbox"
+            else:
+                worker = box.fork_worker()
+                try:
+                    out = worker.call("probe", [_PROBE_A, _PROBE_B], timeout=30.0, names=("a", "b"))
+                finally:
+                    worker.close()
+                if out.status != "ok":
+                    problem = (f"the probe function's call ended with status {out.status!r}: {out.error} "
+                               f"{out.where or ''} {out.output or ''}").strip()[:1500]
+                else:
+                    value = getattr(out.returned, "value", None)
+                    got = getattr(value, "array", None)
+                    want = _probe_expected()
+                    if got is None or np.shape(got) != want.shape or not np.allclose(got, want, rtol=1e-9, atol=1e-12):
+                        problem = f"the probe function returned {got!r} instead of {want!r}"
+        except ChildFailed as exc:
+            problem = f"the sandbox could not start or load the probe: {exc}"
+            if exc.outcome.output:
+                problem += f" (output: {exc.outcome.output[-1000:]})"
+        except OSError as exc:
+            problem = f"the sandbox could not start: {exc}"
+        finally:
+            box.close()
+        report = {"ok": problem is None, "problem": problem, "isolation": iso,
+                  "seconds": round(time.monotonic() - t0, 3)}
+        _CHECKS[key] = report
+        return dict(report)
+
+
+def require_sandbox(limits=None):
+    """:func:`check_sandbox`, raising :class:`SandboxBroken` with a message for the course staff on failure."""
+    report = check_sandbox(limits)
+    if not report["ok"]:
+        raise SandboxBroken(
+            "The grader's sandbox cannot run a known-correct function on this machine, so grading stopped before "
+            "any submission was graded (no results were written; nobody is charged).\n"
+            f"What failed: {report['problem']}\n"
+            f"Python: {sys.executable}; NumPy: {_package_dirs('numpy')[:1]}; SciPy: {_package_dirs('scipy')[:1]}\n"
+            "Run `python -m autograder selfcheck` after fixing the installation.")
+    return report
