@@ -16,17 +16,22 @@ Order of events in the child:
    NumPy and SciPy packages only, a private size-capped ``/tmp`` and ``/dev/shm``, a
    fresh ``/proc``, ``/dev/null``, ``zero``, ``urandom``), moves into it with ``pivot_root`` and
    detaches the old root: ``slamlib``, the tests, the bundle, the batch folder and
-   other submissions do not exist there. Then an unprivileged uid/gid (root) or no
-   capabilities (user namespace), ``no_new_privs``, a parent-death signal,
-   resource limits;
+   other submissions do not exist there. Process 1 then forks the zygote and stays
+   behind as a minimal init (no submission code, no signal handlers, no
+   capabilities; it ends the namespace when the zygote, the grader or the control
+   socket goes away). The zygote takes an unprivileged uid/gid (root) or drops its
+   capabilities (user namespace), sets ``no_new_privs``, a parent-death signal and
+   resource limits, joins a fresh session keyring and installs the seccomp filter;
 3. install an audit hook (a second line: imports of ``slamlib``/``autograder``,
    reads of their files, new processes, sockets, ``ctypes`` lookups);
 4. execute the submission's top-level statements one by one in a fresh module
    named ``submission``, announcing each on the control socket so the grader can
    skip one that hangs;
 5. become the zygote: for each ``fork`` request (three pipe ends passed as
-   descriptors) fork a worker that answers call requests on those pipes; kill a
-   worker on request; reap everything.
+   descriptors) fork a worker that makes its private scratch folders, restricts
+   itself to them with Landlock, stacks a seccomp filter that lets it signal only
+   itself, and answers call requests on those pipes; kill a worker on request;
+   reap everything.
 
 Frames on the pipes are ``MAGIC, len(header), len(payload)`` followed by a JSON
 header and raw array bytes; control messages are JSON datagrams.
@@ -807,20 +812,22 @@ def _landlock_abi():
 def _private_scratch(wid, fs_paths):
     """Give this worker its own ``/tmp`` and ``/dev/shm`` folders and restrict it to them (Landlock).
 
-    The worker makes ``/tmp/w<id>-<pid>`` and ``/dev/shm/w<id>-<pid>``, then
+    The worker makes ``/tmp/w<id>-<random>`` and ``/dev/shm/w<id>-<random>``, then
     restricts itself: read-only access to the system, Python and NumPy/SciPy trees
     and its own ``/proc/self``, read and write to a few devices and to its two
     folders, nothing else under ``/tmp``, ``/dev/shm`` or ``/proc`` (another
     worker's folders and ``/proc/<pid>`` entries included); from Landlock ABI 6
     on, also no signals to processes outside its own domain and no abstract UNIX
-    sockets. ``TMPDIR`` and the working directory point at the private ``/tmp`` folder.
+    sockets. ``TMPDIR`` and the working directory point at the private ``/tmp`` folder
+    (``tempfile``, relative paths work; a fixed path such as ``/tmp/x`` is refused).
     Returns ``(abi, error)``.
     """
     import ctypes
     import tempfile
 
     abi = _landlock_abi()
-    tag = f"w{int(wid) if isinstance(wid, int) else 0}-{os.getpid()}"
+    # an unguessable name: another worker can neither list /tmp nor find the folder to stat() what is in it
+    tag = f"w{int(wid) if isinstance(wid, int) else 0}-{os.urandom(16).hex()}"
     tmp, shm = f"/tmp/{tag}", f"/dev/shm/{tag}"
     made = []
     for d in (tmp, shm):
@@ -851,7 +858,8 @@ def _private_scratch(wid, fs_paths):
         _pack_ = 1
         _fields_ = [("allowed", ctypes.c_uint64), ("fd", ctypes.c_int32)]
 
-    attr = RulesetAttr(handled, 3 if abi >= 4 else 0, 3 if abi >= 6 else 0)
+    # TCP bind/connect refused too (ABI 4) where no network namespace cut the sandbox off already
+    attr = RulesetAttr(handled, 3 if abi >= 4 and not _NETNS[0] else 0, 3 if abi >= 6 else 0)
     size = 24 if abi >= 6 else (16 if abi >= 4 else 8)
     rfd = libc.syscall(444, ctypes.byref(attr), ctypes.c_size_t(size), ctypes.c_uint32(0))
     if rfd < 0:
@@ -1153,6 +1161,7 @@ def _worker(job, ctl, fds, mod, attempts, npx, hook_busy, wid=0):
 
 
 _SECCOMP_ON = [False]
+_NETNS = [False]
 _SAVED_SIGNALS = {}
 #: signals that end a process by default and that the zygote ignores (a worker cannot end it with them)
 _ZYGOTE_IGNORES = ("SIGINT", "SIGTERM", "SIGHUP", "SIGQUIT", "SIGUSR1", "SIGUSR2", "SIGALRM", "SIGVTALRM",
@@ -1201,11 +1210,11 @@ _LIBC = [None]
 
 
 def _zygote(job, ctl, mod, attempts, npx, hook_busy):
-    """Process 1 of the sandbox after loading: forks one worker per request, kills workers on request.
+    """The zygote after loading: forks one worker per request, kills workers on request.
 
     Requests arrive on the control socket: ``fork`` (with the worker's three pipe
     ends passed as descriptors), ``kill`` and ``exit``. A worker is reaped as soon
-    as it ends; so are orphans (this is the PID namespace's init).
+    as it ends. Catchable signals that end a process are ignored here (workers get the handlers back).
     """
     import array
     import resource
@@ -1385,6 +1394,7 @@ def main(argv):
     if job.get("isolate", True):
         _LIBC[0] = _isolate(job, iso, np)
     _SECCOMP_ON[0] = bool(iso.get("seccomp"))
+    _NETNS[0] = bool(iso.get("netns"))
     attempts = []
     hook_busy = [False]
     if job.get("audit", True):

@@ -7,17 +7,48 @@ to fork a fresh :class:`Worker`, which answers calls on its own pipes. The
 grader's process only sends arguments and reads back plain arrays; it never
 imports or executes submission code, and expected values are computed only here.
 
+Before it grades (``grade``, ``batch``, ``gradescope``, and ``python -m
+autograder selfcheck``), the grader checks its own sandbox
+(:func:`check_sandbox`): a probe that imports NumPy and SciPy wherever the
+grader's interpreter finds them and runs one known-correct call must give the
+known answer, else grading stops with exit status 3 and no results at all (an
+environment failure is the grader's fault, never the student's).
+
 What isolates the submission (the runner applies the OS-level parts to itself
 before the first line of submission code runs; see ``_runner.py``):
 
 * mount, PID, network, IPC and UTS namespaces, and a minimal root built from a
-  tmpfs: read-only binds of the system libraries, the Python standard library and
-  the NumPy and SciPy package folders only; a private ``/tmp`` and ``/dev/shm``
-  with a size cap; a fresh ``/proc``; ``/dev/null``, ``zero``, ``urandom``. The
-  reference (``slamlib``), the tests (``autograder``), the bundle, the batch folder
-  and other submissions are not in that root;
-* a unique unprivileged uid/gid when the grader runs as root (else no capabilities
-  in a user namespace), ``no_new_privs``, not dumpable, a parent-death signal;
+  tmpfs: read-only binds of the system libraries, the Python standard library, the
+  NumPy and SciPy package folders and the folders of the shared libraries they load
+  (a conda prefix's ``lib``); a private ``/tmp`` (mounted first, so an environment
+  under ``/tmp`` is bound inside it) and ``/dev/shm`` with a size cap; a fresh
+  ``/proc``; ``/dev/null``, ``zero``, ``urandom``. The reference (``slamlib``), the
+  tests (``autograder``), the bundle, the batch folder and other submissions are not
+  in that root;
+* process 1 of the PID namespace is a minimal init that runs no submission code:
+  it has no signal handlers (the kernel drops every signal sent to it from inside,
+  ``SIGKILL`` included), no capabilities, is not dumpable, and it ends, taking every
+  process of the namespace with it, when the zygote ends, when the grader closes
+  the control socket or when the grader dies (parent-death signals up the chain):
+  nothing a submission starts (``setsid``, double forks, a cleared parent-death
+  signal) outlives its grading;
+* a seccomp filter (through libseccomp when installed, else a BPF program built by
+  the runner for x86_64 and aarch64, architecture checked) installed before the
+  submission loads: kernel keyrings, new namespaces (``unshare``, ``setns``,
+  namespace flags of ``clone``; ``clone3`` answers ENOSYS), ``ptrace``, ``bpf``,
+  ``perf_event_open``, io_uring, mounts, ``userfaultfd``, other processes' memory,
+  kernel modules, SysV/POSIX IPC, socket pairs and sockets other than IPv4/IPv6
+  are refused with EPERM; each worker stacks a second filter that lets it signal
+  itself only. The sandbox first joins a fresh session keyring;
+* each worker has a private scratch space: its own ``/tmp/w<id>-<pid>`` and
+  ``/dev/shm/w<id>-<pid>`` (its working directory and ``TMPDIR``), and a Landlock
+  domain that gives it read-only access to the system and Python trees, its own
+  ``/proc/self``, a few devices, and nothing else under ``/tmp``, ``/dev/shm`` or
+  ``/proc``: no file or shared memory passes between functions. From Landlock ABI 6
+  the domain also keeps its signals and abstract UNIX sockets to itself;
+* a unique unprivileged uid/gid when the grader runs as root, drawn at random from a
+  pool that never repeats while the grader runs (else no capabilities in a user
+  namespace), ``no_new_privs``, not dumpable, a parent-death signal;
 * resource limits (CPU, 2 GiB of address space, file size, no new processes in a
   worker, no core dumps);
 * an audit hook as a second line (imports of ``slamlib``/``autograder``, reads of
@@ -26,10 +57,34 @@ before the first line of submission code runs; see ``_runner.py``):
   enforced here; output read through pipes with a byte cap; results through a
   framed format of JSON and raw array bytes that this module validates (no pickles).
 
-Where namespaces are not available the protection falls back to a separate
-unprivileged uid (root) that cannot read the reference when the files'
-permissions say so (the bundle's ``setup.sh`` sets them); :func:`describe_isolation`
-says which protection was in force.
+Which protections hold on which host (each line of :func:`describe_isolation`
+names what held; ``selfcheck`` prints them, and every report for the course staff
+carries them):
+
+==========================  ================================================================
+host                        what holds
+==========================  ================================================================
+namespaces allowed          minimal root, private ``/tmp``/``/dev/shm``, PID namespace with
+(root, or unprivileged      the init above (no survivors), no network; as root also a fresh
+user namespaces)            uid per submission; as a user, no capabilities in a user namespace
+no namespaces (a container  a separate uid when root (the reference unreadable where file
+with a default seccomp      permissions say so: the bundle's ``setup.sh``); no PID namespace,
+profile)                    so a process a submission detaches with ``setsid`` may outlive
+                            grading; files not isolated
+seccomp available           the filter above (kernel >= 3.5; with libseccomp or without)
+Landlock available          per-worker scratch folders (kernel >= 5.13, ABI >= 1); signal
+                            and abstract-socket scoping from ABI 6 (kernel >= 6.12); without
+                            it, the seccomp filter still keeps workers from signalling anything
+                            but themselves, and workers of one submission share ``/tmp``
+cgroups                     not used: the PID namespace is what ends every process, and
+                            rlimits bound memory, CPU and processes
+==========================  ================================================================
+
+What stays shared between the workers of one submission is what they inherit from
+the zygote at fork time, which is the submission's own loaded state; code that a
+submission leaves running inside the zygote after loading (a thread, a fork or
+audit hook) can still read the workers' scratch folders, as the zygote is not in
+their Landlock domains.
 """
 
 from __future__ import annotations
