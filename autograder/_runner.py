@@ -570,7 +570,7 @@ _NR_X86_64 = {
     "mq_open": 240, "mq_unlink": 241, "mq_timedsend": 242, "mq_timedreceive": 243, "mq_notify": 244,
     "mq_getsetattr": 245, "socket": 41, "socketpair": 53, "kill": 62, "tkill": 200, "tgkill": 234,
     "rt_sigqueueinfo": 129, "rt_tgsigqueueinfo": 297, "pidfd_send_signal": 424, "pidfd_open": 434,
-    "personality": 135, "fanotify_init": 300, "add_watch": -1, "quotactl_fd": 443, "setdomainname": 171,
+    "personality": 135, "fanotify_init": 300, "quotactl_fd": 443, "setdomainname": 171,
     "sethostname": 170, "settimeofday": 164, "clock_settime": 227, "adjtimex": 159, "clock_adjtime": 305,
     "migrate_pages": 256, "move_pages": 279, "mbind": 237, "nfsservctl": 180, "uselib": 134,
 }

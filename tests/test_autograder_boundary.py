@@ -421,10 +421,12 @@ SIGNAL_PARENTS = """def normalize_log_weights(log_w):
 """
 
 
-@pytest.mark.parametrize("audit", [False, True])
-def test_signalling_process_1_or_the_zygote_costs_only_that_function(tmp_path, audit):
-    scores, out, result = _attack(tmp_path, SIGNAL_PARENTS, Limits(call_timeout=2.5, audit=audit,
-                                                                   block_processes=audit))
+@pytest.mark.parametrize("audit, backend", [(False, True), (False, "bpf"), (True, True)])
+def test_signalling_process_1_or_the_zygote_costs_only_that_function(tmp_path, audit, backend):
+    lim = Limits(call_timeout=2.5, audit=audit, block_processes=audit)
+    if backend != lim.seccomp:
+        lim = Limits(call_timeout=2.5, audit=audit, block_processes=audit, seccomp=backend)
+    scores, out, result = _attack(tmp_path, SIGNAL_PARENTS, lim)
     assert scores[OTHER] == (15.0, 15.0), result.text_report()
     # the signals were refused: the function itself ran to the end and is judged on its (correct) values
     assert scores[TARGET][0] == scores[TARGET][1], result.text_report()
