@@ -15,6 +15,14 @@
     Run the statistical checks on the reference implementation over many seeds.
 ``list``
     List the exercises, their functions and test cases.
+``selfcheck``
+    Check the grader's own sandbox on this machine: run a known-correct function
+    that imports NumPy and SciPy in it, and say which isolation held.
+
+``grade``, ``batch`` and ``gradescope`` run the same self-check first; when it
+fails they stop with exit status 3 and a message for the course staff, before
+any submission is graded and without writing any results (nobody is charged
+for a broken grader).
 """
 
 from __future__ import annotations
@@ -51,10 +59,27 @@ def _secret(args):
     return path
 
 
+SANDBOX_BROKEN = 3
+
+
+def _sandbox_ok(limits):
+    """The grader's self-check; False (and a message on stderr) when grading must not start."""
+    from .sandbox import SandboxBroken, require_sandbox
+
+    try:
+        require_sandbox(limits)
+    except SandboxBroken as exc:
+        print(str(exc), file=sys.stderr)
+        return False
+    return True
+
+
 def _cmd_grade(args):
     from .engine import grade
     from .results import fallback_results, write_json_atomic
 
+    if not _sandbox_ok(_limits(args)):
+        return SANDBOX_BROKEN
     try:
         result = grade(args.submission, args.exercise, limits=_limits(args), workers=args.workers, seed=args.seed,
                        secret=_secret(args))
@@ -76,6 +101,8 @@ def _cmd_batch(args):
     from .batch import run_batch
 
     _secret(args)
+    if not _sandbox_ok(_limits(args)):
+        return SANDBOX_BROKEN
     run_batch(args.folder, args.exercise, out_csv=args.out, jobs=args.jobs, results_dir=args.results_dir,
               limits=_limits(args), progress=not args.quiet, restart=args.restart, seed=args.seed)
     return 0
@@ -92,6 +119,8 @@ def _cmd_bundle(args):
 def _cmd_gradescope(args):
     from .bundle import run_gradescope
 
+    if not _sandbox_ok(_limits(args)):
+        return SANDBOX_BROKEN
     return run_gradescope(args.root, args.exercise, limits=_limits(args), secret=_secret(args))
 
 
@@ -99,6 +128,18 @@ def _cmd_calibrate(args):
     from .calibrate import main as cal_main
 
     return cal_main(n_seeds=args.seeds, out=args.out)
+
+
+def _cmd_selfcheck(args):
+    from .sandbox import check_sandbox, describe_isolation
+
+    report = check_sandbox(_limits(args))
+    print(f"sandbox self-check: {'ok' if report['ok'] else 'FAILED'} ({report['seconds']:.2f} s)")
+    if not report["ok"]:
+        print(f"  what failed: {report['problem']}")
+    for line in describe_isolation(report["isolation"]):
+        print(f"  - {line}")
+    return 0 if report["ok"] else SANDBOX_BROKEN
 
 
 def _cmd_list(args):
@@ -168,6 +209,9 @@ def build_parser():
     c.add_argument("--seeds", type=int, default=2000)
     c.add_argument("--out", help="write the p-values (CSV)")
     c.set_defaults(func=_cmd_calibrate)
+
+    sc = sub.add_parser("selfcheck", help="check the grader's sandbox on this machine (NumPy, SciPy, isolation)")
+    sc.set_defaults(func=_cmd_selfcheck)
 
     ls = sub.add_parser("list", help="list exercises and tests")
     ls.set_defaults(func=_cmd_list)

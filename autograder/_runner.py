@@ -16,17 +16,22 @@ Order of events in the child:
    NumPy and SciPy packages only, a private size-capped ``/tmp`` and ``/dev/shm``, a
    fresh ``/proc``, ``/dev/null``, ``zero``, ``urandom``), moves into it with ``pivot_root`` and
    detaches the old root: ``slamlib``, the tests, the bundle, the batch folder and
-   other submissions do not exist there. Then an unprivileged uid/gid (root) or no
-   capabilities (user namespace), ``no_new_privs``, a parent-death signal,
-   resource limits;
+   other submissions do not exist there. Process 1 then forks the zygote and stays
+   behind as a minimal init (no submission code, no signal handlers, no
+   capabilities; it ends the namespace when the zygote, the grader or the control
+   socket goes away). The zygote takes an unprivileged uid/gid (root) or drops its
+   capabilities (user namespace), sets ``no_new_privs``, a parent-death signal and
+   resource limits, joins a fresh session keyring and installs the seccomp filter;
 3. install an audit hook (a second line: imports of ``slamlib``/``autograder``,
    reads of their files, new processes, sockets, ``ctypes`` lookups);
 4. execute the submission's top-level statements one by one in a fresh module
    named ``submission``, announcing each on the control socket so the grader can
    skip one that hangs;
 5. become the zygote: for each ``fork`` request (three pipe ends passed as
-   descriptors) fork a worker that answers call requests on those pipes; kill a
-   worker on request; reap everything.
+   descriptors) fork a worker that makes its private scratch folders, restricts
+   itself to them with Landlock, stacks a seccomp filter that lets it signal only
+   itself, and answers call requests on those pipes; kill a worker on request;
+   reap everything.
 
 Frames on the pipes are ``MAGIC, len(header), len(payload)`` followed by a JSON
 header and raw array bytes; control messages are JSON datagrams.
@@ -42,6 +47,7 @@ import sys
 # monkeypatches json, os or numpy attributes does not change what the runner calls)
 _dumps, _loads = json.dumps, json.loads
 _write, _read = os.write, os.read
+_exit, _fork, _getpid = os._exit, os.fork, os.getpid
 
 
 def _load_wire():
@@ -185,27 +191,46 @@ def _namespaces(job, iso, libc, root):
         if not got & NEWNS:
             iso["mountns_error"] = err
     if got & NEWPID:
+        status_r, status_w = os.pipe()
         pid = os.fork()
         if pid:
-            _mirror_child(pid)
+            _mirror_child(pid, status_r)
+        os.close(status_r)
+        _STATUS_FD[0] = status_w
+        libc.prctl(1, 9, 0, 0, 0)  # PR_SET_PDEATHSIG: process 1 dies with the process outside (and with it, all)
     return got
 
 
-def _mirror_child(pid):
-    """Outside the PID namespace: wait for its process 1, then end as it ended."""
+_STATUS_FD = [None]  # process 1 writes the zygote's wait status here for the process outside
+
+
+def _mirror_child(pid, status_r):
+    """Outside the PID namespace: wait for its process 1, then end as the submission's process ended.
+
+    Process 1 (the namespace's init) reports the zygote's wait status on ``status_r``
+    before it ends; without a report the status of process 1 itself is mirrored.
+    """
     import signal
 
     for fd in range(3, 1024):  # keep only stdio: the pipes' other ends must see the child's EOF
-        try:
-            os.close(fd)
-        except OSError:
-            pass
+        if fd != status_r:
+            try:
+                os.close(fd)
+            except OSError:
+                pass
     while True:
         try:
             _, status = os.waitpid(pid, 0)
             break
         except InterruptedError:
             continue
+    try:
+        os.set_blocking(status_r, False)
+        data = os.read(status_r, 64)
+        if data.strip().lstrip(b"-").isdigit():
+            status = int(data.strip())
+    except (OSError, ValueError):
+        pass
     if os.WIFSIGNALED(status):
         sig = os.WTERMSIG(status)
         try:
@@ -252,6 +277,11 @@ def _build_root(fs, iso, libc):
     _check(libc, libc.mount(None, b"/", None, MS_REC | MS_PRIVATE, None), "make mounts private")
     _check(libc, libc.mount(b"tmpfs", R.encode(), b"tmpfs", ro_fl, f"size={fs.get('root_size', '8m')},mode=0755".encode()),
            "root tmpfs")
+    # the private /tmp first: folders of the interpreter, NumPy or SciPy under /tmp (a virtual environment
+    # made there, a conda prefix) are bound inside it below instead of being hidden by it
+    os.makedirs(f"{R}/tmp", mode=0o755)
+    _check(libc, libc.mount(b"tmpfs", f"{R}/tmp".encode(), b"tmpfs", ro_fl,
+                            f"size={fs.get('tmp_size', '64m')},mode=1777".encode()), "private /tmp")
 
     def mkpoint(dst, isdir):
         if isdir:
@@ -298,8 +328,6 @@ def _build_root(fs, iso, libc):
             os.close(fd)
     for d in ("tmp", "dev", "proc", "etc"):
         os.makedirs(f"{R}/{d}", mode=0o755, exist_ok=True)
-    _check(libc, libc.mount(b"tmpfs", f"{R}/tmp".encode(), b"tmpfs", ro_fl,
-                            f"size={fs.get('tmp_size', '64m')},mode=1777".encode()), "private /tmp")
     _check(libc, libc.mount(b"tmpfs", f"{R}/dev".encode(), b"tmpfs", MS_NOSUID, b"size=64k,mode=0755"), "/dev")
     for name in ("null", "zero", "full", "random", "urandom"):
         if os.path.exists(f"/dev/{name}"):
@@ -354,6 +382,9 @@ def _isolate(job, iso, np):
             iso["fs_error"] = str(exc)
     else:
         iso["fs"] = False
+    if got & NEWPID:
+        _start_init(libc)  # returns in the zygote only; process 1 stays the namespace's init
+        iso["init"] = True
     if root and job.get("uid") is not None:
         if not iso.get("fs"):
             # keep the interpreter's own files reachable: directories only root can
@@ -414,7 +445,459 @@ def _isolate(job, iso, np):
             pass
     applied["RLIMIT_NPROC"] = int(lim.get("nproc", 0))  # applied in every worker before its first call
     iso["rlimits"] = applied
+    # a fresh, empty session keyring (not the grader's), then the system-call filter
+    iso["session_keyring"] = _join_session_keyring(libc)
+    if job.get("seccomp", True):
+        err = _seccomp(_base_rules())
+        iso["seccomp"] = err is None
+        if err is not None:
+            iso["seccomp_error"] = err
+        else:
+            iso["seccomp_backend"] = _SECCOMP_BACKEND[0]
+    else:
+        iso["seccomp"] = False
+        iso["seccomp_error"] = "switched off"
+    iso["landlock_abi"] = _landlock_abi()
     return libc
+
+
+# --------------------------------------------------------------------------- process 1 of the namespace
+def _start_init(libc):
+    """Fork the zygote; this process (1 of the PID namespace) becomes a minimal init and never returns.
+
+    Process 1 runs no submission code: it only reaps orphans and waits. It has no
+    signal handlers (all ``SIG_DFL``), so the kernel drops every signal sent to it
+    from inside the namespace, ``SIGKILL`` included; it has no capabilities, is not
+    dumpable, and the seccomp filter of the processes below denies ``ptrace``. It
+    ends, and the kernel kills everything in the namespace with it, when the
+    zygote ends, when the grader closes its end of the control socket, or when the
+    process outside (and so the grader: parent-death signals) goes away.
+    """
+    zpid = os.fork()
+    if zpid == 0:
+        libc.prctl(1, 9, 0, 0, 0)  # PR_SET_PDEATHSIG
+        try:
+            os.close(_STATUS_FD[0])
+        except (OSError, TypeError):
+            pass
+        _STATUS_FD[0] = None
+        return
+    try:
+        _init_loop(zpid, libc)
+    finally:
+        os._exit(0)
+
+
+def _init_loop(zpid, libc):
+    import select
+    import signal
+
+    status_w, ctl_fd = _STATUS_FD[0], _CTL_FD[0]
+    for sig in signal.valid_signals():
+        if sig not in (signal.SIGKILL, signal.SIGSTOP):
+            try:
+                signal.signal(sig, signal.SIG_DFL)
+            except (OSError, ValueError):
+                pass
+    null = os.open("/dev/null", os.O_RDWR)
+    for fd in (0, 1, 2):
+        os.dup2(null, fd)
+    keep = {0, 1, 2, status_w, ctl_fd}
+    for fd in range(3, 1024):
+        if fd not in keep:
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+    libc.prctl(38, 1, 0, 0, 0)  # PR_SET_NO_NEW_PRIVS
+    libc.prctl(4, 0, 0, 0, 0)  # PR_SET_DUMPABLE 0
+    _drop_capabilities(libc)
+    zfd = os.pidfd_open(zpid)
+    gone = select.POLLHUP | select.POLLERR | 0x2000  # POLLRDHUP
+    poller = select.poll()
+    poller.register(ctl_fd, 0x2000)
+    poller.register(status_w, 0)  # POLLERR: the process outside closed its end (it is gone)
+    poller.register(zfd, select.POLLIN)
+    zstatus = None
+    while zstatus is None:
+        try:
+            events = poller.poll(1000)
+        except InterruptedError:
+            events = []
+        while True:  # reap the zygote, workers' orphans, anything reparented here
+            try:
+                pid, st = os.waitpid(-1, os.WNOHANG)
+            except ChildProcessError:
+                break
+            if pid == 0:
+                break
+            if pid == zpid:
+                zstatus = st
+        if any(fd in (ctl_fd, status_w) and ev & gone for fd, ev in events):
+            break
+    if zstatus is not None:
+        try:
+            _write(status_w, str(zstatus).encode())
+        except OSError:
+            pass
+
+
+_CTL_FD = [None]
+
+
+# --------------------------------------------------------------------------- kernel context: keyrings, seccomp
+def _syscall_numbers():
+    """Native system-call numbers of the calls the filters name (x86_64 and aarch64)."""
+    machine = os.uname().machine
+    if machine in ("x86_64", "amd64"):
+        return _NR_X86_64
+    if machine in ("aarch64", "arm64"):
+        return _NR_AARCH64
+    return {}
+
+
+_NR_X86_64 = {
+    "keyctl": 250, "add_key": 248, "request_key": 249, "unshare": 272, "setns": 308, "clone": 56, "clone3": 435,
+    "ptrace": 101, "bpf": 321, "perf_event_open": 298, "io_uring_setup": 425, "io_uring_enter": 426,
+    "io_uring_register": 427, "mount": 165, "umount2": 166, "pivot_root": 155, "chroot": 161, "userfaultfd": 323,
+    "process_vm_readv": 310, "process_vm_writev": 311, "kexec_load": 246, "kexec_file_load": 320,
+    "init_module": 175, "finit_module": 313, "delete_module": 176, "open_by_handle_at": 304,
+    "name_to_handle_at": 303, "fsopen": 430, "fsconfig": 431, "fsmount": 432, "fspick": 433, "open_tree": 428,
+    "move_mount": 429, "mount_setattr": 442, "swapon": 167, "swapoff": 168, "reboot": 169, "acct": 163,
+    "quotactl": 179, "pidfd_getfd": 438, "kcmp": 312, "syslog": 103, "vhangup": 153, "iopl": 172, "ioperm": 173,
+    "modify_ldt": 154, "lookup_dcookie": 212, "shmget": 29, "shmat": 30, "shmctl": 31, "shmdt": 67, "semget": 64,
+    "semop": 65, "semctl": 66, "semtimedop": 220, "msgget": 68, "msgsnd": 69, "msgrcv": 70, "msgctl": 71,
+    "mq_open": 240, "mq_unlink": 241, "mq_timedsend": 242, "mq_timedreceive": 243, "mq_notify": 244,
+    "mq_getsetattr": 245, "socket": 41, "socketpair": 53, "kill": 62, "tkill": 200, "tgkill": 234,
+    "rt_sigqueueinfo": 129, "rt_tgsigqueueinfo": 297, "pidfd_send_signal": 424, "pidfd_open": 434,
+    "personality": 135, "fanotify_init": 300, "quotactl_fd": 443, "setdomainname": 171,
+    "sethostname": 170, "settimeofday": 164, "clock_settime": 227, "adjtimex": 159, "clock_adjtime": 305,
+    "migrate_pages": 256, "move_pages": 279, "mbind": 237, "nfsservctl": 180, "uselib": 134,
+}
+_NR_AARCH64 = {
+    "keyctl": 219, "add_key": 217, "request_key": 218, "unshare": 97, "setns": 268, "clone": 220, "clone3": 435,
+    "ptrace": 117, "bpf": 280, "perf_event_open": 241, "io_uring_setup": 425, "io_uring_enter": 426,
+    "io_uring_register": 427, "mount": 40, "umount2": 39, "pivot_root": 41, "chroot": 51, "userfaultfd": 282,
+    "process_vm_readv": 270, "process_vm_writev": 271, "kexec_load": 104, "kexec_file_load": 294,
+    "init_module": 105, "finit_module": 273, "delete_module": 106, "open_by_handle_at": 265,
+    "name_to_handle_at": 264, "fsopen": 430, "fsconfig": 431, "fsmount": 432, "fspick": 433, "open_tree": 428,
+    "move_mount": 429, "mount_setattr": 442, "swapon": 224, "swapoff": 225, "reboot": 142, "acct": 89,
+    "quotactl": 60, "pidfd_getfd": 438, "kcmp": 272, "syslog": 116, "vhangup": 58, "lookup_dcookie": 18,
+    "shmget": 194, "shmat": 196, "shmctl": 195, "shmdt": 197, "semget": 190, "semop": 193, "semctl": 191,
+    "semtimedop": 192, "msgget": 186, "msgsnd": 189, "msgrcv": 188, "msgctl": 187, "mq_open": 180,
+    "mq_unlink": 181, "mq_timedsend": 182, "mq_timedreceive": 183, "mq_notify": 184, "mq_getsetattr": 185,
+    "socket": 198, "socketpair": 199, "kill": 129, "tkill": 130, "tgkill": 131, "rt_sigqueueinfo": 138,
+    "rt_tgsigqueueinfo": 240, "pidfd_send_signal": 424, "pidfd_open": 434, "personality": 92,
+    "fanotify_init": 262, "quotactl_fd": 443, "setdomainname": 162, "sethostname": 161, "settimeofday": 170,
+    "clock_settime": 112, "adjtimex": 171, "clock_adjtime": 266, "migrate_pages": 238, "move_pages": 239,
+    "mbind": 235,
+}
+
+#: what a numerical function never needs: kernel keyrings, namespaces, tracing, BPF, io_uring, mounts,
+#: other processes' memory, kernel modules, SysV and POSIX IPC, socket pairs, clock and host settings; sockets
+#: other than IPv4/IPv6 (UNIX, netlink, packet, AF_ALG ...: see _base_rules), which the network namespace
+#: leaves without a route
+DENIED = ("keyctl", "add_key", "request_key", "unshare", "setns", "ptrace", "bpf", "perf_event_open",
+          "io_uring_setup", "io_uring_enter", "io_uring_register", "mount", "umount2", "pivot_root", "chroot",
+          "userfaultfd", "process_vm_readv", "process_vm_writev", "kexec_load", "kexec_file_load", "init_module",
+          "finit_module", "delete_module", "open_by_handle_at", "name_to_handle_at", "fsopen", "fsconfig",
+          "fsmount", "fspick", "open_tree", "move_mount", "mount_setattr", "swapon", "swapoff", "reboot", "acct",
+          "quotactl", "quotactl_fd", "pidfd_getfd", "kcmp", "syslog", "vhangup", "iopl", "ioperm", "modify_ldt",
+          "lookup_dcookie", "shmget", "shmat", "shmctl", "shmdt", "semget", "semop", "semctl", "semtimedop",
+          "msgget", "msgsnd", "msgrcv", "msgctl", "mq_open", "mq_unlink", "mq_timedsend", "mq_timedreceive",
+          "mq_notify", "mq_getsetattr", "socketpair", "fanotify_init", "setdomainname", "sethostname",
+          "settimeofday", "clock_settime", "adjtimex", "clock_adjtime", "migrate_pages", "move_pages", "mbind",
+          "nfsservctl", "uselib")
+#: namespace flags of clone(): a process may fork, not make new namespaces
+CLONE_NS_FLAGS = (0x00020000, 0x02000000, 0x04000000, 0x08000000, 0x10000000, 0x20000000, 0x40000000)
+EPERM, ENOSYS = 1, 38
+
+
+def _base_rules():
+    """Rules of the zygote's filter (inherited by every worker): ``(name, errno, [(arg, op, a, b)])``."""
+    rules = [(name, EPERM, []) for name in DENIED]
+    rules += [("clone", EPERM, [(0, "masked_eq", f, f)]) for f in CLONE_NS_FLAGS]
+    rules.append(("clone3", ENOSYS, []))  # flags sit in memory a filter cannot read: C libraries fall back to clone
+    rules.append(("socket", EPERM, [(0, "not_in", (2, 10), 0)]))  # AF_INET and AF_INET6 only
+    return rules
+
+
+def _worker_rules(pid):
+    """Stacked on the base filter in every worker: it may signal itself only, and open no pidfds."""
+    return [("kill", EPERM, [(0, "ne", pid, 0)]), ("tkill", EPERM, [(0, "ne", pid, 0)]),
+            ("tgkill", EPERM, [(0, "ne", pid, 0)]), ("rt_sigqueueinfo", EPERM, [(0, "ne", pid, 0)]),
+            ("rt_tgsigqueueinfo", EPERM, [(0, "ne", pid, 0)]), ("pidfd_send_signal", EPERM, []),
+            ("pidfd_open", EPERM, [])]
+
+
+_SECCOMP_LIB = [None]
+_SECCOMP_BACKEND = [None]
+
+
+def _load_libseccomp():
+    """libseccomp through ctypes (loaded before the child isolates itself); None when not installed."""
+    import ctypes
+    import ctypes.util
+
+    for name in (ctypes.util.find_library("seccomp"), "libseccomp.so.2"):
+        if not name:
+            continue
+        try:
+            lib = ctypes.CDLL(name, use_errno=True)
+        except OSError:
+            continue
+        lib.seccomp_init.restype = ctypes.c_void_p
+        lib.seccomp_init.argtypes = [ctypes.c_uint32]
+        lib.seccomp_rule_add_array.argtypes = [ctypes.c_void_p, ctypes.c_uint32, ctypes.c_int, ctypes.c_uint,
+                                               ctypes.c_void_p]
+        lib.seccomp_syscall_resolve_name.argtypes = [ctypes.c_char_p]
+        lib.seccomp_load.argtypes = [ctypes.c_void_p]
+        lib.seccomp_release.argtypes = [ctypes.c_void_p]
+        lib.seccomp_attr_set.argtypes = [ctypes.c_void_p, ctypes.c_int, ctypes.c_uint32]
+        return lib
+    return None
+
+
+def _seccomp(rules):
+    """Install a filter that returns the given errno for each rule (everything else allowed).
+
+    Through libseccomp when it is installed (it adds the architecture check and
+    resolves names); else a classic BPF program built here for x86_64 and aarch64.
+    Returns None on success, else why it could not be installed.
+    """
+    lib = _SECCOMP_LIB[0]
+    if lib is not None:
+        err = _seccomp_libseccomp(lib, rules)
+        if err is None:
+            _SECCOMP_BACKEND[0] = "libseccomp"
+            return None
+    err2 = _seccomp_bpf(rules)
+    if err2 is None:
+        _SECCOMP_BACKEND[0] = "bpf"
+        return None
+    return err2 if lib is None else f"libseccomp: {err}; bpf: {err2}"
+
+
+_OPS = {"ne": 1, "lt": 2, "le": 3, "eq": 4, "ge": 5, "gt": 6, "masked_eq": 7}
+
+
+def _seccomp_libseccomp(lib, rules):
+    import ctypes
+
+    class ArgCmp(ctypes.Structure):
+        _fields_ = [("arg", ctypes.c_uint), ("op", ctypes.c_int), ("datum_a", ctypes.c_uint64),
+                    ("datum_b", ctypes.c_uint64)]
+
+    ctx = lib.seccomp_init(0x7FFF0000)  # SCMP_ACT_ALLOW
+    if not ctx:
+        return "seccomp_init failed"
+    try:
+        lib.seccomp_attr_set(ctx, 4, 1)  # SCMP_FLTATR_CTL_TSYNC: every thread of the process
+        expanded = []
+        for name, errno, args in rules:
+            if args and args[0][1] == "not_in":  # as several rules: below, between and above the allowed values
+                arg, _, allowed, _ = args[0]
+                lo, hi = min(allowed), max(allowed)
+                expanded.append((name, errno, [(arg, "lt", lo, 0)]))
+                expanded.append((name, errno, [(arg, "gt", hi, 0)]))
+                expanded += [(name, errno, [(arg, "eq", v, 0)]) for v in range(lo + 1, hi) if v not in allowed]
+            else:
+                expanded.append((name, errno, args))
+        for name, errno, args in expanded:
+            nr = lib.seccomp_syscall_resolve_name(name.encode())
+            if nr < 0:
+                continue  # not a system call on this architecture
+            arr = (ArgCmp * max(1, len(args)))()
+            for k, (arg, op, a, b) in enumerate(args):
+                if op == "masked_eq":  # libseccomp: datum_a is the mask, datum_b the value
+                    arr[k] = ArgCmp(arg, _OPS[op], a & 0xFFFFFFFFFFFFFFFF, b & 0xFFFFFFFFFFFFFFFF)
+                else:
+                    arr[k] = ArgCmp(arg, _OPS[op], a & 0xFFFFFFFFFFFFFFFF, 0)
+            rc = lib.seccomp_rule_add_array(ctx, 0x00050000 | (errno & 0xFFFF), nr, len(args), arr)
+            if rc < 0:
+                return f"rule for {name}: {os.strerror(-rc)}"
+        rc = lib.seccomp_load(ctx)
+        if rc < 0:
+            return f"seccomp_load: {os.strerror(-rc)}"
+        return None
+    finally:
+        lib.seccomp_release(ctx)
+
+
+def _seccomp_bpf(rules):
+    """The same filter as a classic BPF program (architecture checked first; unknown ABIs are killed)."""
+    import ctypes
+    import struct
+
+    machine = os.uname().machine
+    if machine in ("x86_64", "amd64"):
+        arch = 0xC000003E  # AUDIT_ARCH_X86_64
+    elif machine in ("aarch64", "arm64"):
+        arch = 0xC00000B7  # AUDIT_ARCH_AARCH64
+    else:
+        return f"no filter for the {machine} architecture"
+    nrs = _syscall_numbers()
+    LD, JEQ, JSET, JGE, RET, AND = 0x20, 0x15, 0x45, 0x35, 0x06, 0x54
+    ALLOW, KILL = 0x7FFF0000, 0x80000000  # SECCOMP_RET_ALLOW, SECCOMP_RET_KILL_PROCESS
+    prog = [(LD, 0, 0, 4), (JEQ, 1, 0, arch), (RET, 0, 0, KILL), (LD, 0, 0, 0)]
+    if arch == 0xC000003E:  # x32 system calls (bit 30) share the x86_64 audit arch: refuse them
+        prog += [(JGE, 0, 1, 0x40000000), (RET, 0, 0, 0x00050000 | ENOSYS)]
+    for name, errno, args in rules:
+        nr = nrs.get(name, -1)
+        if nr < 0:
+            continue
+        ret = (RET, 0, 0, 0x00050000 | (errno & 0xFFFF))
+        if not args:
+            prog += [(JEQ, 0, 1, nr), ret]
+            continue
+        (arg, op, a, b), = args  # one comparison per rule is all the filters here use
+        lo = 16 + 8 * arg  # seccomp_data.args[arg], low 32 bits (little-endian)
+        if op == "masked_eq":
+            # nr matches and (arg & a) == b, with a == b a single flag: JSET
+            prog += [(JEQ, 0, 4, nr), (LD, 0, 0, lo), (JSET, 0, 1, a & 0xFFFFFFFF), ret, (LD, 0, 0, 0)]
+        elif op == "not_in":
+            vals = list(a)
+            n = len(vals)
+            # nr matches and the low 32 bits are none of vals: refuse; a match jumps to the reload of the number
+            prog += [(JEQ, 0, n + 3, nr), (LD, 0, 0, lo)]
+            prog += [(JEQ, n - k, 0, v & 0xFFFFFFFF) for k, v in enumerate(vals)]
+            prog += [ret, (LD, 0, 0, 0)]
+        elif op == "ne":
+            # nr matches and the low 32 bits differ, or the high 32 bits are not those of a (sign-extended) int
+            hi = (a >> 32) & 0xFFFFFFFF
+            prog += [(JEQ, 0, 6, nr), (LD, 0, 0, lo), (JEQ, 0, 2, a & 0xFFFFFFFF), (LD, 0, 0, lo + 4),
+                     (JEQ, 1, 0, hi), ret, (LD, 0, 0, 0)]
+            # the jump over `ret` lands on the reload of the number
+        else:
+            return f"comparison {op!r} not built"
+    prog.append((RET, 0, 0, ALLOW))
+    code = b"".join(struct.pack("HBBI", c, jt, jf, k) for c, jt, jf, k in prog)
+    buf = ctypes.create_string_buffer(code, len(code))
+
+    class SockFprog(ctypes.Structure):
+        _fields_ = [("len", ctypes.c_ushort), ("filter", ctypes.c_void_p)]
+
+    fprog = SockFprog(len(prog), ctypes.cast(buf, ctypes.c_void_p))
+    libc = _LIBC[0] or _libc()
+    # seccomp(SECCOMP_SET_MODE_FILTER, SECCOMP_FILTER_FLAG_TSYNC, prog)
+    nr = {"x86_64": 317, "amd64": 317}.get(machine, 277)
+    if libc.syscall(nr, 1, 1, ctypes.byref(fprog)) != 0:
+        return f"seccomp: {os.strerror(ctypes.get_errno())}"
+    return None
+
+
+def _join_session_keyring(libc):
+    """keyctl(KEYCTL_JOIN_SESSION_KEYRING, NULL): a new anonymous session keyring; True when it held."""
+    import ctypes
+
+    nr = _syscall_numbers().get("keyctl")
+    if nr is None:
+        return False
+    return libc.syscall(nr, ctypes.c_long(1), ctypes.c_void_p(None)) >= 0
+
+
+# --------------------------------------------------------------------------- a private scratch space per worker
+LL_RO = 1 | 4 | 8  # EXECUTE, READ_FILE, READ_DIR
+LL_FILE = 1 | 2 | 4  # rights that apply to a file: EXECUTE, WRITE_FILE, READ_FILE (TRUNCATE from ABI 3)
+
+
+def _landlock_abi():
+    import ctypes
+
+    libc = _LIBC[0] or _libc()
+    v = libc.syscall(444, None, ctypes.c_size_t(0), ctypes.c_uint32(1))  # LANDLOCK_CREATE_RULESET_VERSION
+    return int(v) if v > 0 else 0
+
+
+def _private_scratch(wid, fs_paths):
+    """Give this worker its own ``/tmp`` and ``/dev/shm`` folders and restrict it to them (Landlock).
+
+    The worker makes ``/tmp/w<id>-<random>`` and ``/dev/shm/w<id>-<random>``, then
+    restricts itself: read-only access to the system, Python and NumPy/SciPy trees
+    and its own ``/proc/self``, read and write to a few devices and to its two
+    folders, nothing else under ``/tmp``, ``/dev/shm`` or ``/proc`` (another
+    worker's folders and ``/proc/<pid>`` entries included); from Landlock ABI 6
+    on, also no signals to processes outside its own domain and no abstract UNIX
+    sockets. ``TMPDIR`` and the working directory point at the private ``/tmp`` folder
+    (``tempfile``, relative paths work; a fixed path such as ``/tmp/x`` is refused).
+    Returns ``(abi, error)``.
+    """
+    import ctypes
+    import tempfile
+
+    abi = _landlock_abi()
+    # an unguessable name: another worker can neither list /tmp nor find the folder to stat() what is in it
+    tag = f"w{int(wid) if isinstance(wid, int) else 0}-{os.urandom(16).hex()}"
+    tmp, shm = f"/tmp/{tag}", f"/dev/shm/{tag}"
+    made = []
+    for d in (tmp, shm):
+        try:
+            os.mkdir(d, 0o700)
+            made.append(d)
+        except OSError:
+            pass
+    if tmp in made:
+        os.chdir(tmp)
+        os.environ["TMPDIR"] = tmp
+        tempfile.tempdir = tmp
+    if abi < 1:
+        return abi, "Landlock is not available on this kernel"
+    libc = _LIBC[0] or _libc()
+    handled = (1 << 13) - 1
+    if abi >= 2:
+        handled |= 1 << 13  # REFER
+    file_rights = LL_FILE
+    if abi >= 3:
+        handled |= 1 << 14  # TRUNCATE
+        file_rights |= 1 << 14
+
+    class RulesetAttr(ctypes.Structure):
+        _fields_ = [("fs", ctypes.c_uint64), ("net", ctypes.c_uint64), ("scoped", ctypes.c_uint64)]
+
+    class PathBeneath(ctypes.Structure):
+        _pack_ = 1
+        _fields_ = [("allowed", ctypes.c_uint64), ("fd", ctypes.c_int32)]
+
+    # TCP bind/connect refused too (ABI 4) where no network namespace cut the sandbox off already
+    attr = RulesetAttr(handled, 3 if abi >= 4 and not _NETNS[0] else 0, 3 if abi >= 6 else 0)
+    size = 24 if abi >= 6 else (16 if abi >= 4 else 8)
+    rfd = libc.syscall(444, ctypes.byref(attr), ctypes.c_size_t(size), ctypes.c_uint32(0))
+    if rfd < 0:
+        return abi, f"landlock_create_ruleset: {os.strerror(ctypes.get_errno())}"
+    try:
+        def allow(path, rights):
+            try:
+                fd = os.open(path, os.O_PATH | os.O_CLOEXEC)
+            except OSError:
+                return
+            try:
+                if not os.path.isdir(f"/proc/self/fd/{fd}"):
+                    rights &= file_rights
+                rule = PathBeneath(rights, fd)
+                libc.syscall(445, ctypes.c_int(rfd), ctypes.c_int(1), ctypes.byref(rule), ctypes.c_uint32(0))
+            finally:
+                os.close(fd)
+
+        private = ("/tmp", "/dev", "/proc")
+        for name in os.listdir("/"):
+            if "/" + name not in private:
+                allow("/" + name, LL_RO)
+        allow("/proc", 8)  # READ_DIR: pids can be listed; files of other processes cannot be read
+        for p in fs_paths:  # interpreter, NumPy/SciPy and library folders that live under /tmp or /dev
+            if isinstance(p, str) and any(p == r or p.startswith(r + "/") for r in private) and os.path.exists(p):
+                allow(p, LL_RO)
+        allow("/proc/self", LL_RO)  # opened through the link: this process's own entry only
+        for dev in ("null", "zero", "full"):
+            allow(f"/dev/{dev}", file_rights)
+        for dev in ("random", "urandom"):
+            allow(f"/dev/{dev}", 4)
+        for d in made:
+            allow(d, handled)
+        if libc.syscall(446, ctypes.c_int(rfd), ctypes.c_uint32(0)) != 0:
+            return abi, f"landlock_restrict_self: {os.strerror(ctypes.get_errno())}"
+    finally:
+        os.close(rfd)
+    return abi, None
 
 
 _BLOCKED_EVENTS = ("os.fork", "os.forkpty", "os.exec", "os.posix_spawn", "os.spawn", "os.system", "subprocess.Popen",
@@ -642,8 +1125,12 @@ def frozen_numpy(np):
         random=types.SimpleNamespace(default_rng=np.random.default_rng, seed=np.random.seed))
 
 
-def _worker(job, ctl, fds, mod, attempts, npx, hook_busy):
-    """A fresh process forked from the loaded submission: serves calls on its own pipes."""
+def _worker(job, ctl, fds, mod, attempts, npx, hook_busy, wid=0):
+    """A fresh process forked from the loaded submission: serves calls on its own pipes.
+
+    Before the first call it gets its own scratch folders and a Landlock domain
+    (:func:`_private_scratch`), and a second seccomp filter that lets it signal only itself.
+    """
     import resource
 
     req_fd, res_fd, out_fd = fds
@@ -662,7 +1149,49 @@ def _worker(job, ctl, fds, mod, attempts, npx, hook_busy):
         resource.setrlimit(resource.RLIMIT_NPROC, (nproc, nproc))
     except (ValueError, OSError):
         pass
+    _restore_signals()
+    if job.get("scratch", True):
+        fs = job.get("fs") or {}
+        paths = list(fs.get("python", [])) + list(fs.get("allow", [])) + list(sys.path)
+        paths += [sys.prefix, sys.base_prefix, sys.exec_prefix]
+        _private_scratch(wid, paths)
+    if job.get("seccomp", True) and _SECCOMP_ON[0]:
+        _seccomp(_worker_rules(_getpid()))
     _run_then_exit(_serve, job, req_fd, res_fd, mod, attempts, npx)
+
+
+_SECCOMP_ON = [False]
+_NETNS = [False]
+_SAVED_SIGNALS = {}
+#: signals that end a process by default and that the zygote ignores (a worker cannot end it with them)
+_ZYGOTE_IGNORES = ("SIGINT", "SIGTERM", "SIGHUP", "SIGQUIT", "SIGUSR1", "SIGUSR2", "SIGALRM", "SIGVTALRM",
+                   "SIGPROF", "SIGPIPE", "SIGXCPU", "SIGTRAP", "SIGIO", "SIGPWR", "SIGSTKFLT", "SIGTSTP", "SIGTTIN",
+                   "SIGTTOU")
+
+
+def _ignore_signals():
+    """In the zygote: ignore catchable signals (handlers a submission set while loading are put back in workers)."""
+    import signal
+
+    for name in _ZYGOTE_IGNORES:
+        sig = getattr(signal, name, None)
+        if sig is None:
+            continue
+        try:
+            _SAVED_SIGNALS[sig] = signal.getsignal(sig)
+            signal.signal(sig, signal.SIG_IGN)
+        except (OSError, ValueError, TypeError):
+            pass
+
+
+def _restore_signals():
+    import signal
+
+    for sig, handler in _SAVED_SIGNALS.items():
+        try:
+            signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
+        except (OSError, ValueError, TypeError):
+            pass
 
 
 def _run_then_exit(fn, *args):
@@ -674,18 +1203,18 @@ def _run_then_exit(fn, *args):
             sys.stdout.flush()
         except BaseException:  # noqa: BLE001
             pass
-        os._exit(0)
+        _exit(0)
 
 
 _LIBC = [None]
 
 
 def _zygote(job, ctl, mod, attempts, npx, hook_busy):
-    """Process 1 of the sandbox after loading: forks one worker per request, kills workers on request.
+    """The zygote after loading: forks one worker per request, kills workers on request.
 
     Requests arrive on the control socket: ``fork`` (with the worker's three pipe
     ends passed as descriptors), ``kill`` and ``exit``. A worker is reaped as soon
-    as it ends; so are orphans (this is the PID namespace's init).
+    as it ends. Catchable signals that end a process are ignored here (workers get the handlers back).
     """
     import array
     import resource
@@ -694,6 +1223,7 @@ def _zygote(job, ctl, mod, attempts, npx, hook_busy):
     import socket
 
     workers = {}  # id -> (pid, pidfd, the result pipe's write end: the exit status goes there)
+    _ignore_signals()
     unique_uid = job.get("uid") is not None and os.getuid() == int(job["uid"])
 
     def reap():
@@ -791,7 +1321,7 @@ def _zygote(job, ctl, mod, attempts, npx, hook_busy):
             try:
                 hook_busy[0] = True
                 try:
-                    pid = os.fork()
+                    pid = _fork()
                 finally:
                     hook_busy[0] = False
             except OSError:
@@ -804,7 +1334,7 @@ def _zygote(job, ctl, mod, attempts, npx, hook_busy):
                             os.close(f)
                         except OSError:
                             pass
-                _worker(job, ctl, fds, mod, attempts, npx, hook_busy)
+                _worker(job, ctl, fds, mod, attempts, npx, hook_busy, wid)
             keep = None
             if pid > 0:
                 try:
@@ -853,14 +1383,18 @@ def main(argv):
     import numpy.linalg  # noqa: F401
     import numpy.random  # noqa: F401
     # what the runner itself needs later, loaded while every file is readable
-    import array, ast, ctypes, ctypes.util, inspect, linecache, random, resource, select, signal, stat, time, traceback, types  # noqa: E401,F401,E501
+    import array, ast, ctypes, ctypes.util, inspect, linecache, random, resource, select, signal, stat, struct, tempfile, time, traceback, types  # noqa: E401,F401,E501
 
     npx = frozen_numpy(np)
     iso = {}
+    _CTL_FD[0] = ctl_fd
+    _LIBC[0] = _libc_early
+    # seccomp: True (libseccomp when installed, else the filter built here), "bpf" (the filter built here), False
+    _SECCOMP_LIB[0] = _load_libseccomp() if job.get("seccomp", True) is True else None
     if job.get("isolate", True):
         _LIBC[0] = _isolate(job, iso, np)
-    else:
-        _LIBC[0] = _libc_early
+    _SECCOMP_ON[0] = bool(iso.get("seccomp"))
+    _NETNS[0] = bool(iso.get("netns"))
     attempts = []
     hook_busy = [False]
     if job.get("audit", True):

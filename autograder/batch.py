@@ -180,9 +180,11 @@ def run_batch(folder, exercise, *, out_csv="grades.csv", jobs=2, results_dir=Non
         The CSV rows, sorted by submission id.
     """
     from .exercises import get_exercise
+    from .sandbox import require_sandbox
     from .seeds import load_secret
 
     ex = get_exercise(exercise)
+    require_sandbox(limits)  # a broken grader stops here, before any submission is charged
     out_csv = Path(out_csv)
     out_csv.parent.mkdir(parents=True, exist_ok=True)
     results_dir = Path(results_dir) if results_dir else out_csv.with_name(out_csv.stem + "_results")

@@ -245,13 +245,25 @@ def _gradescope_secret(root, secret=None):
 
 
 def run_gradescope(root, exercise, *, limits=None, secret=None):
-    """Grade ``root/submission`` into ``root/results/results.json`` (always written)."""
+    """Grade ``root/submission`` into ``root/results/results.json``.
+
+    Written whenever grading ran (a grader error included); not written when the
+    sandbox's self-check fails before grading (exit status 3), so that no student
+    gets a score from a broken installation.
+    """
     from .batch import pick_submission_file
     from .engine import grade
     from .exercises import get_exercise
 
+    from .sandbox import SandboxBroken, require_sandbox
+
     root = Path(root)
     results = root / "results" / "results.json"
+    try:
+        require_sandbox(limits)
+    except SandboxBroken as exc:  # the grader's fault: no results.json, so Gradescope reports an autograder failure
+        print(str(exc))
+        return 3
     try:
         ex = get_exercise(exercise)
         path, why = pick_submission_file(root / "submission", ex.notebook)

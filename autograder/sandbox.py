@@ -7,17 +7,48 @@ to fork a fresh :class:`Worker`, which answers calls on its own pipes. The
 grader's process only sends arguments and reads back plain arrays; it never
 imports or executes submission code, and expected values are computed only here.
 
+Before it grades (``grade``, ``batch``, ``gradescope``, and ``python -m
+autograder selfcheck``), the grader checks its own sandbox
+(:func:`check_sandbox`): a probe that imports NumPy and SciPy wherever the
+grader's interpreter finds them and runs one known-correct call must give the
+known answer, else grading stops with exit status 3 and no results at all (an
+environment failure is the grader's fault, never the student's).
+
 What isolates the submission (the runner applies the OS-level parts to itself
 before the first line of submission code runs; see ``_runner.py``):
 
 * mount, PID, network, IPC and UTS namespaces, and a minimal root built from a
-  tmpfs: read-only binds of the system libraries, the Python standard library and
-  the NumPy and SciPy package folders only; a private ``/tmp`` and ``/dev/shm``
-  with a size cap; a fresh ``/proc``; ``/dev/null``, ``zero``, ``urandom``. The
-  reference (``slamlib``), the tests (``autograder``), the bundle, the batch folder
-  and other submissions are not in that root;
-* a unique unprivileged uid/gid when the grader runs as root (else no capabilities
-  in a user namespace), ``no_new_privs``, not dumpable, a parent-death signal;
+  tmpfs: read-only binds of the system libraries, the Python standard library, the
+  NumPy and SciPy package folders and the folders of the shared libraries they load
+  (a conda prefix's ``lib``); a private ``/tmp`` (mounted first, so an environment
+  under ``/tmp`` is bound inside it) and ``/dev/shm`` with a size cap; a fresh
+  ``/proc``; ``/dev/null``, ``zero``, ``urandom``. The reference (``slamlib``), the
+  tests (``autograder``), the bundle, the batch folder and other submissions are not
+  in that root;
+* process 1 of the PID namespace is a minimal init that runs no submission code:
+  it has no signal handlers (the kernel drops every signal sent to it from inside,
+  ``SIGKILL`` included), no capabilities, is not dumpable, and it ends, taking every
+  process of the namespace with it, when the zygote ends, when the grader closes
+  the control socket or when the grader dies (parent-death signals up the chain):
+  nothing a submission starts (``setsid``, double forks, a cleared parent-death
+  signal) outlives its grading;
+* a seccomp filter (through libseccomp when installed, else a BPF program built by
+  the runner for x86_64 and aarch64, architecture checked) installed before the
+  submission loads: kernel keyrings, new namespaces (``unshare``, ``setns``,
+  namespace flags of ``clone``; ``clone3`` answers ENOSYS), ``ptrace``, ``bpf``,
+  ``perf_event_open``, io_uring, mounts, ``userfaultfd``, other processes' memory,
+  kernel modules, SysV/POSIX IPC, socket pairs and sockets other than IPv4/IPv6
+  are refused with EPERM; each worker stacks a second filter that lets it signal
+  itself only. The sandbox first joins a fresh session keyring;
+* each worker has a private scratch space: its own ``/tmp/w<id>-<pid>`` and
+  ``/dev/shm/w<id>-<pid>`` (its working directory and ``TMPDIR``), and a Landlock
+  domain that gives it read-only access to the system and Python trees, its own
+  ``/proc/self``, a few devices, and nothing else under ``/tmp``, ``/dev/shm`` or
+  ``/proc``: no file or shared memory passes between functions. From Landlock ABI 6
+  the domain also keeps its signals and abstract UNIX sockets to itself;
+* a unique unprivileged uid/gid when the grader runs as root, drawn at random from a
+  pool that never repeats while the grader runs (else no capabilities in a user
+  namespace), ``no_new_privs``, not dumpable, a parent-death signal;
 * resource limits (CPU, 2 GiB of address space, file size, no new processes in a
   worker, no core dumps);
 * an audit hook as a second line (imports of ``slamlib``/``autograder``, reads of
@@ -26,10 +57,34 @@ before the first line of submission code runs; see ``_runner.py``):
   enforced here; output read through pipes with a byte cap; results through a
   framed format of JSON and raw array bytes that this module validates (no pickles).
 
-Where namespaces are not available the protection falls back to a separate
-unprivileged uid (root) that cannot read the reference when the files'
-permissions say so (the bundle's ``setup.sh`` sets them); :func:`describe_isolation`
-says which protection was in force.
+Which protections hold on which host (each line of :func:`describe_isolation`
+names what held; ``selfcheck`` prints them, and every report for the course staff
+carries them):
+
+==========================  ================================================================
+host                        what holds
+==========================  ================================================================
+namespaces allowed          minimal root, private ``/tmp``/``/dev/shm``, PID namespace with
+(root, or unprivileged      the init above (no survivors), no network; as root also a fresh
+user namespaces)            uid per submission; as a user, no capabilities in a user namespace
+no namespaces (a container  a separate uid when root (the reference unreadable where file
+with a default seccomp      permissions say so: the bundle's ``setup.sh``); no PID namespace,
+profile)                    so a process a submission detaches with ``setsid`` may outlive
+                            grading; files not isolated
+seccomp available           the filter above (kernel >= 3.5; with libseccomp or without)
+Landlock available          per-worker scratch folders (kernel >= 5.13, ABI >= 1); signal
+                            and abstract-socket scoping from ABI 6 (kernel >= 6.12); without
+                            it, the seccomp filter still keeps workers from signalling anything
+                            but themselves, and workers of one submission share ``/tmp``
+cgroups                     not used: the PID namespace is what ends every process, and
+                            rlimits bound memory, CPU and processes
+==========================  ================================================================
+
+What stays shared between the workers of one submission is what they inherit from
+the zygote at fork time, which is the submission's own loaded state; code that a
+submission leaves running inside the zygote after loading (a thread, a fork or
+audit hook) can still read the workers' scratch folders, as the zygote is not in
+their Landlock domains.
 """
 
 from __future__ import annotations
@@ -55,7 +110,7 @@ from . import wire
 from .wire import ProtocolError, RngSeed, control_message, encode_args, pack_frame, parse_result_frame, read_reply
 
 __all__ = ["Limits", "Sandbox", "Worker", "CallOutcome", "ChildFailed", "RngSeed", "isolation_report",
-           "describe_isolation", "protection_level"]
+           "describe_isolation", "protection_level", "check_sandbox", "require_sandbox", "SandboxBroken"]
 
 _PKG_DIR = Path(__file__).resolve().parent
 #: The child's script; it loads ``wire.py`` from the same folder before it isolates itself.
@@ -101,6 +156,9 @@ class Limits:
     block_processes : bool
         Let the audit hook refuse new processes (tests switch it off to check
         that the OS limits alone contain a fork).
+    seccomp : bool or "bpf"
+        Install the system-call filters (zygote and workers): through libseccomp
+        when it is installed, else (and with ``"bpf"``) as a BPF program built by the runner.
     """
 
     call_timeout: float | None = None
@@ -117,6 +175,7 @@ class Limits:
     filesystem: bool = True
     audit: bool = True
     block_processes: bool = True
+    seccomp: bool = True
 
 
 @dataclass
@@ -224,13 +283,15 @@ def fs_spec(limits):
     for p in _blocked_paths():
         hide.add(p)
         hide.add(str(Path(p).parent))
+    system = ["/usr", "/lib", "/lib64", "/lib32", "/libx32", "/bin", "/sbin", "/etc/ld.so.cache"]
+    python.extend(_library_dirs(system, hide))
     keep = set(python)
     hide = sorted({_real(h) for h in hide if h and os.path.isdir(h)} - keep - {"/"})
     # a hidden folder that contains the stdlib would hide Python itself
     hide = [h for h in hide if not any(k == h or k.startswith(h + "/") for k in keep)]
     allow = _package_dirs("numpy") + _package_dirs("scipy")
     return {
-        "system": ["/usr", "/lib", "/lib64", "/lib32", "/libx32", "/bin", "/sbin", "/etc/ld.so.cache"],
+        "system": system,
         "python": list(dict.fromkeys(python)),
         "allow": allow,
         "hide": hide,
@@ -238,6 +299,41 @@ def fs_spec(limits):
         "shm_size": "16m",
         "root_size": "8m",
     }
+
+
+def _library_dirs(system, site_dirs):
+    """Folders of the shared libraries NumPy and SciPy load that lie outside the system trees.
+
+    A conda prefix keeps OpenBLAS, libgfortran and friends in ``$PREFIX/lib``,
+    beside (not inside) ``site-packages``: they are bound read-only too, so the
+    sandbox imports NumPy and SciPy wherever the grader's interpreter finds them.
+    Folders inside a site-packages folder (other packages) are left out; NumPy's
+    and SciPy's own folders are bound through ``allow``.
+    """
+    for name in ("scipy.linalg", "scipy.sparse", "scipy.special"):
+        try:
+            __import__(name)
+        except ImportError:
+            pass
+    sites = [_real(p) for p in site_dirs if p and os.path.isdir(p)]
+    blocked = [_real(p) for p in _blocked_paths()]
+    out = []
+    try:
+        with open("/proc/self/maps") as fh:
+            lines = fh.read().splitlines()
+    except OSError:
+        return out
+    for line in lines:
+        parts = line.split(None, 5)
+        path = parts[5].strip() if len(parts) == 6 else ""
+        if not path.startswith("/") or ".so" not in os.path.basename(path) or not os.path.exists(path):
+            continue
+        d = os.path.dirname(_real(path))
+        if any(d == r or d.startswith(r.rstrip("/") + "/") for r in system + sites + blocked):
+            continue
+        if d not in out:
+            out.append(d)
+    return out
 
 
 SITE_PATHS = _site_paths()
@@ -253,12 +349,29 @@ def _fs(limits):
     return _FS_CACHE[key]
 
 
+#: uids handed to sandboxes by this process: never handed out twice
+_USED_IDS = set()
+_ID_LOW, _ID_HIGH = 1 << 24, (1 << 31) - 1
+
+
 def _child_ids():
-    """A uid/gid no other running sandbox uses (pid-derived, per-process counter)."""
+    """A uid/gid for one sandbox, from a pool that does not repeat while the grader runs.
+
+    Drawn uniformly from 2**24 .. 2**31 - 2 by the operating system's random
+    source (not from the grader's pid or a counter, which repeat across grader
+    processes), and never twice in one process; a ``batch`` run's worker processes
+    draw independently (a repeat among 50 submissions has a probability near 1e-6).
+    Nothing the kernel keeps per uid (user keyrings, the process count) is
+    inherited from an earlier sandbox.
+    """
+    import secrets
+
     with _counter_lock:
-        k = next(_counter) % 1000
-    uid = 100000 + (os.getpid() % 4_000_000) * 1000 + k
-    return uid, uid
+        while True:
+            uid = _ID_LOW + secrets.randbelow(_ID_HIGH - _ID_LOW)
+            if uid not in _USED_IDS:
+                _USED_IDS.add(uid)
+                return uid, uid
 
 
 def _env():
@@ -374,6 +487,7 @@ class Sandbox:
             "gid": gid,
             "audit": lim.audit,
             "block_processes": lim.block_processes,
+            "seccomp": lim.seccomp,
             "skip": [list(s) for s in self.skip],
             "max_workers": 8,
             "limits": {"cpu": lim.cpu, "as": lim.memory, "fsize": lim.file_size, "nproc": 0, "nofile": 256},
@@ -728,7 +842,7 @@ def isolation_report(limits=None):
     submission).
     """
     limits = limits or Limits()
-    key = (limits.network, limits.audit, limits.filesystem)
+    key = (limits.network, limits.audit, limits.filesystem, limits.seccomp)
     with _ISO_LOCK:
         if key not in _ISO_CACHE:
             box = Sandbox([{"source": "", "filename": "<probe>", "label": "probe"}], [], limits)
@@ -781,11 +895,29 @@ def describe_isolation(iso):
     else:
         lines.append("files: NOT isolated (" + str(iso.get("fs_error") or iso.get("mountns_error") or "no mount "
                                                                                                     "namespace") + ")")
+    abi = iso.get("landlock_abi") or 0
+    if abi >= 1:
+        lines.append(f"scratch: each worker has its own /tmp and /dev/shm folders and sees no other (Landlock ABI {abi}"
+                     + (": nor can it signal processes outside its domain" if abi >= 6 else "") + ")")
+    else:
+        lines.append("scratch: workers of one submission share /tmp and /dev/shm (no Landlock on this kernel)")
     if iso.get("pidns"):
         lines.append("processes: new PID namespace (the submission cannot see or signal processes outside it; "
                      "everything in it dies with it)")
+        if iso.get("init"):
+            lines.append("process 1: a minimal init that runs no submission code and cannot be signalled from inside; "
+                         "it ends the namespace when the grader or its control socket goes away")
     else:
-        lines.append("processes: NO PID namespace (" + str(iso.get("pidns_error", "unavailable")) + ")")
+        lines.append("processes: NO PID namespace (" + str(iso.get("pidns_error", "unavailable")) + "): processes a "
+                     "submission starts in its own session may outlive grading")
+    if iso.get("seccomp"):
+        lines.append(f"system calls: seccomp filter ({iso.get('seccomp_backend', '?')}) refuses keyrings, new "
+                     "namespaces, ptrace, bpf, perf events, io_uring, mounts, other processes' memory, kernel modules, "
+                     "SysV/POSIX IPC and sockets; workers may signal only themselves")
+    else:
+        lines.append("system calls: NO seccomp filter (" + str(iso.get("seccomp_error", "unavailable")) + ")")
+    lines.append("kernel keyrings: " + ("a fresh session keyring per sandbox" if iso.get("session_keyring")
+                                        else "the grader's session keyring (joining a fresh one failed)"))
     if iso.get("netns"):
         lines.append("network: new network namespace" + (" (inside a user namespace)" if iso.get("userns") else ""))
     else:
@@ -794,8 +926,9 @@ def describe_isolation(iso):
         if "uid_error" in iso:
             lines.append(f"privileges: root, and dropping them FAILED ({iso['uid_error']}): RLIMIT_NPROC does not apply")
         else:
-            lines.append("privileges: dropped from root to a fresh unprivileged uid/gid per submission (RLIMIT_NPROC "
-                         "applies; submissions cannot signal each other or the grader)")
+            lines.append("privileges: dropped from root to a fresh unprivileged uid/gid per submission, drawn at random "
+                         "and never repeated by this grader (RLIMIT_NPROC applies; submissions cannot signal each "
+                         "other or the grader)")
     else:
         lines.append("privileges: runs as the grader's own (unprivileged) user"
                      + (", in a new user namespace without capabilities" if iso.get("userns") else ""))
@@ -804,3 +937,112 @@ def describe_isolation(iso):
     lines.append("audit hook (second line): " + ("imports of slamlib/autograder, their files, processes, sockets, "
                                                  "ctypes lookups refused" if iso.get("audit_hook") else "off"))
     return lines
+
+
+# --------------------------------------------------------------------------- the grader's self-check
+class SandboxBroken(RuntimeError):
+    """The sandbox cannot run a known-correct function on this machine: grading must not start."""
+
+
+_PROBE_SOURCE = """
+import numpy as np
+import scipy
+import scipy.linalg
+import scipy.sparse
+import scipy.special
+
+
+def probe(a, b):
+    factor = scipy.linalg.cho_factor(a)
+    x = scipy.linalg.cho_solve(factor, b)
+    y = scipy.sparse.csr_matrix(a) @ x
+    return np.concatenate([x, y, [scipy.special.ndtr(0.0), scipy.special.erfc(0.0)]])
+"""
+_PROBE_A = np.array([[4.0, 1.0, 0.5], [1.0, 3.0, 0.25], [0.5, 0.25, 2.0]])
+_PROBE_B = np.array([1.0, -2.0, 0.5])
+_CHECKS = {}
+_CHECK_LOCK = threading.Lock()
+
+
+def _probe_expected():
+    x = np.linalg.solve(_PROBE_A, _PROBE_B)
+    return np.concatenate([x, _PROBE_A @ x, [0.5, 1.0]])
+
+
+def check_sandbox(limits=None, *, refresh=False):
+    """Run one known-correct function in a sandbox, as a submission's would run; report what happened.
+
+    The probe imports NumPy, SciPy and four SciPy subpackages at its top level
+    (the grader's NumPy and SciPy, wherever they are installed: a virtual
+    environment under ``/tmp``, ``~/.local``, ``/usr/local``, a conda prefix) and
+    its function solves a small system with ``scipy.linalg``, multiplies with a
+    ``scipy.sparse`` matrix and evaluates two special functions; the answer is compared
+    with NumPy's in this process. The result is cached per process and set of
+    limits.
+
+    Returns
+    -------
+    dict
+        ``ok`` (bool), ``problem`` (str or None: what failed), ``isolation``
+        (the probe's isolation report), ``seconds``.
+    """
+    limits = limits or Limits()
+    key = (limits.network, limits.filesystem, limits.audit, limits.seccomp, limits.tmp_size, limits.memory)
+    with _CHECK_LOCK:
+        if key in _CHECKS and not refresh:
+            return dict(_CHECKS[key])
+        t0 = time.monotonic()
+        probe_limits = Limits(import_timeout=max(30.0, limits.import_timeout), statement_timeout=30.0,
+                              memory=limits.memory, tmp_size=limits.tmp_size, network=limits.network,
+                              filesystem=limits.filesystem, audit=limits.audit, seccomp=limits.seccomp)
+        box = Sandbox([{"source": _PROBE_SOURCE, "filename": "<sandbox self-check>", "label": "sandbox self-check"}],
+                      ["probe"], probe_limits, "sandbox self-check")
+        problem, iso = None, {}
+        try:
+            ready = box.start()
+            iso = dict(ready.get("isolation") or {})
+            notes = [str(n) for n in ready.get("notes") or []]
+            if notes:
+                problem = "loading NumPy and SciPy in the sandbox failed: " + "; ".join(notes)[:1500]
+            elif not (ready.get("functions") or {}).get("probe", {}).get("defined"):
+                problem = "the probe function was not defined in the sandbox"
+            else:
+                worker = box.fork_worker()
+                try:
+                    out = worker.call("probe", [_PROBE_A, _PROBE_B], timeout=30.0, names=("a", "b"))
+                finally:
+                    worker.close()
+                if out.status != "ok":
+                    problem = (f"the probe function's call ended with status {out.status!r}: {out.error} "
+                               f"{out.where or ''} {out.output or ''}").strip()[:1500]
+                else:
+                    value = getattr(out.returned, "value", None)
+                    got = getattr(value, "array", None)
+                    want = _probe_expected()
+                    if got is None or np.shape(got) != want.shape or not np.allclose(got, want, rtol=1e-9, atol=1e-12):
+                        problem = f"the probe function returned {got!r} instead of {want!r}"
+        except ChildFailed as exc:
+            problem = f"the sandbox could not start or load the probe: {exc}"
+            if exc.outcome.output:
+                problem += f" (output: {exc.outcome.output[-1000:]})"
+        except OSError as exc:
+            problem = f"the sandbox could not start: {exc}"
+        finally:
+            box.close()
+        report = {"ok": problem is None, "problem": problem, "isolation": iso,
+                  "seconds": round(time.monotonic() - t0, 3)}
+        _CHECKS[key] = report
+        return dict(report)
+
+
+def require_sandbox(limits=None):
+    """:func:`check_sandbox`, raising :class:`SandboxBroken` with a message for the course staff on failure."""
+    report = check_sandbox(limits)
+    if not report["ok"]:
+        raise SandboxBroken(
+            "The grader's sandbox cannot run a known-correct function on this machine, so grading stopped before "
+            "any submission was graded (no results were written; nobody is charged).\n"
+            f"What failed: {report['problem']}\n"
+            f"Python: {sys.executable}; NumPy: {_package_dirs('numpy')[:1]}; SciPy: {_package_dirs('scipy')[:1]}\n"
+            "Run `python -m autograder selfcheck` after fixing the installation.")
+    return report

@@ -206,7 +206,9 @@ def test_signals_cannot_leave_the_pid_namespace(tmp_path):
     body = ("def normalize_log_weights(log_w):\n    import signal\n"
             f"    fd = os.pidfd_open({os.getpid()})\n    signal.pidfd_send_signal(fd, signal.SIGKILL)\n")
     (s, _), out, _, _ = attack(tmp_path, body, limits=Limits(call_timeout=2.5, audit=False, block_processes=False))
-    assert s == 0 and ("No such process" in out or "Invalid argument" in out or "ProcessLookupError" in out), out
+    # refused by the PID namespace (no such process) or, before that, by the seccomp filter (no pidfds in workers)
+    assert s == 0 and ("No such process" in out or "Invalid argument" in out or "ProcessLookupError" in out
+                       or "Operation not permitted" in out), out
 
 
 def test_no_network(tmp_path):

@@ -138,7 +138,10 @@ def effective_sample_size(w):
         if top == "/":
             dirs[:] = [d for d in dirs if d not in ("proc", "sys", "dev")]
         seen += [os.path.join(top, n) for n in dirs + files if n.startswith(("slam" + "lib", "auto" + "grader"))]
-    seen += os.listdir("/tmp")
+    try:
+        seen += os.listdir("/tmp")
+    except PermissionError:  # a worker may not even list it (Landlock): its own scratch folder is elsewhere
+        pass
     if seen:
         raise RuntimeError("visible: " + ", ".join(seen))
     w = np.asarray(w, float)
@@ -206,30 +209,36 @@ def test_batch_submission_cannot_run_a_classmates_file(tmp_path):
 def test_answers_harvested_in_one_grading_do_not_fit_the_next(tmp_path):
     tag = uuid.uuid4().hex
     store = f"/tmp/harvest_{tag}.json"
+    # the worker's scratch folder (TMPDIR) where there is one, else /tmp: either way the first grading's table is
+    # where the second grading would look if anything passed between gradings
     logger = f"""
 def normalize_log_weights(log_w):
-    import json
+    import json, tempfile
+    STORE = os.path.join(tempfile.gettempdir(), {os.path.basename(store)!r})
     x = np.asarray(log_w, float)
     w = np.exp(x - x.max())
     w = w / w.sum()
     try:
-        table = json.load(open({store!r}))
+        table = json.load(open(STORE))
     except (OSError, ValueError):
         table = []
     table.append([x.tolist(), w.tolist()])
-    fd = os.open({store!r}, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o666)
+    fd = os.open(STORE, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o666)
     os.write(fd, json.dumps(table).encode())
     os.close(fd)
     return w
 """
     lookup = f"""
 def normalize_log_weights(log_w):
-    import json
+    import glob, json, tempfile
     x = np.asarray(log_w, float)
-    try:
-        table = json.load(open({store!r}))
-    except (OSError, ValueError):
-        table = []
+    table = []
+    for STORE in [os.path.join(tempfile.gettempdir(), {os.path.basename(store)!r})] + glob.glob(
+            "/tmp/**/" + {os.path.basename(store)!r}, recursive=True):
+        try:
+            table += json.load(open(STORE))
+        except (OSError, ValueError):
+            pass
     for inp, out in table:
         if len(inp) == len(x) and np.array_equal(np.array(inp), x):
             return np.array(out)

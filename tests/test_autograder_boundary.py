@@ -1,0 +1,570 @@
+"""The sandbox as an operating-system boundary.
+
+* the grader checks its own sandbox before it grades, and a correct submission
+  scores full marks wherever NumPy and SciPy are installed (a virtual environment
+  under /tmp included);
+* each worker has its own scratch space: nothing one function writes in /tmp or
+  /dev/shm reaches another function's worker;
+* process 1 of the sandbox runs no submission code, cannot be signalled from
+  inside, and nothing a submission starts outlives a real ``grade`` process;
+* a seccomp filter and a fresh session keyring: no kernel keyrings, no new user
+  namespaces, and uids that are not derived from the grader's pid.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import itertools
+import json
+import os
+import secrets
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent / "autograder_fixtures"))
+
+from agtest import replace_function, solution, solution_text  # noqa: E402
+
+import autograder.sandbox as sandbox_mod  # noqa: E402
+from autograder.engine import grade  # noqa: E402
+from autograder.sandbox import Limits, Sandbox, isolation_report  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+TARGET, OTHER = "normalize_log_weights", "effective_sample_size"
+
+
+@pytest.fixture(autouse=True)
+def _secret(tmp_path_factory, monkeypatch):
+    monkeypatch.setenv("AUTOGRADER_SECRET_FILE", str(tmp_path_factory.getbasetemp() / "grading_secret"))
+
+
+def _iso():
+    return isolation_report(Limits())
+
+
+def _require(*keys):
+    iso = _iso()
+    missing = [k for k in keys if not iso.get(k)]
+    if missing:
+        pytest.skip(f"this host does not provide {', '.join(missing)}")
+    return iso
+
+
+def _sandbox_output(source, functions, calls, limits=None):
+    """Load ``source`` once; call each ``(function, args)`` in ``calls`` in its own fresh worker.
+
+    Returns the printed output of each call (the probes print JSON) and the ready message.
+    """
+    box = Sandbox([{"source": source, "filename": "probe.py", "label": "probe"}], functions,
+                  limits or Limits(call_timeout=10.0))
+    outs = []
+    try:
+        ready = box.start()
+        for fn, args in calls:
+            w = box.fork_worker()
+            try:
+                o = w.call(fn, args, timeout=10.0)
+            finally:
+                w.close()
+            outs.append(o)
+    finally:
+        box.close()
+    return outs, ready
+
+
+def _json_of(outcome):
+    assert outcome.status == "ok", (outcome.status, outcome.error, outcome.where, outcome.output)
+    return json.loads(outcome.output.strip().splitlines()[-1])
+
+
+# =========================================================================== finding 1: an environment under /tmp
+def _venv_under_tmp(where):
+    """A virtual environment under ``where`` whose NumPy and SciPy live there (hard links: no copying when possible)."""
+    venv = Path(where) / "venv"
+    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True)
+    site = next((venv / "lib").glob("python3*/site-packages"))
+    import numpy
+    import scipy
+
+    src = Path(numpy.__file__).resolve().parent.parent
+    for name in ("numpy", "scipy", "numpy.libs", "scipy.libs"):
+        s = Path(numpy.__file__ if name.startswith("numpy") else scipy.__file__).resolve().parent.parent / name
+        if not s.exists():
+            continue
+        if subprocess.run(["cp", "-al", str(s), str(site / name)], capture_output=True).returncode != 0:
+            shutil.rmtree(site / name, ignore_errors=True)
+            shutil.copytree(s, site / name, symlinks=True)
+    # the grader itself and its other dependencies from the test's environment, after NumPy and SciPy
+    (site / "zz_grader.pth").write_text(f"{ROOT}\n{src}\n")
+    py = venv / "bin" / "python"
+    where_np = subprocess.run([str(py), "-c", "import numpy, scipy; print(numpy.__file__); print(scipy.__file__)"],
+                              capture_output=True, text=True, check=True).stdout.split()
+    assert all(p.startswith(str(Path(where).resolve())) for p in where_np), where_np
+    return py
+
+
+@pytest.fixture(scope="module")
+def tmp_venv():
+    base = Path(tempfile.mkdtemp(prefix="ag-venv-", dir="/tmp" if os.path.isdir("/tmp") else None))
+    try:
+        yield _venv_under_tmp(base)
+    finally:
+        shutil.rmtree(base, ignore_errors=True)
+
+
+def test_correct_submission_scores_full_marks_from_an_environment_under_tmp(tmp_venv, tmp_path):
+    """NumPy and SciPy of a venv under /tmp are visible in the sandbox (its private /tmp used to hide them)."""
+    res = tmp_path / "results.json"
+    p = subprocess.run([str(tmp_venv), "-m", "autograder", "grade", str(solution("motion_sensor_models")),
+                        "-e", "motion_sensor_models", "--results", str(res)],
+                       capture_output=True, text=True, cwd=str(ROOT), timeout=300)
+    assert p.returncode == 0, p.stderr[-3000:]
+    data = json.loads(res.read_text())
+    failed = [t["name"] for t in data["tests"] if t["score"] != t["max_score"]]
+    assert data["score"] == 100.0 and not failed, (failed, p.stdout[-3000:])
+
+
+@pytest.mark.parametrize("command", ["grade", "batch", "gradescope"])
+def test_a_grader_that_cannot_import_scipy_stops_before_charging_anyone(tmp_path, command, monkeypatch, capsys):
+    from autograder.__main__ import main
+
+    iso = _iso()
+    if not iso.get("fs"):
+        pytest.skip("no minimal root on this host: the sandbox sees the grader's own site-packages")
+    spec = dict(sandbox_mod.fs_spec(Limits()))
+    spec["allow"] = [p for p in spec["allow"] if "scipy" not in p]  # SciPy invisible in the sandbox
+    monkeypatch.setattr(sandbox_mod, "_fs", lambda limits: spec)
+    monkeypatch.setattr(sandbox_mod, "_CHECKS", {})
+    sub = tmp_path / "subs" / "alice"
+    sub.mkdir(parents=True)
+    shutil.copy(solution("motion_sensor_models"), sub / "01_motion_sensor_models.py")
+    res = tmp_path / "results.json"
+    if command == "grade":
+        args = ["grade", str(sub / "01_motion_sensor_models.py"), "-e", "motion_sensor_models", "--results", str(res)]
+    elif command == "batch":
+        args = ["batch", str(tmp_path / "subs"), "-e", "motion_sensor_models", "--out", str(tmp_path / "g.csv"),
+                "--results-dir", str(tmp_path / "rdir"), "--quiet"]
+    else:
+        (tmp_path / "submission").mkdir()
+        shutil.copy(solution("motion_sensor_models"), tmp_path / "submission" / "01_motion_sensor_models.py")
+        args = ["gradescope", "--root", str(tmp_path), "-e", "motion_sensor_models"]
+        res = tmp_path / "results" / "results.json"
+    rc = main(args)
+    err = capsys.readouterr().err
+    assert rc == 3, (rc, err)
+    assert "No module named 'scipy'" in err and "nobody is charged" in err, err
+    assert not res.exists() and not (tmp_path / "g.csv").exists()
+    assert not (tmp_path / "rdir").exists() or not any((tmp_path / "rdir").glob("*.json"))
+
+
+def test_selfcheck_reports_the_protections():
+    from autograder.__main__ import main
+
+    assert main(["selfcheck"]) == 0
+
+
+# =========================================================================== finding 4: scratch space per worker
+SCRATCH = r'''
+import json, os, tempfile
+
+def write(tag):
+    out = {}
+    for d in ("/tmp", "/dev/shm", tempfile.gettempdir(), os.getcwd()):
+        p = os.path.join(d, "secret-" + str(tag))
+        try:
+            with open(p, "w") as fh:
+                fh.write("ANSWER")
+            out[p] = "written"
+        except OSError as exc:
+            out[p] = type(exc).__name__
+    print(json.dumps(out))
+    return 0.0
+
+def look(tag, paths):
+    found = []
+    for top in ("/tmp", "/dev/shm", "/proc"):
+        for root, dirs, files in os.walk(top, onerror=lambda e: None):
+            if top == "/proc":
+                dirs[:] = [d for d in dirs if d.isdigit() or d == "self"] if root == "/proc" else []
+                files = [f for f in files if f in ("comm", "cmdline")]
+            for f in files:
+                p = os.path.join(root, f)
+                try:
+                    with open(p, "rb") as fh:
+                        if b"ANSWER" in fh.read(1 << 16):
+                            found.append(p)
+                except OSError:
+                    pass
+    for p in bytes(paths.astype("uint8")).decode().split("\n"):  # exactly where the writer wrote
+        try:
+            with open(p) as fh:
+                found.append(p + ":" + fh.read())
+        except OSError:
+            pass
+    print(json.dumps({"found": found, "tmp": tempfile.gettempdir()}))
+    return 0.0
+
+def mark_name(tag):
+    import ctypes
+    ctypes.CDLL(None).prctl(15, b"ANSWER", 0, 0, 0)   # PR_SET_NAME: /proc/<pid>/comm
+    return 0.0
+'''
+
+
+def test_one_functions_files_never_reach_another_functions_worker():
+    """Files in /tmp and /dev/shm (and the worker's temp folder and cwd) stay with the worker that wrote them."""
+    box = Sandbox([{"source": SCRATCH, "filename": "probe.py", "label": "probe"}], ["write", "look", "mark_name"],
+                  Limits(call_timeout=10.0, audit=False))
+    try:
+        box.start()
+        writer = box.fork_worker()  # alive while the others look: concurrent workers
+        wrote = _json_of(writer.call("write", [1.0], timeout=10.0))
+        assert "written" in wrote.values(), wrote
+        namer = box.fork_worker()
+        assert namer.call("mark_name", [0.0], timeout=10.0).status == "ok"
+        paths = np.frombuffer("\n".join(p for p, v in wrote.items() if v == "written").encode(), dtype=np.uint8)
+        looker = box.fork_worker()
+        seen = _json_of(looker.call("look", [1.0, paths.astype(float)], timeout=10.0))
+        looker.close()
+        writer.close()
+        later = box.fork_worker()  # and after the writer is gone
+        seen_later = _json_of(later.call("look", [1.0, paths.astype(float)], timeout=10.0))
+        later.close()
+        namer.close()
+    finally:
+        box.close()
+    assert seen["found"] == [] and seen_later["found"] == [], (wrote, seen, seen_later)
+
+
+# =========================================================================== finding 5: process 1, signals, survivors
+def _marked(marker):
+    """Host pids whose comm, cmdline or environ carry ``marker``."""
+    out = []
+    m = marker.encode()
+    for d in Path("/proc").iterdir():
+        if not d.name.isdigit():
+            continue
+        for f in ("comm", "cmdline", "environ"):
+            try:
+                if m in (d / f).read_bytes():
+                    out.append(int(d.name))
+                    break
+            except OSError:
+                continue
+    return out
+
+
+ESCAPE = r'''
+import ctypes, os, signal, sys, time
+
+MARK = {marker!r}
+_NR = {{"x86_64": (56, 112), "aarch64": (220, 157)}}.get(os.uname().machine, (56, 112))
+
+
+def _handles():
+    """ctypes handles the grader's runner already resolved (the audit hook refuses new lookups)."""
+    main = sys.modules.get("__main__")
+    out = []
+    for name in dir(main):
+        v = getattr(main, name, None)
+        for c in (v if isinstance(v, list) else [v]):
+            if isinstance(c, ctypes.CDLL) and "syscall" in c.__dict__ and "prctl" in c.__dict__:
+                out.append(c)
+    try:
+        lib = ctypes.CDLL(None)
+        out.append(lib)
+    except Exception:
+        pass
+    return out
+
+
+def _stay():
+    for lib in _handles():
+        try:
+            lib.prctl(1, 0, 0, 0, 0)  # clear the parent-death signal
+            lib.prctl(15, MARK[:15].encode(), 0, 0, 0)  # a name the test finds in /proc/<pid>/comm
+            lib.syscall(_NR[1])  # setsid()
+            break
+        except Exception:
+            continue
+    for s in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
+        try:
+            signal.signal(s, signal.SIG_IGN)
+        except Exception:
+            pass
+    os._exit = lambda *a: None
+
+
+def _fork():
+    try:
+        import resource
+        soft, hard = resource.getrlimit(resource.RLIMIT_NPROC)
+        resource.setrlimit(resource.RLIMIT_NPROC, (hard, hard))
+    except Exception:
+        pass
+    for lib in _handles():
+        try:
+            return lib.syscall(_NR[0], 17, 0, 0, 0, 0)  # clone(SIGCHLD): a raw fork
+        except Exception:
+            continue
+    return -1
+
+
+def escape():
+    pid = _fork()
+    if pid == 0:
+        _stay()
+        if _fork() == 0:  # double fork: the grandchild is nobody's child
+            _stay()
+        while True:
+            time.sleep(0.2)
+    return pid
+
+
+_stay_parent = escape()
+_stay()  # the loading process too: no parent-death signal, its own session, SIGTERM ignored, os._exit a no-op
+
+
+def _linger():
+    while True:
+        time.sleep(0.2)
+
+
+import threading
+threading.Thread(target=_linger).start()  # a non-daemon thread: the interpreter never finishes on its own
+'''
+
+
+def _escape_submission(tmp_path, marker):
+    text = solution_text("particle_filter")
+    body = ("def normalize_log_weights(log_w):\n    escape()\n    m = np.max(log_w)\n"
+            "    w = np.exp(log_w - m)\n    return w / w.sum()\n")
+    text = replace_function(text, TARGET, body)
+    path = tmp_path / "escape.py"
+    path.write_text("import numpy as np\n" + ESCAPE.format(marker=marker) + "\n" + text)
+    return path
+
+
+@pytest.mark.parametrize("how", ["exit", "sigkill"])
+def test_nothing_a_submission_starts_outlives_a_real_grade_process(tmp_path, how):
+    """Cleared parent-death signal, setsid(), double fork, os._exit replaced, SIGTERM ignored: all gone afterwards."""
+    if not _iso().get("pidns"):
+        pytest.skip("no PID namespace on this host")
+    marker = "agx" + secrets.token_hex(6)
+    path = _escape_submission(tmp_path, marker)
+    proc = subprocess.Popen([sys.executable, "-m", "autograder", "grade", str(path), "-e", "particle_filter",
+                             "--results", str(tmp_path / "r.json"), "--timeout", "5"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=str(ROOT), start_new_session=True)
+    seen = False
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and proc.poll() is None:
+            if _marked(marker):
+                seen = True
+                if how == "sigkill":
+                    proc.kill()  # the grader dies abruptly, mid-grading
+                    break
+            time.sleep(0.05)
+        out, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert seen, "the submission's escape never started a process (the test would prove nothing)"
+    deadline = time.monotonic() + 5
+    while _marked(marker) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    alive = _marked(marker)
+    for pid in alive:  # do not leave them running on the test machine
+        try:
+            os.kill(pid, signal.SIGKILL)
+        except OSError:
+            pass
+    assert alive == [], f"processes of the submission outlived the grader: {alive}"
+    if how == "exit":
+        assert proc.returncode == 0, err.decode()[-2000:]
+        data = json.loads((tmp_path / "r.json").read_text())
+        assert data["tests"]
+
+
+def _attack(tmp_path, body, limits):
+    text = replace_function(solution_text("particle_filter"), TARGET, body)
+    path = tmp_path / "attack.py"
+    path.write_text("import os\nimport numpy as np\n" + text)
+    result = grade(path, "particle_filter", limits=limits, functions=[TARGET, OTHER], workers=2)
+    scores = result.by_function()
+    out = "\n".join(t.output for t in result.tests if t.function == TARGET)
+    return scores, out, result
+
+
+SIGNAL_PARENTS = """def normalize_log_weights(log_w):
+    import signal, time
+    for _ in range(3):
+        for target in (1, os.getppid()):
+            for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
+                try:
+                    os.kill(target, sig)
+                except OSError:
+                    pass
+        time.sleep(0.05)
+    m = np.max(log_w)
+    w = np.exp(log_w - m)
+    return w / w.sum()
+"""
+
+
+@pytest.mark.parametrize("audit, backend", [(False, True), (False, "bpf"), (True, True)])
+def test_signalling_process_1_or_the_zygote_costs_only_that_function(tmp_path, audit, backend):
+    lim = Limits(call_timeout=2.5, audit=audit, block_processes=audit)
+    if backend != lim.seccomp:
+        lim = Limits(call_timeout=2.5, audit=audit, block_processes=audit, seccomp=backend)
+    scores, out, result = _attack(tmp_path, SIGNAL_PARENTS, lim)
+    assert scores[OTHER] == (15.0, 15.0), result.text_report()
+    # the signals were refused: the function itself ran to the end and is judged on its (correct) values
+    assert scores[TARGET][0] == scores[TARGET][1], result.text_report()
+
+
+def test_process_1_runs_no_submission_code():
+    iso = _require("pidns", "init")
+    src = ("import os, json\ndef who():\n"
+           "    print(json.dumps({'pid': os.getpid(), 'ppid': os.getppid(), 'zygote': ZYGOTE}))\n    return 0.0\n"
+           "ZYGOTE = os.getpid()\n")
+    (o,), ready = _sandbox_output(src, ["who"], [("who", [])])
+    got = _json_of(o)
+    assert iso["init"] and got["zygote"] != 1 and got["pid"] != 1 and got["ppid"] == got["zygote"], got
+
+
+# =========================================================================== finding 7: keyrings, namespaces, uids
+KEYS = r'''
+import ctypes, json, os
+libc = ctypes.CDLL(None, use_errno=True)
+NR = {{"x86_64": dict(add_key=248, request_key=249, keyctl=250, unshare=272, setns=308, ptrace=101, bpf=321,
+                     perf_event_open=298, io_uring_setup=425, mount=165, userfaultfd=323),
+      "aarch64": dict(add_key=217, request_key=218, keyctl=219, unshare=97, setns=268, ptrace=117, bpf=280,
+                      perf_event_open=241, io_uring_setup=425, mount=40, userfaultfd=282)}}[os.uname().machine]
+GRADER_KEY = {grader_key}
+PROBE_KERNEL = {kernel}
+
+def call(name, *args):
+    r = libc.syscall(NR[name], *args)
+    return [r, ctypes.get_errno() if r < 0 else 0]
+
+def keys(store):
+    print(json.dumps(_keys(store)))
+    return 0.0
+
+def probe(store):
+    out = _keys(store)
+    out.update(_kernel())
+    print(json.dumps(out))
+    return 0.0
+
+def _keys(store):
+    out = {{}}
+    buf = ctypes.create_string_buffer(256)
+    out["read_grader_key"] = call("keyctl", 11, GRADER_KEY, buf, 256)  # KEYCTL_READ
+    out["search_session"] = call("keyctl", 10, -3, b"user", b"ag-boundary-key", 0)  # KEYCTL_SEARCH
+    out["search_user"] = call("keyctl", 10, -4, b"user", b"ag-boundary-mine", 0)
+    if store:
+        out["add_user_key"] = call("add_key", b"user", b"ag-boundary-mine", b"stored", 6, -4)
+    out["request_key"] = call("request_key", b"user", b"ag-boundary-key", None, 0)
+    return out
+
+def _kernel():
+    out = {{}}
+    out["unshare_user"] = call("unshare", 0x10000000)
+    out["unshare_mnt"] = call("unshare", 0x00020000)
+    out["setns"] = call("setns", 0, 0)
+    out["ptrace"] = call("ptrace", 16, 1, 0, 0)  # PTRACE_ATTACH to process 1
+    out["bpf"] = call("bpf", 0, None, 0)
+    out["perf_event_open"] = call("perf_event_open", None, 0, -1, -1, 0)
+    out["io_uring_setup"] = call("io_uring_setup", 1, None)
+    out["mount"] = call("mount", b"none", b"/tmp", b"tmpfs", 0, None)
+    out["userfaultfd"] = call("userfaultfd", 0)
+    out["at_load_search"], out["at_load_unshare_user"] = AT_LOAD[:2], AT_LOAD[2:]
+    return out
+
+AT_LOAD = call("keyctl", 10, -3, b"user", b"ag-boundary-key", 0) + (call("unshare", 0x10000000) if PROBE_KERNEL else [])
+'''
+
+
+def _host_has_seccomp():
+    try:
+        return "Seccomp:" in Path("/proc/self/status").read_text()
+    except OSError:
+        return False
+
+
+def _grader_session_key():
+    """A key in this (the grader's) session keyring, as a deployment's credentials could be."""
+    libc = ctypes.CDLL(None, use_errno=True)
+    nr = {"x86_64": 248, "aarch64": 217}.get(os.uname().machine)
+    if nr is None:
+        pytest.skip("unknown architecture")
+    kid = libc.syscall(nr, b"user", b"ag-boundary-key", b"grader-secret", 13, ctypes.c_long(-3))
+    if kid < 0:
+        pytest.skip(f"cannot add a key to the session keyring here: {os.strerror(ctypes.get_errno())}")
+    return kid
+
+
+@pytest.mark.parametrize("backend", [True, "bpf"])
+def test_no_kernel_keyrings_no_namespaces_no_tracing(backend):
+    """keyctl, add_key, request_key, unshare(CLONE_NEWUSER), setns, ptrace, bpf, perf, io_uring, mount all refused.
+
+    Through libseccomp, and through the BPF program the runner builds where libseccomp is not installed.
+    """
+    if not _host_has_seccomp():
+        pytest.skip("the kernel has no seccomp filters")
+    lim = Limits(call_timeout=10.0, audit=False, **({} if backend is True else {"seccomp": backend}))
+    kid = _grader_session_key()
+    src = KEYS.format(grader_key=kid, kernel=True)
+    (o,), ready = _sandbox_output(src, ["probe"], [("probe", [1.0])], lim)
+    got = _json_of(o)
+    for name, (ret, err) in got.items():
+        assert ret < 0 and err in (1, 38), (name, got)  # EPERM (ENOSYS for clone3-like cases)
+    iso = ready["isolation"]
+    assert iso.get("seccomp") and iso.get("session_keyring"), iso
+    assert iso["seccomp_backend"] == ("bpf" if backend == "bpf" else iso["seccomp_backend"])
+
+
+def test_grader_keys_and_earlier_submissions_keys_are_out_of_reach_without_the_filter():
+    """The fresh session keyring and the uid pool hold on their own (seccomp off): nothing to read or replay."""
+    lim = Limits(call_timeout=10.0, audit=False)
+    if "seccomp" in Limits.__dataclass_fields__:
+        lim = Limits(call_timeout=10.0, audit=False, seccomp=False)
+    iso = isolation_report(lim)
+    if not iso.get("root") or "uid_error" in iso:
+        pytest.skip("needs root: without a separate uid the grader's user keyring is the sandbox's")
+    kid = _grader_session_key()
+    src = KEYS.format(grader_key=kid, kernel=False)
+    (first,), _ = _sandbox_output(src, ["keys"], [("keys", [1.0])], lim)
+    a = _json_of(first)
+    assert a["add_user_key"][0] > 0, a  # the filter is off: storing works
+    (second,), _ = _sandbox_output(src, ["keys"], [("keys", [0.0])], lim)
+    b = _json_of(second)
+    for got in (a, b):
+        assert got["read_grader_key"][0] < 0 and got["search_session"][0] < 0 and got["request_key"][0] < 0, got
+    assert b["search_user"][0] < 0, b  # the next submission has another uid, so another user keyring
+
+
+def test_uids_come_from_a_pool_not_from_the_graders_pid(monkeypatch):
+    """Two grader processes that happen to share a pid (pids are reused) still hand out different uids."""
+    firsts = []
+    for _ in range(2):  # two "processes": same pid, fresh per-process state
+        monkeypatch.setattr(sandbox_mod.os, "getpid", lambda: 4242)
+        monkeypatch.setattr(sandbox_mod, "_counter", itertools.count())
+        if hasattr(sandbox_mod, "_USED_IDS"):
+            monkeypatch.setattr(sandbox_mod, "_USED_IDS", set())
+        firsts.append(sandbox_mod._child_ids())
+    assert firsts[0] != firsts[1]
+    many = [sandbox_mod._child_ids()[0] for _ in range(500)]
+    assert len(set(many)) == len(many)
+    assert all(1000 < u < 2**31 - 1 and u != 65534 for u in many)
