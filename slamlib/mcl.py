@@ -1285,6 +1285,19 @@ def _modes(poses, w, max_modes=8):
     return np.array(centres), np.array(masses)
 
 
+def _checked_particles(poses, log_weights):
+    """``poses (M, 3)`` with ``M >= 1`` and normalised log-weights (uniform when None), checked."""
+    poses = as_array(poses, "poses", (None, 3))
+    if poses.shape[0] == 0:
+        raise ValueError("poses must hold at least one particle")
+    if log_weights is None:
+        return poses, np.full(poses.shape[0], -np.log(poses.shape[0]))
+    lw = as_array(log_weights, "log_weights", (poses.shape[0],), finite=False)
+    if np.any(np.isnan(lw)) or np.any(lw == np.inf):
+        raise ValueError("log_weights must not hold NaN or +inf")
+    return poses, _safe_normalize(lw)
+
+
 def particle_modes(poses, log_weights=None, *, max_modes=8):
     """The modes of a particle set: where each one is and how much of the belief it holds.
 
@@ -1316,16 +1329,7 @@ def particle_modes(poses, log_weights=None, *, max_modes=8):
     Thrun, Burgard & Fox (2005), Sec. 8.3.3 (multi-modal beliefs of global
     localization); the estimate as the heaviest cluster follows ROS ``amcl``.
     """
-    poses = as_array(poses, "poses", (None, 3))
-    if poses.shape[0] == 0:
-        raise ValueError("poses must hold at least one particle")
-    if log_weights is None:
-        lw = np.full(poses.shape[0], -np.log(poses.shape[0]))
-    else:
-        lw = as_array(log_weights, "log_weights", (poses.shape[0],), finite=False)
-        if np.any(np.isnan(lw)) or np.any(lw == np.inf):
-            raise ValueError("log_weights must not hold NaN or +inf")
-        lw = _safe_normalize(lw)
+    poses, lw = _checked_particles(poses, log_weights)
     k = as_index(max_modes, "max_modes", lower=1)
     return _modes(poses, np.exp(lw), k)
 
@@ -1379,16 +1383,7 @@ def particle_summary(poses, log_weights=None):
     Thrun, Burgard & Fox (2005), Sec. 4.3 (particle representation of the
     belief).
     """
-    poses = as_array(poses, "poses", (None, 3))
-    if poses.shape[0] == 0:
-        raise ValueError("poses must hold at least one particle")
-    if log_weights is None:
-        lw = np.full(poses.shape[0], -np.log(poses.shape[0]))
-    else:
-        lw = as_array(log_weights, "log_weights", (poses.shape[0],), finite=False)
-        if np.any(np.isnan(lw)) or np.any(lw == np.inf):
-            raise ValueError("log_weights must not hold NaN or +inf")
-        lw = _safe_normalize(lw)
+    poses, lw = _checked_particles(poses, log_weights)
     return _summary(poses, lw)[:3]
 
 
