@@ -129,3 +129,22 @@ def test_animate_returns_html_with_controls():
 def test_exported_through_viz():
     for name in viz.__all__:
         assert getattr(sl.viz, name) is getattr(viz, name)
+
+
+@pytest.mark.parametrize("package", ["slamlib", "slamlib.viz", "slamlib.datasets"])
+def test_star_exports_never_shadow_each_other(package):
+    """A package that re-exports its modules with ``import *`` hands on each public name once: two
+    modules exporting the same name would leave only the last one reachable (and break the callers
+    of the first)."""
+    import importlib
+    import pkgutil
+
+    pkg = importlib.import_module(package)
+    owners = {}
+    for info in pkgutil.iter_modules(pkg.__path__):
+        mod = importlib.import_module(f"{package}.{info.name}")
+        for name in getattr(mod, "__all__", ()):
+            owners.setdefault(name, []).append(mod)
+    clashes = {name: [m.__name__ for m in mods] for name, mods in owners.items()
+               if len({id(getattr(m, name)) for m in mods}) > 1}
+    assert not clashes, f"{package}: names exported by more than one module: {clashes}"

@@ -10,7 +10,7 @@ import numpy as np
 
 from .._checks import as_array
 
-__all__ = ["plot_pose_graphs3d", "plot_euler_conditioning", "plot_step_times"]
+__all__ = ["plot_pose_graphs3d", "plot_euler_conditioning", "plot_incremental_step_times"]
 
 _TRUTH = "0.15"
 
@@ -91,7 +91,7 @@ def plot_euler_conditioning(pitch, singular_values, *, ax=None):
     return ax
 
 
-def plot_step_times(series, bin_size, *, ax=None, marks=None):
+def plot_incremental_step_times(series, bin_size, *, ax=None, marks=None):
     """Mean time per measurement of incremental solvers, in bins of measurements (log scale).
 
     Parameters
