@@ -6,8 +6,9 @@ sha256 of the image's bytes (``myst_nb/core/render.py``, ``render_image``). In t
 ``slamlib.viz`` gives every matplotlib figure's image output a description of the figure as
 output metadata, ``{"image/png": {"alt": "..."}}``. After a document is read, this extension maps
 sha256 -> alt over the outputs of the executed notebook MyST-NB wrote
-(``_build/jupyter_execute/<docname>.ipynb``; for images glued from elsewhere, over every executed
-notebook) and sets the ``alt`` of each image node whose ``alt`` is missing or is its own path;
+(``_build/jupyter_execute/<docname>.ipynb``) and of the document's run in the execution cache
+(where MyST-NB took the outputs from the cache, the notebook it writes has none; for images glued
+from elsewhere, over every executed notebook) and sets the ``alt`` of each image node whose ``alt`` is missing or is its own path;
 once more when the document is resolved, for images pasted after reading.
 An alt an author set (cell metadata ``mystnb: image: alt:``) is kept; an image whose output has
 no alt metadata is left as it is (the browser test reports it).
@@ -113,10 +114,35 @@ def _executed_folder(app):
     return Path(folder) if folder else Path(app.outdir).parent / "jupyter_execute"
 
 
+def _cached_alts(app, docname) -> dict[str, str]:
+    """The alts of the document's run in the execution cache.
+
+    When MyST-NB takes a notebook's outputs from the cache (``execute_notebooks: cache``; the
+    notebook tests fill that cache, see ``chapters/conftest.py``), the notebook it writes to
+    ``jupyter_execute`` is the unexecuted one: the outputs are only in the cache's copy.
+    """
+    config = getattr(app.env, "mystnb_config", None)
+    cache_path = getattr(config, "execution_cache_path", None) or getattr(app.config, "nb_execution_cache_path", "")
+    source = Path(app.env.doc2path(docname))
+    if not cache_path or source.suffix != ".ipynb" or not Path(cache_path).is_dir():
+        return {}
+    try:
+        import nbformat
+        from jupyter_cache import get_cache
+
+        cache = get_cache(str(cache_path))
+        record = cache.match_cache_notebook(nbformat.read(source, as_version=4))
+        notebook = cache.get_cache_bundle(record.pk).nb
+    except Exception:  # noqa: BLE001 - no cached run (KeyError), or an unreadable cache: nothing to add
+        return {}
+    return alt_by_hash(nbformat.from_dict(notebook))
+
+
 def _fill(app, doctree, docname):
     folder = _executed_folder(app)
     own = folder.joinpath(*(docname + ".ipynb").split("/"))
     alts = _read_alts(own) if own.is_file() else {}
+    alts.update(_cached_alts(app, docname))
 
     def everywhere():
         found = {}
