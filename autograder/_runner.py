@@ -570,7 +570,7 @@ _NR_X86_64 = {
     "mq_open": 240, "mq_unlink": 241, "mq_timedsend": 242, "mq_timedreceive": 243, "mq_notify": 244,
     "mq_getsetattr": 245, "socket": 41, "socketpair": 53, "kill": 62, "tkill": 200, "tgkill": 234,
     "rt_sigqueueinfo": 129, "rt_tgsigqueueinfo": 297, "pidfd_send_signal": 424, "pidfd_open": 434,
-    "personality": 135, "fanotify_init": 300, "quotactl_fd": 443, "setdomainname": 171,
+    "personality": 135, "fcntl": 72, "ioctl": 16, "fanotify_init": 300, "quotactl_fd": 443, "setdomainname": 171,
     "sethostname": 170, "settimeofday": 164, "clock_settime": 227, "adjtimex": 159, "clock_adjtime": 305,
     "migrate_pages": 256, "move_pages": 279, "mbind": 237, "nfsservctl": 180, "uselib": 134,
 }
@@ -588,7 +588,8 @@ _NR_AARCH64 = {
     "mq_unlink": 181, "mq_timedsend": 182, "mq_timedreceive": 183, "mq_notify": 184, "mq_getsetattr": 185,
     "socket": 198, "socketpair": 199, "kill": 129, "tkill": 130, "tgkill": 131, "rt_sigqueueinfo": 138,
     "rt_tgsigqueueinfo": 240, "pidfd_send_signal": 424, "pidfd_open": 434, "personality": 92,
-    "fanotify_init": 262, "quotactl_fd": 443, "setdomainname": 162, "sethostname": 161, "settimeofday": 170,
+    "fcntl": 25, "ioctl": 29, "fanotify_init": 262, "quotactl_fd": 443, "setdomainname": 162, "sethostname": 161,
+    "settimeofday": 170,
     "clock_settime": 112, "adjtimex": 171, "clock_adjtime": 266, "migrate_pages": 238, "move_pages": 239,
     "mbind": 235,
 }
@@ -607,7 +608,7 @@ DENIED = ("keyctl", "add_key", "request_key", "unshare", "setns", "ptrace", "bpf
           "msgget", "msgsnd", "msgrcv", "msgctl", "mq_open", "mq_unlink", "mq_timedsend", "mq_timedreceive",
           "mq_notify", "mq_getsetattr", "socketpair", "fanotify_init", "setdomainname", "sethostname",
           "settimeofday", "clock_settime", "adjtimex", "clock_adjtime", "migrate_pages", "move_pages", "mbind",
-          "nfsservctl", "uselib")
+          "nfsservctl", "uselib", "personality")
 #: namespace flags of clone(): a process may fork, not make new namespaces
 CLONE_NS_FLAGS = (0x00020000, 0x02000000, 0x04000000, 0x08000000, 0x10000000, 0x20000000, 0x40000000)
 EPERM, ENOSYS = 1, 38
@@ -627,7 +628,11 @@ def _worker_rules(pid):
     return [("kill", EPERM, [(0, "ne", pid, 0)]), ("tkill", EPERM, [(0, "ne", pid, 0)]),
             ("tgkill", EPERM, [(0, "ne", pid, 0)]), ("rt_sigqueueinfo", EPERM, [(0, "ne", pid, 0)]),
             ("rt_tgsigqueueinfo", EPERM, [(0, "ne", pid, 0)]), ("pidfd_send_signal", EPERM, []),
-            ("pidfd_open", EPERM, [])]
+            ("pidfd_open", EPERM, [])] + [
+        # no signal-driven I/O: F_SETOWN/F_SETOWN_EX/F_SETSIG and FIOSETOWN/SIOCSPGRP would have the kernel
+        # signal another process (the zygote) for the worker; commands are 32-bit in the kernel
+        (name, EPERM, [(1, "eq32", cmd, 0)])
+        for name, cmd in (("fcntl", 8), ("fcntl", 15), ("fcntl", 10), ("ioctl", 0x8901), ("ioctl", 0x8902))]
 
 
 _SECCOMP_LIB = [None]
@@ -709,7 +714,9 @@ def _seccomp_libseccomp(lib, rules):
                 continue  # not a system call on this architecture
             arr = (ArgCmp * max(1, len(args)))()
             for k, (arg, op, a, b) in enumerate(args):
-                if op == "masked_eq":  # libseccomp: datum_a is the mask, datum_b the value
+                if op == "eq32":  # the low 32 bits equal a: a masked comparison
+                    arr[k] = ArgCmp(arg, _OPS["masked_eq"], 0xFFFFFFFF, a & 0xFFFFFFFF)
+                elif op == "masked_eq":  # libseccomp: datum_a is the mask, datum_b the value
                     arr[k] = ArgCmp(arg, _OPS[op], a & 0xFFFFFFFFFFFFFFFF, b & 0xFFFFFFFFFFFFFFFF)
                 else:
                     arr[k] = ArgCmp(arg, _OPS[op], a & 0xFFFFFFFFFFFFFFFF, 0)
@@ -755,6 +762,9 @@ def _seccomp_bpf(rules):
         if op == "masked_eq":
             # nr matches and (arg & a) == b, with a == b a single flag: JSET
             prog += [(JEQ, 0, 4, nr), (LD, 0, 0, lo), (JSET, 0, 1, a & 0xFFFFFFFF), ret, (LD, 0, 0, 0)]
+        elif op == "eq32":
+            # nr matches and the low 32 bits equal a: refuse
+            prog += [(JEQ, 0, 3, nr), (LD, 0, 0, lo), (JEQ, 0, 1, a & 0xFFFFFFFF), ret, (LD, 0, 0, 0)]
         elif op == "not_in":
             vals = list(a)
             n = len(vals)

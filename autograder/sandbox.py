@@ -39,7 +39,8 @@ before the first line of submission code runs; see ``_runner.py``):
   ``perf_event_open``, io_uring, mounts, ``userfaultfd``, other processes' memory,
   kernel modules, SysV/POSIX IPC, socket pairs and sockets other than IPv4/IPv6
   are refused with EPERM; each worker stacks a second filter that lets it signal
-  itself only. The sandbox first joins a fresh session keyring;
+  itself only (nor have the kernel signal another process for it: no ``F_SETOWN``,
+  ``F_SETOWN_EX``, ``F_SETSIG``, ``FIOSETOWN``, ``SIOCSPGRP``). The sandbox first joins a fresh session keyring;
 * each worker has a private scratch space: its own ``/tmp/w<id>-<pid>`` and
   ``/dev/shm/w<id>-<pid>`` (its working directory and ``TMPDIR``), and a Landlock
   domain that gives it read-only access to the system and Python trees, its own
@@ -581,6 +582,17 @@ class Sandbox:
     def alive(self):
         return self.proc is not None and self.proc.poll() is None
 
+    def ended(self, timeout=0.0):
+        """True when the sandbox process has ended, or ends within ``timeout`` seconds."""
+        proc = self.proc
+        if proc is None:
+            return True
+        try:
+            proc.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            return False
+        return True
+
     def kill(self):
         """Kill the sandbox and everything in it."""
         proc = self.proc
@@ -684,6 +696,7 @@ class Worker:
         self._out = bytearray()
         self._out_total = 0
         self.dead = False
+        self.zygote_gone = False  # set when the result pipe closed without the zygote's word on the worker's end
 
     def close(self, kill=True):
         if kill and not self.dead:
@@ -709,6 +722,7 @@ class Worker:
             header["global_seed"] = int(global_seed)
         self._out = bytearray()
         self._out_total = 0
+        del self._res[:]  # bytes left over from an earlier call are no answer to this one
         deadline = time.monotonic() + timeout
         reply, rpayload, status, err = self._exchange(pack_frame(header, payload), deadline)
         out = self._output_text()
@@ -728,9 +742,10 @@ class Worker:
             r = read_reply(reply, rpayload, np, deadline=deadline + 1.0)  # untrusted: schema, extents, byte cap
             if r["status"] == "protocol":
                 raise ProtocolError(r["error"][:200])
-        except ProtocolError as exc:
+        except Exception as exc:  # anything a forged reply raises is a protocol error, never a result
             self.close()
-            return CallOutcome("protocol", error=f"the grader could not read the function's result ({exc})", output=out)
+            msg = str(exc) if isinstance(exc, ProtocolError) else type(exc).__name__
+            return CallOutcome("protocol", error=f"the grader could not read the function's result ({msg})", output=out)
         if r["status"] == "error":
             return CallOutcome("error", error=r["error"], where=r["where"], mutated=r["mutated"], blocked=r["blocked"],
                                output=out, elapsed=r["elapsed"])
@@ -767,8 +782,11 @@ class Worker:
                     if header.get("status") == "exited":  # written by the zygote when the worker ended
                         self._drain_output()
                         return None, None, "eof", str(header.get("exit"))[:100]
+                    if pending:  # an answer to a request not yet read: forged ahead of time
+                        return None, None, "protocol", "a result arrived before the request was sent"
                     return header, payload, "ok", None
-                if not res_open:
+                if not res_open:  # the zygote holds this pipe too (it reports its workers' ends): it is gone
+                    self.zygote_gone = True
                     self._drain_output()
                     return None, None, "eof", "the process ended"
                 left = deadline - time.monotonic()
