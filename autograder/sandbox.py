@@ -1,9 +1,12 @@
 """Running untrusted submission code: one sandbox per submission, one fresh worker per function.
 
 A :class:`Sandbox` is one Python process (``python -I -S autograder/_runner.py``)
-that isolates itself, loads the submission once and then serves as a *zygote*:
-for every contract function (and after every crash or timeout) the grader asks it
-to fork a fresh :class:`Worker`, which answers calls on its own pipes. The
+that isolates itself and then serves as a *zygote* that never runs submission
+code: a throwaway child (the probe) loads the submission once for the grader
+(statement deadlines, the functions it defines) and ends; for every contract
+function (and after every crash or timeout) the grader asks the zygote to fork a
+fresh :class:`Worker`, which isolates itself, closes every descriptor but its own
+pipes, loads the submission again and answers calls on its own pipes. The
 grader's process only sends arguments and reads back plain arrays; it never
 imports or executes submission code, and expected values are computed only here.
 
@@ -81,11 +84,11 @@ cgroups                     not used: the PID namespace is what ends every proce
                             rlimits bound memory, CPU and processes
 ==========================  ================================================================
 
-What stays shared between the workers of one submission is what they inherit from
-the zygote at fork time, which is the submission's own loaded state; code that a
-submission leaves running inside the zygote after loading (a thread, a fork or
-audit hook) can still read the workers' scratch folders, as the zygote is not in
-their Landlock domains.
+Nothing the submission makes at load time (shared memory, pipes, threads, hooks,
+replaced runner helpers, processes) is shared between its workers or reaches the
+zygote: each worker loads it after its own isolation is in place. Top-level code
+therefore runs once in the probe and once per worker; its time counts against the
+worker's first call.
 """
 
 from __future__ import annotations

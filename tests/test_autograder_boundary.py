@@ -439,7 +439,8 @@ def test_process_1_runs_no_submission_code():
            "ZYGOTE = os.getpid()\n")
     (o,), ready = _sandbox_output(src, ["who"], [("who", [])])
     got = _json_of(o)
-    assert iso["init"] and got["zygote"] != 1 and got["pid"] != 1 and got["ppid"] == got["zygote"], got
+    # top-level code runs in the worker itself (forked from a zygote that never runs submission code)
+    assert iso["init"] and got["zygote"] == got["pid"] != 1 and got["ppid"] not in (1, got["pid"]), got
 
 
 # =========================================================================== finding 7: keyrings, namespaces, uids
@@ -681,3 +682,67 @@ def test_a_function_that_ends_the_sandbox_loses_its_own_tests_only(monkeypatch):
     assert got["ekf_predict"][0] == 0, got
     for fn in ("ekf_update", "associate_ml"):
         assert got[fn][0] == got[fn][1], (fn, got, [t.output[-300:] for t in result.tests if t.function == fn])
+
+
+# =========================================================================== fork, isolate, then load
+SHARED_AT_LOAD = """
+import mmap, os
+_SHM = mmap.mmap(-1, 4096)
+
+def put(x):
+    _SHM.seek(0)
+    _SHM.write(b"from-another-function")
+    return x
+
+def get(x):
+    _SHM.seek(0)
+    print(repr(_SHM.read(21)))
+    return x
+"""
+
+
+def test_memory_mapped_at_load_time_is_not_shared_between_functions():
+    """Anonymous shared memory (or a pipe) made by top-level code is each worker's own: no channel between them."""
+    box = Sandbox([{"source": SHARED_AT_LOAD, "filename": "probe.py", "label": "probe"}], ["put", "get"],
+                  Limits(call_timeout=10.0))
+    try:
+        box.start()
+        writer = box.fork_worker()  # alive while the other reads
+        assert writer.call("put", [1.0], timeout=10.0).status == "ok"
+        reader = box.fork_worker()
+        got = reader.call("get", [1.0], timeout=10.0)
+        reader.close()
+        writer.close()
+    finally:
+        box.close()
+    assert got.status == "ok", (got.status, got.error)
+    assert "from-another-function" not in got.output, got.output
+
+
+FORK_AT_LOAD = """
+import os, resource
+try:
+    soft, hard = resource.getrlimit(resource.RLIMIT_NPROC)
+    resource.setrlimit(resource.RLIMIT_NPROC, (hard, hard))
+    pid = os.fork()
+    if pid == 0:
+        os._exit(0)
+    os.waitpid(pid, 0)
+    FORKED = 1.0
+except OSError:
+    FORKED = 0.0
+
+def forked(x):
+    return FORKED
+"""
+
+
+def test_top_level_code_cannot_start_processes_even_without_the_audit_hook():
+    """Top-level code runs with a worker's limits (no new processes): it cannot raise RLIMIT_NPROC and fork."""
+    iso = _iso()
+    if not iso.get("root") or "uid_error" in iso:
+        pytest.skip("needs root: RLIMIT_NPROC counts per uid")
+    (out,), _ = _sandbox_output(FORK_AT_LOAD, ["forked"], [("forked", [1.0])],
+                                Limits(call_timeout=10.0, audit=False, block_processes=False))
+    assert out.status == "ok", (out.status, out.error)
+    assert float(out.returned.value.array) == 0.0, out.returned.describe()
