@@ -91,6 +91,8 @@ def _recv(fd, buf):
 
 def _ctl_send(sock, msg):
     """One message to the grader on the control socket (SOCK_SEQPACKET keeps message boundaries)."""
+    if sock is None:
+        return
     try:
         sock.send(_dumps(msg, allow_nan=True, separators=(",", ":")).encode("utf-8"))
     except OSError:
@@ -570,7 +572,7 @@ _NR_X86_64 = {
     "mq_open": 240, "mq_unlink": 241, "mq_timedsend": 242, "mq_timedreceive": 243, "mq_notify": 244,
     "mq_getsetattr": 245, "socket": 41, "socketpair": 53, "kill": 62, "tkill": 200, "tgkill": 234,
     "rt_sigqueueinfo": 129, "rt_tgsigqueueinfo": 297, "pidfd_send_signal": 424, "pidfd_open": 434,
-    "personality": 135, "fanotify_init": 300, "quotactl_fd": 443, "setdomainname": 171,
+    "personality": 135, "fcntl": 72, "ioctl": 16, "fanotify_init": 300, "quotactl_fd": 443, "setdomainname": 171,
     "sethostname": 170, "settimeofday": 164, "clock_settime": 227, "adjtimex": 159, "clock_adjtime": 305,
     "migrate_pages": 256, "move_pages": 279, "mbind": 237, "nfsservctl": 180, "uselib": 134,
 }
@@ -588,7 +590,8 @@ _NR_AARCH64 = {
     "mq_unlink": 181, "mq_timedsend": 182, "mq_timedreceive": 183, "mq_notify": 184, "mq_getsetattr": 185,
     "socket": 198, "socketpair": 199, "kill": 129, "tkill": 130, "tgkill": 131, "rt_sigqueueinfo": 138,
     "rt_tgsigqueueinfo": 240, "pidfd_send_signal": 424, "pidfd_open": 434, "personality": 92,
-    "fanotify_init": 262, "quotactl_fd": 443, "setdomainname": 162, "sethostname": 161, "settimeofday": 170,
+    "fcntl": 25, "ioctl": 29, "fanotify_init": 262, "quotactl_fd": 443, "setdomainname": 162, "sethostname": 161,
+    "settimeofday": 170,
     "clock_settime": 112, "adjtimex": 171, "clock_adjtime": 266, "migrate_pages": 238, "move_pages": 239,
     "mbind": 235,
 }
@@ -607,7 +610,7 @@ DENIED = ("keyctl", "add_key", "request_key", "unshare", "setns", "ptrace", "bpf
           "msgget", "msgsnd", "msgrcv", "msgctl", "mq_open", "mq_unlink", "mq_timedsend", "mq_timedreceive",
           "mq_notify", "mq_getsetattr", "socketpair", "fanotify_init", "setdomainname", "sethostname",
           "settimeofday", "clock_settime", "adjtimex", "clock_adjtime", "migrate_pages", "move_pages", "mbind",
-          "nfsservctl", "uselib")
+          "nfsservctl", "uselib", "personality")
 #: namespace flags of clone(): a process may fork, not make new namespaces
 CLONE_NS_FLAGS = (0x00020000, 0x02000000, 0x04000000, 0x08000000, 0x10000000, 0x20000000, 0x40000000)
 EPERM, ENOSYS = 1, 38
@@ -627,7 +630,11 @@ def _worker_rules(pid):
     return [("kill", EPERM, [(0, "ne", pid, 0)]), ("tkill", EPERM, [(0, "ne", pid, 0)]),
             ("tgkill", EPERM, [(0, "ne", pid, 0)]), ("rt_sigqueueinfo", EPERM, [(0, "ne", pid, 0)]),
             ("rt_tgsigqueueinfo", EPERM, [(0, "ne", pid, 0)]), ("pidfd_send_signal", EPERM, []),
-            ("pidfd_open", EPERM, [])]
+            ("pidfd_open", EPERM, [])] + [
+        # no signal-driven I/O: F_SETOWN/F_SETOWN_EX/F_SETSIG and FIOSETOWN/SIOCSPGRP would have the kernel
+        # signal another process (the zygote) for the worker; commands are 32-bit in the kernel
+        (name, EPERM, [(1, "eq32", cmd, 0)])
+        for name, cmd in (("fcntl", 8), ("fcntl", 15), ("fcntl", 10), ("ioctl", 0x8901), ("ioctl", 0x8902))]
 
 
 _SECCOMP_LIB = [None]
@@ -709,7 +716,9 @@ def _seccomp_libseccomp(lib, rules):
                 continue  # not a system call on this architecture
             arr = (ArgCmp * max(1, len(args)))()
             for k, (arg, op, a, b) in enumerate(args):
-                if op == "masked_eq":  # libseccomp: datum_a is the mask, datum_b the value
+                if op == "eq32":  # the low 32 bits equal a: a masked comparison
+                    arr[k] = ArgCmp(arg, _OPS["masked_eq"], 0xFFFFFFFF, a & 0xFFFFFFFF)
+                elif op == "masked_eq":  # libseccomp: datum_a is the mask, datum_b the value
                     arr[k] = ArgCmp(arg, _OPS[op], a & 0xFFFFFFFFFFFFFFFF, b & 0xFFFFFFFFFFFFFFFF)
                 else:
                     arr[k] = ArgCmp(arg, _OPS[op], a & 0xFFFFFFFFFFFFFFFF, 0)
@@ -755,6 +764,9 @@ def _seccomp_bpf(rules):
         if op == "masked_eq":
             # nr matches and (arg & a) == b, with a == b a single flag: JSET
             prog += [(JEQ, 0, 4, nr), (LD, 0, 0, lo), (JSET, 0, 1, a & 0xFFFFFFFF), ret, (LD, 0, 0, 0)]
+        elif op == "eq32":
+            # nr matches and the low 32 bits equal a: refuse
+            prog += [(JEQ, 0, 3, nr), (LD, 0, 0, lo), (JEQ, 0, 1, a & 0xFFFFFFFF), ret, (LD, 0, 0, 0)]
         elif op == "not_in":
             vals = list(a)
             n = len(vals)
@@ -1134,10 +1146,11 @@ def _worker(job, ctl, fds, mod, attempts, npx, hook_busy, wid=0):
     import resource
 
     req_fd, res_fd, out_fd = fds
-    try:
-        ctl.close()
-    except OSError:
-        pass
+    if ctl is not None:
+        try:
+            ctl.close()
+        except OSError:
+            pass
     os.dup2(out_fd, 1)
     os.dup2(out_fd, 2)
     os.close(out_fd)
@@ -1157,7 +1170,95 @@ def _worker(job, ctl, fds, mod, attempts, npx, hook_busy, wid=0):
         _private_scratch(wid, paths)
     if job.get("seccomp", True) and _SECCOMP_ON[0]:
         _seccomp(_worker_rules(_getpid()))
+    if mod is None:  # fork, isolate, then load: nothing the submission does at load time outlives this worker
+        _close_fds_but(req_fd, res_fd)
+        mod = _quiet_load(job, attempts)
     _run_then_exit(_serve, job, req_fd, res_fd, mod, attempts, npx)
+
+
+def _close_fds_but(*keep):
+    """Close every descriptor but 0-2 and ``keep``."""
+    lo = 3
+    for fd in sorted(set(k for k in keep if k >= 3)):
+        if fd > lo:
+            os.closerange(lo, fd)
+        lo = fd + 1
+    os.closerange(lo, 1 << 20)
+
+
+def _quiet_load(job, attempts):
+    """Load the submission in a worker: no statement events, what it prints while loading discarded."""
+    saved = os.dup(1), os.dup(2)
+    null = os.open("/dev/null", os.O_WRONLY)
+    try:
+        sys.stdout.flush()
+        sys.stderr.flush()
+    except BaseException:  # noqa: BLE001
+        pass
+    os.dup2(null, 1)
+    os.dup2(null, 2)
+    os.close(null)
+    try:
+        mod, _ = _load_submission(job, attempts, None)
+    finally:
+        try:
+            sys.stdout.flush()
+            sys.stderr.flush()
+        except BaseException:  # noqa: BLE001
+            pass
+        os.dup2(saved[0], 1)
+        os.dup2(saved[1], 2)
+        os.close(saved[0])
+        os.close(saved[1])
+    del attempts[:]  # refusals while loading were reported by the probe
+    return mod
+
+
+def _probe(job, ctl, attempts, npx, hook_busy, done_w):
+    """A throwaway child that loads the submission once (statement events, ``ready``) with a worker's isolation."""
+    import inspect
+
+    import resource
+
+    nproc = int(job.get("limits", {}).get("nproc", 0))
+    try:
+        resource.setrlimit(resource.RLIMIT_NPROC, (nproc, nproc))
+    except (ValueError, OSError):
+        pass
+    if job.get("scratch", True):
+        fs = job.get("fs") or {}
+        paths = list(fs.get("python", [])) + list(fs.get("allow", [])) + list(sys.path)
+        paths += [sys.prefix, sys.base_prefix, sys.exec_prefix]
+        _private_scratch(0, paths)
+    if job.get("seccomp", True) and _SECCOMP_ON[0]:
+        _seccomp(_worker_rules(_getpid()))
+    _close_fds_but(ctl.fileno(), done_w)
+    mod, notes = _load_submission(job, attempts, ctl)
+    info = {}
+    for name in job.get("functions", []):
+        fn = mod.__dict__.get(name)
+        entry = {"defined": fn is not None, "callable": callable(fn)}
+        code = getattr(fn, "__code__", None)
+        if code is not None:
+            entry["filename"] = str(getattr(code, "co_filename", ""))
+        entry["module"] = _short(getattr(fn, "__module__", None), 100) if fn is not None else None
+        try:
+            entry["signature"] = str(inspect.signature(fn)) if callable(fn) else None
+        except (TypeError, ValueError):
+            entry["signature"] = None
+        info[name] = entry
+    try:
+        sys.stdout.flush()
+        sys.stderr.flush()
+    except BaseException:  # noqa: BLE001
+        pass
+    _ctl_send(ctl, {"ev": "ready", "notes": notes[:200], "functions": info, "isolation": _PROBE_ISO[0],
+                    "blocked": list(attempts)[:100]})
+    os.write(done_w, b"r")
+    _exit(0)
+
+
+_PROBE_ISO = [None]
 
 
 _SECCOMP_ON = [False]
@@ -1401,6 +1502,53 @@ def main(argv):
         hook_busy = _install_audit_hook(job.get("blocked_modules", []), job.get("blocked_paths", []), attempts,
                                         processes=job.get("block_processes", True))
     iso["audit_hook"] = bool(job.get("audit", True))
+    if job.get("fork_then_load", True):
+        # the zygote never runs submission code: a probe child loads it once for the grader (statement deadlines,
+        # the ready message) and ends; each worker loads it again after it has isolated itself
+        _PROBE_ISO[0] = iso
+        done_r, done_w = os.pipe()
+        try:  # as before each fork of a worker (the uid's process count may be capped at its soft limit)
+            import resource
+
+            resource.setrlimit(resource.RLIMIT_NPROC, (resource.getrlimit(resource.RLIMIT_NPROC)[1],) * 2)
+        except (ValueError, OSError):
+            pass
+        hook_busy[0] = True
+        try:
+            pid = _fork()
+        finally:
+            hook_busy[0] = False
+        if pid == 0:
+            os.close(done_r)
+            _run_then_exit(_probe, job, ctl, attempts, npx, hook_busy, done_w)
+        os.close(done_w)
+        got = b""
+        while True:
+            try:
+                chunk = os.read(done_r, 1)
+            except InterruptedError:
+                continue
+            got += chunk
+            break
+        os.close(done_r)
+        code = 1
+        try:
+            code = os.waitstatus_to_exitcode(os.waitpid(pid, 0)[1])
+        except (ChildProcessError, ValueError):
+            pass
+        if got != b"r":  # the probe ended while loading (os._exit, a signal): the sandbox ends the same way
+            if code < 0:
+                import signal
+
+                try:
+                    signal.signal(-code, signal.SIG_DFL)
+                    os.kill(_getpid(), -code)
+                except (OSError, ValueError):
+                    pass
+                _exit(1)
+            _exit(code)
+        _zygote(job, ctl, None, attempts, npx, hook_busy)
+        return
     mod, notes = _load_submission(job, attempts, ctl)
     info = {}
     for name in job.get("functions", []):

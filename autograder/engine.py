@@ -10,10 +10,17 @@ after a crash or a timeout), so slow top-level code runs once and one function's
 state never leaks into another's. Scenarios come from a seed derived from the
 deployment's secret and the submission's content (:mod:`autograder.seeds`), and
 time is bounded per call, per test and per submission.
+
+When the whole sandbox ends during a call, the function whose call was the only
+one under way is charged with it: its remaining tests score 0, and the sandbox
+is loaded again for the others at no cost to them. When several calls were under
+way, each is run again once in the new sandbox, and from then on calls run one
+at a time so that the next death has a single suspect.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import threading
 import time
@@ -34,7 +41,9 @@ __all__ = ["grade", "GradeResult", "TestResult", "run_tests", "Budget"]
 
 #: A worker that died is forked again at most this many times per function.
 MAX_RESTARTS = 3
-#: The sandbox itself (the loaded submission) is started again at most this many times per grading.
+#: The sandbox itself (the loaded submission) is started again at most this many times per grading for deaths
+#: no single function can be blamed for (a death during the call of one function alone ends that function's
+#: tests instead, and costs the others nothing).
 MAX_RELOADS = 2
 
 
@@ -110,6 +119,8 @@ class _WorkerCaller:
         self.started = 0
         self.timed_out = False
         self.broken = None
+        self.generation = None
+        self.retried = False
 
     def call(self, fn, args, kwargs, *, timeout, names=(), global_seed=None):
         if self.broken:
@@ -122,12 +133,29 @@ class _WorkerCaller:
                 self.broken = f"not run: the process running {self.fn} died {self.started} times"
                 return CallOutcome("skipped", error=self.broken)
             try:
-                self.worker = self.grading.fork_worker()
+                self.worker, self.generation = self.grading.fork_worker()
             except ChildFailed as exc:
                 self.broken = f"not run: {exc.outcome.error}"
                 return exc.outcome
             self.started += 1
-        out = self.worker.call(fn, args, kwargs, timeout=max(limit, 0.001), names=names, global_seed=global_seed)
+        with self.grading.calling(self.fn):
+            out = self.worker.call(fn, args, kwargs, timeout=max(limit, 0.001), names=names, global_seed=global_seed)
+        if out.status == "crashed" and self.worker.zygote_gone:
+            blame = self.grading.sandbox_died(self.generation, self.fn)
+            if blame == "alone":  # the whole sandbox ended during a call of this function, and of no other
+                self.worker.close()
+                self.worker = None
+                self.broken = (f"not run: the sandbox ended during a call of {self.fn} (a function that ends the "
+                               "sandbox gets no points for the tests after it)")
+                out.error = f"{out.error}; the sandbox ended during this call"
+                return out
+            if blame == "innocent" or (blame == "shared" and not self.retried):
+                # caught in another function's crash (or perhaps so): run the call again in the new sandbox
+                self.retried = self.retried or blame == "shared"
+                self.worker.close()
+                self.worker = None
+                self.started -= 1
+                return self.call(fn, args, kwargs, timeout=timeout, names=names, global_seed=global_seed)
         if out.status == "timeout":
             if reason:
                 out.error = self.budget.message(reason)
@@ -206,21 +234,62 @@ class _Grading:
         self.box = Sandbox(sub.units, functions, limits, sub.display_name)
         self.lock = threading.Lock()
         self.reloads = 0
+        self.inflight = {}  # function -> calls under way
+        self.deaths = {}  # sandbox generation -> the functions that had calls under way when it ended
+        self.serial = None  # once a death could not be blamed on one function, calls run one at a time
 
     def start(self):
         return self.box.start()
 
     def fork_worker(self):
+        """A fresh worker and the generation (load count) of the sandbox it came from."""
         try:
-            return self.box.fork_worker()
+            with self.lock:
+                generation = self.box.loads
+                return self.box.fork_worker(), generation
         except ChildFailed:
             with self.lock:
-                if not self.box.alive:
-                    if self.reloads >= MAX_RELOADS:
-                        raise
-                    self.reloads += 1
+                if self.box.loads == generation:  # the sandbox that refused the fork is gone: start it again
+                    self.box.kill()
+                    blamed = self.deaths.get(self.box.loads)
+                    if not (blamed is not None and len(blamed) == 1):  # a death one function is charged with
+                        if self.reloads >= MAX_RELOADS:
+                            raise
+                        self.reloads += 1
                     self.box.start()
-            return self.box.fork_worker()
+                return self.box.fork_worker(), self.box.loads
+
+    @contextlib.contextmanager
+    def calling(self, fn):
+        serial = self.serial
+        if serial is not None:
+            serial.acquire()
+        with self.lock:
+            self.inflight[fn] = self.inflight.get(fn, 0) + 1
+        try:
+            yield
+        finally:
+            with self.lock:
+                self.inflight[fn] -= 1
+            if serial is not None:
+                serial.release()
+
+    def sandbox_died(self, generation, fn):
+        """After a crashed call of ``fn``: None when the sandbox lives on (the worker alone died); ``"alone"`` when
+        the sandbox ended while only ``fn`` had a call under way, ``"shared"`` when other calls were under way too,
+        ``"innocent"`` when ``fn`` had no call under way when it ended."""
+        with self.lock:
+            if generation not in self.deaths:
+                if generation == self.box.loads and not self.box.ended(timeout=0.5):
+                    return None
+                # the first to see this death: every function with a call under way is a suspect
+                self.deaths[generation] = {f for f, n in self.inflight.items() if n > 0} | {fn}
+                if len(self.deaths[generation]) > 1 and self.serial is None:
+                    self.serial = threading.Lock()
+            suspects = self.deaths[generation]
+        if fn not in suspects:  # its worker came from a sandbox that another function's call ended
+            return "innocent"
+        return "alone" if len(suspects) == 1 else "shared"
 
     def close(self):
         self.box.close()

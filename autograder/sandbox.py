@@ -1,9 +1,12 @@
 """Running untrusted submission code: one sandbox per submission, one fresh worker per function.
 
 A :class:`Sandbox` is one Python process (``python -I -S autograder/_runner.py``)
-that isolates itself, loads the submission once and then serves as a *zygote*:
-for every contract function (and after every crash or timeout) the grader asks it
-to fork a fresh :class:`Worker`, which answers calls on its own pipes. The
+that isolates itself and then serves as a *zygote* that never runs submission
+code: a throwaway child (the probe) loads the submission once for the grader
+(statement deadlines, the functions it defines) and ends; for every contract
+function (and after every crash or timeout) the grader asks the zygote to fork a
+fresh :class:`Worker`, which isolates itself, closes every descriptor but its own
+pipes, loads the submission again and answers calls on its own pipes. The
 grader's process only sends arguments and reads back plain arrays; it never
 imports or executes submission code, and expected values are computed only here.
 
@@ -39,7 +42,8 @@ before the first line of submission code runs; see ``_runner.py``):
   ``perf_event_open``, io_uring, mounts, ``userfaultfd``, other processes' memory,
   kernel modules, SysV/POSIX IPC, socket pairs and sockets other than IPv4/IPv6
   are refused with EPERM; each worker stacks a second filter that lets it signal
-  itself only. The sandbox first joins a fresh session keyring;
+  itself only (nor have the kernel signal another process for it: no ``F_SETOWN``,
+  ``F_SETOWN_EX``, ``F_SETSIG``, ``FIOSETOWN``, ``SIOCSPGRP``). The sandbox first joins a fresh session keyring;
 * each worker has a private scratch space: its own ``/tmp/w<id>-<pid>`` and
   ``/dev/shm/w<id>-<pid>`` (its working directory and ``TMPDIR``), and a Landlock
   domain that gives it read-only access to the system and Python trees, its own
@@ -80,11 +84,11 @@ cgroups                     not used: the PID namespace is what ends every proce
                             rlimits bound memory, CPU and processes
 ==========================  ================================================================
 
-What stays shared between the workers of one submission is what they inherit from
-the zygote at fork time, which is the submission's own loaded state; code that a
-submission leaves running inside the zygote after loading (a thread, a fork or
-audit hook) can still read the workers' scratch folders, as the zygote is not in
-their Landlock domains.
+Nothing the submission makes at load time (shared memory, pipes, threads, hooks,
+replaced runner helpers, processes) is shared between its workers or reaches the
+zygote: each worker loads it after its own isolation is in place. Top-level code
+therefore runs once in the probe and once per worker; its time counts against the
+worker's first call.
 """
 
 from __future__ import annotations
@@ -581,6 +585,17 @@ class Sandbox:
     def alive(self):
         return self.proc is not None and self.proc.poll() is None
 
+    def ended(self, timeout=0.0):
+        """True when the sandbox process has ended, or ends within ``timeout`` seconds."""
+        proc = self.proc
+        if proc is None:
+            return True
+        try:
+            proc.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            return False
+        return True
+
     def kill(self):
         """Kill the sandbox and everything in it."""
         proc = self.proc
@@ -684,6 +699,7 @@ class Worker:
         self._out = bytearray()
         self._out_total = 0
         self.dead = False
+        self.zygote_gone = False  # set when the result pipe closed without the zygote's word on the worker's end
 
     def close(self, kill=True):
         if kill and not self.dead:
@@ -709,6 +725,7 @@ class Worker:
             header["global_seed"] = int(global_seed)
         self._out = bytearray()
         self._out_total = 0
+        del self._res[:]  # bytes left over from an earlier call are no answer to this one
         deadline = time.monotonic() + timeout
         reply, rpayload, status, err = self._exchange(pack_frame(header, payload), deadline)
         out = self._output_text()
@@ -728,9 +745,10 @@ class Worker:
             r = read_reply(reply, rpayload, np, deadline=deadline + 1.0)  # untrusted: schema, extents, byte cap
             if r["status"] == "protocol":
                 raise ProtocolError(r["error"][:200])
-        except ProtocolError as exc:
+        except Exception as exc:  # anything a forged reply raises is a protocol error, never a result
             self.close()
-            return CallOutcome("protocol", error=f"the grader could not read the function's result ({exc})", output=out)
+            msg = str(exc) if isinstance(exc, ProtocolError) else type(exc).__name__
+            return CallOutcome("protocol", error=f"the grader could not read the function's result ({msg})", output=out)
         if r["status"] == "error":
             return CallOutcome("error", error=r["error"], where=r["where"], mutated=r["mutated"], blocked=r["blocked"],
                                output=out, elapsed=r["elapsed"])
@@ -767,8 +785,11 @@ class Worker:
                     if header.get("status") == "exited":  # written by the zygote when the worker ended
                         self._drain_output()
                         return None, None, "eof", str(header.get("exit"))[:100]
+                    if pending:  # an answer to a request not yet read: forged ahead of time
+                        return None, None, "protocol", "a result arrived before the request was sent"
                     return header, payload, "ok", None
-                if not res_open:
+                if not res_open:  # the zygote holds this pipe too (it reports its workers' ends): it is gone
+                    self.zygote_gone = True
                     self._drain_output()
                     return None, None, "eof", "the process ended"
                 left = deadline - time.monotonic()

@@ -161,6 +161,10 @@ def _array_desc(a, parts, offset):
     return {"t": "arr", "dtype": a.dtype.str, "shape": [int(s) for s in a.shape], "off": offset, "len": len(data)}
 
 
+#: The largest dimension, and the largest element count, of an array read back from a worker.
+_MAX_DIM = 2 ** 31
+
+
 def _read_array(desc, payload, np):
     """Rebuild a plain ndarray from a descriptor, validating everything."""
     dtype = desc.get("dtype")
@@ -169,7 +173,8 @@ def _read_array(desc, payload, np):
     ln = desc.get("len")
     if not (isinstance(dtype, str) and _DTYPE_RE.match(dtype)):
         raise ProtocolError(f"unsupported dtype {dtype!r}")
-    if not (isinstance(shape, list) and len(shape) <= 32 and all(type(s) is int and 0 <= s for s in shape)):
+    if not (isinstance(shape, list) and len(shape) <= 32
+            and all(type(s) is int and 0 <= s <= _MAX_DIM for s in shape)):
         raise ProtocolError("bad shape")
     if not (type(off) is int and type(ln) is int and 0 <= off and 0 <= ln and off + ln <= len(payload)):
         raise ProtocolError("bad array extent")
@@ -179,13 +184,19 @@ def _read_array(desc, payload, np):
         raise ProtocolError(f"unsupported dtype {dtype!r}") from None
     if dt.kind not in _DTYPE_KINDS or dt.hasobject:
         raise ProtocolError(f"unsupported dtype {dtype!r}")
-    n = 1
+    n = big = 1
     for s in shape:
         n *= s
+        big *= max(s, 1)
+    if big > _MAX_DIM:  # empty arrays included: numpy refuses shapes whose nonzero sizes overflow
+        raise ProtocolError("array has too many elements")
     if n * dt.itemsize != ln:
         raise ProtocolError("array size does not match its shape")
-    arr = np.frombuffer(payload, dtype=dt, count=n, offset=off).reshape(shape)
-    return np.array(arr, copy=True)
+    try:
+        arr = np.frombuffer(payload, dtype=dt, count=n, offset=off).reshape(shape)
+        return np.array(arr, copy=True)
+    except (ValueError, TypeError, MemoryError, OverflowError) as exc:
+        raise ProtocolError(f"bad array: {type(exc).__name__}") from None
 
 
 # --------------------------------------------------------------------------- arguments (parent -> child)

@@ -31,7 +31,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent / "autograder_fixtures"))
 
-from agtest import replace_function, solution, solution_text  # noqa: E402
+from agtest import by_function, replace_function, solution, solution_text  # noqa: E402
 
 import autograder.sandbox as sandbox_mod  # noqa: E402
 from autograder.engine import grade  # noqa: E402
@@ -439,7 +439,8 @@ def test_process_1_runs_no_submission_code():
            "ZYGOTE = os.getpid()\n")
     (o,), ready = _sandbox_output(src, ["who"], [("who", [])])
     got = _json_of(o)
-    assert iso["init"] and got["zygote"] != 1 and got["pid"] != 1 and got["ppid"] == got["zygote"], got
+    # top-level code runs in the worker itself (forked from a zygote that never runs submission code)
+    assert iso["init"] and got["zygote"] == got["pid"] != 1 and got["ppid"] not in (1, got["pid"]), got
 
 
 # =========================================================================== finding 7: keyrings, namespaces, uids
@@ -568,3 +569,180 @@ def test_uids_come_from_a_pool_not_from_the_graders_pid(monkeypatch):
     many = [sandbox_mod._child_ids()[0] for _ in range(500)]
     assert len(set(many)) == len(many)
     assert all(1000 < u < 2**31 - 1 and u != 65534 for u in many)
+
+
+# =========================================================================== a worker against the zygote, forged frames
+FIXTURES = Path(__file__).resolve().parent / "autograder_fixtures"
+
+
+def test_a_worker_cannot_have_the_kernel_kill_the_zygote_and_other_functions_keep_their_marks():
+    """Signal-driven I/O (F_SETOWN + F_SETSIG(SIGKILL) + O_ASYNC) aimed at the zygote is refused in workers."""
+    result = grade(FIXTURES / "kill_zygote_ekf.py", "ekf_localization", workers=2)
+    got = by_function(result)
+    for fn in ("ekf_update", "associate_ml"):
+        assert got[fn][0] == got[fn][1], (fn, got, [t.output[-300:] for t in result.tests if t.function == fn])
+    assert got["ekf_predict"][0] == 0, got
+
+
+SETOWN = """
+import ctypes, fcntl, json, os
+
+def owners(x):
+    r, w = os.pipe()
+    got = {}
+    for name, call in (("F_SETOWN", lambda: fcntl.fcntl(r, 8, os.getppid())),
+                       ("F_SETOWN_EX", lambda: fcntl.fcntl(r, 15, bytes(8))),
+                       ("F_SETSIG", lambda: fcntl.fcntl(r, 10, 9)),
+                       ("FIOSETOWN", lambda: fcntl.ioctl(r, 0x8901, (os.getppid()).to_bytes(4, "little"))),
+                       ("SIOCSPGRP", lambda: fcntl.ioctl(r, 0x8902, (os.getppid()).to_bytes(4, "little")))):
+        try:
+            call()
+            got[name] = "allowed"
+        except OSError as exc:
+            got[name] = exc.errno
+    libc = ctypes.CDLL(None, use_errno=True)
+    got["personality"] = libc.syscall(135 if os.uname().machine in ("x86_64", "amd64") else 92, 0xFFFFFFFF)
+    print(json.dumps(got))
+    return x
+"""
+
+
+@pytest.mark.parametrize("backend", [True, "bpf"])
+def test_workers_cannot_name_another_process_as_owner_of_their_files(backend):
+    """F_SETOWN, F_SETOWN_EX, F_SETSIG, FIOSETOWN, SIOCSPGRP and personality() are refused (both filter backends)."""
+    if not _host_has_seccomp():
+        pytest.skip("the kernel has no seccomp filters")
+    lim = Limits(call_timeout=10.0, audit=False, **({} if backend is True else {"seccomp": backend}))
+    (out,), ready = _sandbox_output(SETOWN, ["owners"], [("owners", [1.0])], lim)
+    if backend == "bpf":
+        assert ready["isolation"]["seccomp_backend"] == "bpf", ready["isolation"]
+    got = _json_of(out)
+    for name in ("F_SETOWN", "F_SETOWN_EX", "F_SETSIG", "FIOSETOWN", "SIOCSPGRP"):
+        assert got[name] == 1, got  # EPERM
+    assert got["personality"] == -1, got
+
+
+FORGED = """
+import json, os, struct, sys
+
+def _res_fd():
+    f = sys._getframe()
+    while f is not None:
+        if "res_fd" in f.f_locals:
+            return f.f_locals["res_fd"]
+        f = f.f_back
+
+def forge(x):
+    hdr = {"status": "ok", "result": {"t": "item", "value": {"t": "arr", "dtype": "<f8", "shape": [0, 2**62, 2**62],
+           "off": 0, "len": 0, "py": "ndarray"}}, "error": None, "where": None, "mutated": [], "blocked": [],
+           "elapsed": 0.0}
+    h = json.dumps(hdr).encode()
+    os.write(_res_fd(), b"AGW1" + struct.pack("<II", len(h), 0) + h)
+    return x
+"""
+
+
+def test_a_forged_result_frame_is_a_protocol_error_and_ends_the_worker():
+    """A frame numpy cannot shape is refused; the real frame behind it never answers a later call."""
+    box = Sandbox([{"source": FORGED, "filename": "probe.py", "label": "probe"}], ["forge"],
+                  Limits(call_timeout=10.0, audit=False))
+    try:
+        box.start()
+        w = box.fork_worker()
+        first = w.call("forge", [1.0], timeout=10.0)
+        assert first.status == "protocol" and w.dead, (first.status, first.error)
+        assert w.call("forge", [2.0], timeout=10.0).status == "crashed"
+    finally:
+        box.close()
+
+
+def test_read_array_refuses_absurd_shapes():
+    from autograder.wire import ProtocolError, _read_array
+
+    for shape in ([0, 2**62, 2**62], [2**32], [0, 2**31 + 1], [2**16, 2**16, 0], [-1]):
+        with pytest.raises(ProtocolError):
+            _read_array({"dtype": "<f8", "shape": shape, "off": 0, "len": 0}, b"", np)
+    assert _read_array({"dtype": "<f8", "shape": [0, 3], "off": 0, "len": 0}, b"", np).shape == (0, 3)
+
+
+def test_a_function_that_ends_the_sandbox_loses_its_own_tests_only(monkeypatch):
+    """The sandbox dies during every call of ekf_predict: ekf_predict scores 0, the other functions keep their
+    marks (their reloads are not spent on it)."""
+    real_call = sandbox_mod.Worker.call
+
+    def call(self, fn, *args, **kwargs):
+        if fn == "ekf_predict" and self.sandbox.proc is not None:
+            os.killpg(self.sandbox.proc.pid, signal.SIGKILL)
+            self.sandbox.proc.wait()
+        return real_call(self, fn, *args, **kwargs)
+
+    monkeypatch.setattr(sandbox_mod.Worker, "call", call)
+    result = grade(solution("ekf_localization"), "ekf_localization", workers=2)
+    got = by_function(result)
+    assert got["ekf_predict"][0] == 0, got
+    for fn in ("ekf_update", "associate_ml"):
+        assert got[fn][0] == got[fn][1], (fn, got, [t.output[-300:] for t in result.tests if t.function == fn])
+
+
+# =========================================================================== fork, isolate, then load
+SHARED_AT_LOAD = """
+import mmap, os
+_SHM = mmap.mmap(-1, 4096)
+
+def put(x):
+    _SHM.seek(0)
+    _SHM.write(b"from-another-function")
+    return x
+
+def get(x):
+    _SHM.seek(0)
+    print(repr(_SHM.read(21)))
+    return x
+"""
+
+
+def test_memory_mapped_at_load_time_is_not_shared_between_functions():
+    """Anonymous shared memory (or a pipe) made by top-level code is each worker's own: no channel between them."""
+    box = Sandbox([{"source": SHARED_AT_LOAD, "filename": "probe.py", "label": "probe"}], ["put", "get"],
+                  Limits(call_timeout=10.0))
+    try:
+        box.start()
+        writer = box.fork_worker()  # alive while the other reads
+        assert writer.call("put", [1.0], timeout=10.0).status == "ok"
+        reader = box.fork_worker()
+        got = reader.call("get", [1.0], timeout=10.0)
+        reader.close()
+        writer.close()
+    finally:
+        box.close()
+    assert got.status == "ok", (got.status, got.error)
+    assert "from-another-function" not in got.output, got.output
+
+
+FORK_AT_LOAD = """
+import os, resource
+try:
+    soft, hard = resource.getrlimit(resource.RLIMIT_NPROC)
+    resource.setrlimit(resource.RLIMIT_NPROC, (hard, hard))
+    pid = os.fork()
+    if pid == 0:
+        os._exit(0)
+    os.waitpid(pid, 0)
+    FORKED = 1.0
+except OSError:
+    FORKED = 0.0
+
+def forked(x):
+    return FORKED
+"""
+
+
+def test_top_level_code_cannot_start_processes_even_without_the_audit_hook():
+    """Top-level code runs with a worker's limits (no new processes): it cannot raise RLIMIT_NPROC and fork."""
+    iso = _iso()
+    if not iso.get("root") or "uid_error" in iso:
+        pytest.skip("needs root: RLIMIT_NPROC counts per uid")
+    (out,), _ = _sandbox_output(FORK_AT_LOAD, ["forked"], [("forked", [1.0])],
+                                Limits(call_timeout=10.0, audit=False, block_processes=False))
+    assert out.status == "ok", (out.status, out.error)
+    assert float(out.returned.value.array) == 0.0, out.returned.describe()
