@@ -122,9 +122,13 @@ def _cached_alts(app, docname) -> dict[str, str]:
     ``jupyter_execute`` is the unexecuted one: the outputs are only in the cache's copy.
     """
     config = getattr(app.env, "mystnb_config", None)
-    cache_path = getattr(config, "execution_cache_path", None) or getattr(app.config, "nb_execution_cache_path", "")
-    source = Path(app.env.doc2path(docname))
-    if not cache_path or source.suffix != ".ipynb" or not Path(cache_path).is_dir():
+    cache_path = (getattr(config, "execution_cache_path", None)
+                  or getattr(getattr(app, "config", None), "nb_execution_cache_path", None))
+    doc2path = getattr(app.env, "doc2path", None)
+    if not cache_path or doc2path is None or not Path(cache_path).is_dir():
+        return {}
+    source = Path(doc2path(docname))
+    if source.suffix != ".ipynb":
         return {}
     try:
         import nbformat
