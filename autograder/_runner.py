@@ -977,6 +977,32 @@ def _install_audit_hook(blocked_modules, blocked_paths, attempts, processes=True
     return busy
 
 
+def _send_ready(ctl, job, mod, notes, attempts, iso):
+    """Tell the grader the submission is loaded: the notes, what each contract function is, the isolation."""
+    import inspect
+
+    info = {}
+    for name in job.get("functions", []):
+        fn = mod.__dict__.get(name)
+        entry = {"defined": fn is not None, "callable": callable(fn)}
+        code = getattr(fn, "__code__", None)
+        if code is not None:
+            entry["filename"] = str(getattr(code, "co_filename", ""))
+        entry["module"] = _short(getattr(fn, "__module__", None), 100) if fn is not None else None
+        try:
+            entry["signature"] = str(inspect.signature(fn)) if callable(fn) else None
+        except (TypeError, ValueError):
+            entry["signature"] = None
+        info[name] = entry
+    try:
+        sys.stdout.flush()
+        sys.stderr.flush()
+    except BaseException:  # noqa: BLE001
+        pass
+    _ctl_send(ctl, {"ev": "ready", "notes": notes[:200], "functions": info, "isolation": iso,
+                    "blocked": list(attempts)[:100]})
+
+
 def _load_submission(job, attempts, ctl):
     """Execute the submission statement by statement in a fresh module.
 
@@ -1234,26 +1260,7 @@ def _probe(job, ctl, attempts, npx, hook_busy, done_w):
         _seccomp(_worker_rules(_getpid()))
     _close_fds_but(ctl.fileno(), done_w)
     mod, notes = _load_submission(job, attempts, ctl)
-    info = {}
-    for name in job.get("functions", []):
-        fn = mod.__dict__.get(name)
-        entry = {"defined": fn is not None, "callable": callable(fn)}
-        code = getattr(fn, "__code__", None)
-        if code is not None:
-            entry["filename"] = str(getattr(code, "co_filename", ""))
-        entry["module"] = _short(getattr(fn, "__module__", None), 100) if fn is not None else None
-        try:
-            entry["signature"] = str(inspect.signature(fn)) if callable(fn) else None
-        except (TypeError, ValueError):
-            entry["signature"] = None
-        info[name] = entry
-    try:
-        sys.stdout.flush()
-        sys.stderr.flush()
-    except BaseException:  # noqa: BLE001
-        pass
-    _ctl_send(ctl, {"ev": "ready", "notes": notes[:200], "functions": info, "isolation": _PROBE_ISO[0],
-                    "blocked": list(attempts)[:100]})
+    _send_ready(ctl, job, mod, notes, attempts, _PROBE_ISO[0])
     os.write(done_w, b"r")
     _exit(0)
 
@@ -1550,26 +1557,7 @@ def main(argv):
         _zygote(job, ctl, None, attempts, npx, hook_busy)
         return
     mod, notes = _load_submission(job, attempts, ctl)
-    info = {}
-    for name in job.get("functions", []):
-        fn = mod.__dict__.get(name)
-        entry = {"defined": fn is not None, "callable": callable(fn)}
-        code = getattr(fn, "__code__", None)
-        if code is not None:
-            entry["filename"] = str(getattr(code, "co_filename", ""))
-        entry["module"] = _short(getattr(fn, "__module__", None), 100) if fn is not None else None
-        try:
-            entry["signature"] = str(inspect.signature(fn)) if callable(fn) else None
-        except (TypeError, ValueError):
-            entry["signature"] = None
-        info[name] = entry
-    try:
-        sys.stdout.flush()
-        sys.stderr.flush()
-    except BaseException:  # noqa: BLE001
-        pass
-    _ctl_send(ctl, {"ev": "ready", "notes": notes[:200], "functions": info, "isolation": iso,
-                    "blocked": list(attempts)[:100]})
+    _send_ready(ctl, job, mod, notes, attempts, iso)
     _zygote(job, ctl, mod, attempts, npx, hook_busy)
 
 
