@@ -33,11 +33,12 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ._checks import as_array, as_count, as_scalar, check_rng
+from ._checks import as_array, as_count, as_scalar, check_choice, check_rng
 from .lie import _so3_log
 from .bundle_adjustment import bundle_adjust
 
-__all__ = ["stereo_triangulate", "align_3d", "VOResult", "stereo_visual_odometry", "trajectory_errors"]
+__all__ = ["stereo_triangulate", "align_3d", "VOResult", "stereo_visual_odometry", "relative_pose_errors",
+           "trajectory_errors"]
 
 
 def stereo_triangulate(K, baseline, uL, uR, v):
@@ -150,7 +151,7 @@ class VOResult(NamedTuple):
 
 
 def stereo_visual_odometry(data, *, rng, window=5, max_depth=40.0, threshold=1.0, ba=True, ba_iterations=8,
-                           robust="cauchy"):
+                           robust="cauchy", robust_scale=None, ransac_iterations=500):
     """Stereo visual odometry: frame-to-frame 3-D alignment, then a sliding-window bundle adjustment.
 
     Parameters
@@ -161,9 +162,10 @@ def stereo_visual_odometry(data, *, rng, window=5, max_depth=40.0, threshold=1.0
     rng : numpy.random.Generator, keyword-only
         RANSAC's samples.
     window : int, keyword-only
-        Frames in the bundle adjustment (the oldest held fixed).
+        Frames in the bundle adjustment (the oldest held fixed), at least 3.
     max_depth : float, keyword-only
-        Landmarks farther than this (small disparity, poor depth) are not aligned.
+        Landmarks farther than this [m] (small disparity, poor depth) are neither aligned
+        nor adjusted.
     threshold : float, keyword-only
         RANSAC inlier threshold in pixels of disparity (the residual divided by the
         depth uncertainty ``Z^2 / (fx b)``).
@@ -173,13 +175,32 @@ def stereo_visual_odometry(data, *, rng, window=5, max_depth=40.0, threshold=1.0
         Levenberg-Marquardt iterations per window.
     robust : {"cauchy", "huber"} or None, keyword-only
         Kernel of the window's reprojection errors.
+    robust_scale : float, optional, keyword-only
+        The kernel's width in pixels (default that of :func:`slamlib.bundle_adjust`, 2.45).
+    ransac_iterations : int, keyword-only
+        Most RANSAC samples per frame (fewer when the adaptive count of
+        :func:`align_3d` is reached first).
 
     Returns
     -------
     VOResult
+
+    Notes
+    -----
+    The defaults are the choice of a cross-validation on the two halves of the KITTI
+    drive of :func:`slamlib.datasets.load_kitti_vo`, checked on simulated drives with
+    outliers and pixel noise (``benchmarks/vo_study.py``; chapter 16 reports it).
     """
     check_rng(rng)
     window = as_count(window, "window", minimum=3)
+    max_depth = as_scalar(max_depth, "max_depth", positive=True)
+    threshold = as_scalar(threshold, "threshold", positive=True)
+    ba_iterations = as_count(ba_iterations, "ba_iterations", minimum=1)
+    ransac_iterations = as_count(ransac_iterations, "ransac_iterations", minimum=1)
+    if robust is not None:
+        check_choice(robust, "robust", {"cauchy": "Cauchy kernel", "huber": "Huber kernel"})
+    if robust_scale is not None:
+        robust_scale = as_scalar(robust_scale, "robust_scale", positive=True)
     K, b = data.K, data.baseline
     frame, lm = data.frame, data.landmark
     F = int(frame.max()) + 1
@@ -197,18 +218,19 @@ def stereo_visual_odometry(data, *, rng, window=5, max_depth=40.0, threshold=1.0
         near = (pts[ia, 2] < max_depth) & (pts[ic, 2] < max_depth)
         ia, ic = ia[near], ic[near]
         # p_{k-1} = R p_k + t: the pose of frame k in frame k-1
-        R, t, inl = align_3d(pts[ic], pts[ia], rng=rng, threshold=threshold, scale=sigma_z[ia])
+        R, t, inl = align_3d(pts[ic], pts[ia], rng=rng, threshold=threshold, scale=sigma_z[ia],
+                               max_iter=ransac_iterations)
         n_inl[k] = int(inl.sum())
         rel = np.eye(4)
         rel[:3, :3], rel[:3, 3] = R, t
         T_f2f[k] = T_f2f[k - 1] @ rel
         T[k] = T[k - 1] @ rel
         if ba:
-            T = _window_ba(T, k, window, starts, lm, data, pts, max_depth, ba_iterations, robust)
+            T = _window_ba(T, k, window, starts, lm, data, pts, max_depth, ba_iterations, robust, robust_scale)
     return VOResult(T, T_f2f, n_inl)
 
 
-def _window_ba(T, k, window, starts, lm, data, pts, max_depth, iterations, robust):
+def _window_ba(T, k, window, starts, lm, data, pts, max_depth, iterations, robust, robust_scale):
     """Bundle adjustment of frames ``k - window + 1 .. k`` (the oldest fixed) on both images of each frame."""
     f0 = max(0, k - window + 1)
     sel = np.arange(starts[f0], starts[k + 1])
@@ -229,43 +251,45 @@ def _window_ba(T, k, window, starts, lm, data, pts, max_depth, iterations, robus
     offset = np.zeros((2 * n, 3))
     offset[n:, 0] = data.baseline
     res = bundle_adjust(T[f0:k + 1], X0, data.K, np.concatenate([cam, cam]), np.concatenate([inv, inv]), uv,
-                        fixed=(0,), robust=robust, max_iter=iterations, rtol=1e-8, offset=offset)
+                        fixed=(0,), robust=robust, robust_scale=robust_scale, max_iter=iterations, rtol=1e-8, offset=offset)
     out = T.copy()
     out[f0:k + 1] = res.T_wc
     return out
 
 
-def trajectory_errors(T_est, T_ref, *, delta=10):
-    """Drift of an estimated trajectory against a reference: ATE and relative pose errors.
+def relative_pose_errors(T_est, T_ref, *, delta=10):
+    """Relative pose errors of every segment of ``delta`` frames, per metre travelled.
 
     Parameters
     ----------
     T_est, T_ref : ndarray, shape (F, 4, 4)
-        Poses (camera-to-world) of the same frames, starting at the same pose.
+        Poses (camera-to-world) of the same frames.
     delta : int, keyword-only
-        Segment length in frames for the relative errors.
+        Segment length in frames, ``1 <= delta < F``.
 
     Returns
     -------
-    ate : float
-        RMS of the position differences (no alignment).
-    rpe_trans : float
-        Mean over segments ``(i, i + delta)`` of ``|t_err| / |travelled|`` in percent,
-        ``E = (T_ref,i^-1 T_ref,j)^-1 (T_est,i^-1 T_est,j)``, travelled the
-        reference's path length over the segment.
-    rpe_rot : float
-        Mean of ``|Log(R_err)| / travelled`` in degrees per metre.
+    trans : ndarray, shape (S,)
+        ``100 |t_err| / travelled`` of each segment ``(i, i + delta)`` [%], with
+        ``E = (T_ref,i^-1 T_ref,j)^-1 (T_est,i^-1 T_est,j)`` and travelled the
+        reference's path length over the segment (segments where the reference does
+        not move are left out).
+    rot : ndarray, shape (S,)
+        ``|Log(R_err)| / travelled`` of each segment [deg/m].
 
     References
     ----------
-    Sturm et al. (2012) (ATE, RPE); Geiger et al. (2012) (KITTI's per-length errors).
+    Sturm et al. (2012) (RPE); Geiger et al. (2012) (KITTI's errors per length travelled).
     """
     T_est = as_array(T_est, "T_est", (None, 4, 4))
     T_ref = as_array(T_ref, "T_ref", T_est.shape, ref="T_est")
     delta = as_count(delta, "delta", minimum=1)
     if delta >= len(T_est):
         raise ValueError(f"delta must be smaller than the number of frames {len(T_est)}, got {delta}")
-    ate = float(np.sqrt(np.mean(np.sum((T_est[:, :3, 3] - T_ref[:, :3, 3]) ** 2, axis=1))))
+    return _relative_errors(T_est, T_ref, delta)
+
+
+def _relative_errors(T_est, T_ref, delta):
     steps = np.linalg.norm(np.diff(T_ref[:, :3, 3], axis=0), axis=1)
     dist = np.concatenate([[0.0], np.cumsum(steps)])
     i = np.arange(len(T_est) - delta)
@@ -277,4 +301,48 @@ def trajectory_errors(T_est, T_ref, *, delta=10):
     ok = length > 1e-6
     trans = np.linalg.norm(E[:, :3, 3], axis=1)[ok] / length[ok]
     rot = np.linalg.norm(_so3_log(E[:, :3, :3]), axis=1)[ok] / length[ok]
-    return ate, float(100 * trans.mean()), float(np.degrees(rot.mean()))
+    return 100.0 * trans, np.degrees(rot)
+
+
+def trajectory_errors(T_est, T_ref, *, delta=10, align=False):
+    """Drift of an estimated trajectory against a reference: ATE and relative pose errors.
+
+    Parameters
+    ----------
+    T_est, T_ref : ndarray, shape (F, 4, 4)
+        Poses (camera-to-world) of the same frames, starting at the same pose.
+    delta : int, keyword-only
+        Segment length in frames for the relative errors.
+    align : bool, keyword-only
+        Compute the ATE after the rigid motion (rotation and translation, no scale:
+        stereo observes it) that best aligns the estimated positions with the
+        reference's (Umeyama 1991), as Sturm et al. (2012) do; else with none (both
+        start at the same pose). The relative errors do not depend on it.
+
+    Returns
+    -------
+    ate : float
+        RMS of the position differences [m].
+    rpe_trans : float
+        Mean over segments of :func:`relative_pose_errors`' translation [%].
+    rpe_rot : float
+        Mean of its rotation [deg/m].
+
+    References
+    ----------
+    Sturm et al. (2012) (ATE, RPE); Geiger et al. (2012) (KITTI's per-length errors).
+    """
+    T_est = as_array(T_est, "T_est", (None, 4, 4))
+    T_ref = as_array(T_ref, "T_ref", T_est.shape, ref="T_est")
+    delta = as_count(delta, "delta", minimum=1)
+    if delta >= len(T_est):
+        raise ValueError(f"delta must be smaller than the number of frames {len(T_est)}, got {delta}")
+    if not isinstance(align, (bool, np.bool_)):
+        raise TypeError(f"align must be True or False, got {align!r}")
+    p, q = T_est[:, :3, 3], T_ref[:, :3, 3]
+    if align:
+        R, t = _kabsch(p, q)
+        p = p @ R.T + t
+    ate = float(np.sqrt(np.mean(np.sum((p - q) ** 2, axis=1))))
+    trans, rot = _relative_errors(T_est, T_ref, delta)
+    return ate, float(trans.mean()), float(rot.mean())

@@ -10,7 +10,8 @@ __all__ = ["data_path", "CmuLog", "load_cmu_map", "load_cmu_log", "MRCLAMRun", "
            "PoseGraph", "PoseGraph3D", "City10000", "load_g2o", "load_g2o3d", "load_sphere2500", "load_city10000",
            "load_intel", "load_m3500", "VictoriaRun", "load_victoria_park",
            "SiftKeys", "load_balbianello_keys", "load_balbianello_image", "SfmProblem", "load_bundler", "load_bal",
-           "load_balbianello", "load_dubrovnik", "StereoVOData", "load_kitti_vo"]
+           "load_balbianello", "load_dubrovnik", "StereoVOData", "load_kitti_vo",
+           "stereo_vo_segment", "simulate_stereo_drive"]
 
 
 def data_path(*parts: str) -> Path:
@@ -29,4 +30,5 @@ from .g2o import City10000, PoseGraph, PoseGraph3D, load_city10000, load_g2o, lo
 from .victoria import VictoriaRun, load_victoria_park  # noqa: E402
 from .sfm import (SiftKeys, SfmProblem, load_balbianello_image, load_bal, load_balbianello,  # noqa: E402
                   load_balbianello_keys, load_bundler, load_dubrovnik)
-from .kitti_vo import StereoVOData, load_kitti_vo  # noqa: E402
+from .kitti_vo import StereoVOData, load_kitti_vo, stereo_vo_segment  # noqa: E402
+from .kitti_vo_sim import simulate_stereo_drive  # noqa: E402

@@ -13,9 +13,10 @@ from typing import NamedTuple
 import numpy as np
 
 from . import data_path
+from .._checks import as_count, as_index, check_type
 from ._text import open_text
 
-__all__ = ["StereoVOData", "load_kitti_vo"]
+__all__ = ["StereoVOData", "load_kitti_vo", "stereo_vo_segment"]
 
 
 class StereoVOData(NamedTuple):
@@ -55,3 +56,26 @@ def load_kitti_vo():
     m = np.array(" ".join(rows).split(), dtype=np.float64).reshape(-1, 5)
     m = m[np.lexsort((m[:, 1], m[:, 0]))]
     return StereoVOData(K, b, T, m[:, 0].astype(np.int64), m[:, 1].astype(np.int64), m[:, 2], m[:, 3], m[:, 4])
+
+
+def stereo_vo_segment(data, start, stop):
+    """Frames ``start .. stop - 1`` of a stereo drive as a drive of their own (frames renumbered from 0).
+
+    Parameters
+    ----------
+    data : StereoVOData
+    start, stop : int
+        ``0 <= start < stop - 1 < F``: at least two frames.
+
+    Returns
+    -------
+    StereoVOData
+        The measurements of those frames and their reference poses ``data.T_wc[start:stop]``.
+    """
+    check_type(data, StereoVOData, "data", "from load_kitti_vo or simulate_stereo_drive")
+    F = len(data.T_wc)
+    start = as_index(start, "start", F - 1)
+    stop = as_count(stop, "stop", minimum=start + 2, maximum=F)
+    sel = (data.frame >= start) & (data.frame < stop)
+    return StereoVOData(data.K, data.baseline, data.T_wc[start:stop], data.frame[sel] - start, data.landmark[sel],
+                        data.uL[sel], data.uR[sel], data.v[sel])
