@@ -150,8 +150,8 @@ class VOResult(NamedTuple):
     inliers: np.ndarray
 
 
-def stereo_visual_odometry(data, *, rng, window=5, max_depth=40.0, threshold=1.0, ba=True, ba_iterations=8,
-                           robust="cauchy", robust_scale=None, ransac_iterations=500):
+def stereo_visual_odometry(data, *, rng, window=3, max_depth=80.0, threshold=1.0, ba=True, ba_iterations=8,
+                           robust="cauchy", robust_scale=1.0, ransac_iterations=500):
     """Stereo visual odometry: frame-to-frame 3-D alignment, then a sliding-window bundle adjustment.
 
     Parameters
@@ -175,8 +175,8 @@ def stereo_visual_odometry(data, *, rng, window=5, max_depth=40.0, threshold=1.0
         Levenberg-Marquardt iterations per window.
     robust : {"cauchy", "huber"} or None, keyword-only
         Kernel of the window's reprojection errors.
-    robust_scale : float, optional, keyword-only
-        The kernel's width in pixels (default that of :func:`slamlib.bundle_adjust`, 2.45).
+    robust_scale : float or None, keyword-only
+        The kernel's width in pixels (None: that of :func:`slamlib.bundle_adjust`, 2.45).
     ransac_iterations : int, keyword-only
         Most RANSAC samples per frame (fewer when the adaptive count of
         :func:`align_3d` is reached first).
