@@ -11,10 +11,10 @@ errors in both images of each frame, the right camera a fixed ``b`` to the left
 one's right, the oldest frame of the window held fixed as the gauge, Cauchy kernel)
 refines the newest poses and the points they see.
 :func:`trajectory_errors` measures the drift against a reference trajectory: the
-absolute trajectory error (RMS of position differences, no alignment: both start at
-the same pose) and the relative pose error over segments of ``delta`` frames
-(translation in % of the distance travelled, rotation in degrees per metre, as the
-KITTI odometry benchmark reports them).
+absolute trajectory error (RMS of position differences, with no alignment, both starting
+at the same pose, or after the best rigid alignment) and the relative pose error over
+segments of ``delta`` frames (translation in % of the distance travelled, rotation in
+degrees per metre, as the KITTI odometry benchmark reports them).
 
 References
 ----------
@@ -226,7 +226,8 @@ def stereo_visual_odometry(data, *, rng, window=3, max_depth=80.0, threshold=1.0
         T_f2f[k] = T_f2f[k - 1] @ rel
         T[k] = T[k - 1] @ rel
         if ba:
-            T = _window_ba(T, k, window, starts, lm, data, pts, max_depth, ba_iterations, robust, robust_scale)
+            T = _window_ba(T, k, window, starts, lm, data, pts, max_depth, ba_iterations, robust,
+                           robust_scale)
     return VOResult(T, T_f2f, n_inl)
 
 
@@ -251,7 +252,8 @@ def _window_ba(T, k, window, starts, lm, data, pts, max_depth, iterations, robus
     offset = np.zeros((2 * n, 3))
     offset[n:, 0] = data.baseline
     res = bundle_adjust(T[f0:k + 1], X0, data.K, np.concatenate([cam, cam]), np.concatenate([inv, inv]), uv,
-                        fixed=(0,), robust=robust, robust_scale=robust_scale, max_iter=iterations, rtol=1e-8, offset=offset)
+                        fixed=(0,), robust=robust, robust_scale=robust_scale, max_iter=iterations, rtol=1e-8,
+                        offset=offset)
     out = T.copy()
     out[f0:k + 1] = res.T_wc
     return out
