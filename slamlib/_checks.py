@@ -350,7 +350,9 @@ def small_ok(vectors=(), matrices=(), covariances=()):
     Every argument must be a float64 ndarray: `vectors` 1-D with at most 16
     finite entries, `matrices` 2-D with at most 64 finite entries, and
     `covariances` from 2x2 to 8x8, symmetric and clearly positive definite (see
-    :func:`as_covariance`). The caller still compares the shapes. ``False``
+    :func:`as_covariance`; a covariance with the same values as one accepted in a
+    recent call, such as a filter's noise covariance, is accepted without a second
+    factorisation). The caller still compares the shapes. ``False``
     decides nothing: the caller then runs the full checks, which name what is
     wrong.
     """
@@ -369,9 +371,24 @@ def small_ok(vectors=(), matrices=(), covariances=()):
         if type(c) is not np.ndarray or c.dtype is not _F64 or c.ndim != 2:
             return False
         k = c.shape[0]
-        if not (2 <= k <= SMALL_COV and c.shape[1] == k and _small_pd(c.tolist(), k, c)):
+        if not (2 <= k <= SMALL_COV and c.shape[1] == k):
             return False
+        key = c.tobytes()  # the values decide the check: a matrix accepted before is accepted again
+        if key in _ACCEPTED:
+            continue
+        if not _small_pd(c.tolist(), k, c):
+            return False
+        if len(_ACCEPTED) >= _N_ACCEPTED:
+            _ACCEPTED.clear()
+        _ACCEPTED.add(key)
     return True
+
+
+#: The float64 contents (``tobytes``) of the last square covariances :func:`small_ok` accepted: a filter's
+#: noise covariances come back call after call, and the same values pass the same check. Only matrices that
+#: passed are kept (never a verdict against), at most ``_N_ACCEPTED`` of them.
+_ACCEPTED = set()
+_N_ACCEPTED = 32
 
 
 #: Largest covariance the small-matrix fast path checks (by Cholesky from 4 rows up).

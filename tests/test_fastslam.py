@@ -407,6 +407,30 @@ def test_unknown_association_scores_only_what_could_win_and_gives_the_same_run(w
     np.testing.assert_array_equal(res.x_est, every.x_est)
 
 
+
+@pytest.mark.parametrize("version,max_range", [(1, None), (1, 8.0), (2, None), (2, 8.0)])
+def test_per_measurement_candidates_give_the_run_of_scoring_every_candidate(world, version, max_range, monkeypatch):
+    # each measurement scores only the landmarks that some particle predicts within reach of it (range and
+    # bearing); the bound must never leave out one that could win: the run is bit for bit the run that
+    # scores every candidate of the step for every measurement (fs._PREFILTER = False)
+    from slamlib import fastslam as fs
+
+    run = sl.add_clutter(dataclasses.replace(world, u=world.u[:80], z=world.z[:80], ids=world.ids[:80],
+                                             x_true=world.x_true[:81]), 1.0, rng=np.random.default_rng(2))
+    kw = dict(n_particles=25, known=False, max_range=max_range, resample_threshold=0.5, version=version)
+    kept = []
+    reach = fs._within_reach
+    monkeypatch.setattr(fs, "_within_reach", lambda *a: kept.append((reach(*a).size, reach(*a).sum())) or reach(*a))
+    res = sl.run_fastslam(run, rng=np.random.default_rng(1), **kw)
+    pairs, near = np.array(kept).sum(axis=0)
+    assert near < 0.5 * pairs  # most (measurement, landmark) pairs are left out
+    monkeypatch.setattr(fs, "_PREFILTER", False)
+    every = sl.run_fastslam(run, rng=np.random.default_rng(1), **kw)
+    for a, b in zip(res.state, every.state):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(res.x_est, every.x_est)
+    np.testing.assert_array_equal(res.path_best, every.path_best)
+
 def test_state_from_arrays_behaves_as_the_named_tuple():
     rng = np.random.default_rng(12)
     st = _state_with_maps(4, 10, rng)
