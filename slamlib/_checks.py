@@ -376,7 +376,7 @@ def small_ok(vectors=(), matrices=(), covariances=()):
         key = c.tobytes()  # the values decide the check: a matrix accepted before is accepted again
         if key in _ACCEPTED:
             continue
-        if not _small_pd(c.tolist(), k, c):
+        if not (_small_pd_chol(c, None, k, key) if k > 3 else _small_pd(c.tolist(), k)):
             return False
         if len(_ACCEPTED) >= _N_ACCEPTED:
             _ACCEPTED.clear()
@@ -394,8 +394,8 @@ _N_ACCEPTED = 32
 #: Largest covariance the small-matrix fast path checks (by Cholesky from 4 rows up).
 SMALL_COV = 8
 
-def _small_pd_chol(value, a, k):
-    """True if the float64 ``(k, k)`` array `value` (nested list `a`) is finite, symmetric and clearly
+def _small_pd_chol(value, a, k, key=None):
+    """True if the float64 ``(k, k)`` array `value` (nested list `a`, or None) is finite, symmetric and clearly
     positive definite: LAPACK's Cholesky succeeds with every pivot ``U_ii^2 > 1e-12 max(1, max a_ii)``.
 
     A successful Cholesky factorisation is backward stable (it factors ``A + E``
@@ -403,13 +403,18 @@ def _small_pd_chol(value, a, k):
     far above the full check's tolerance ``-1e-9``; the pivots' margin plays the
     role of Sylvester's criterion for the 2x2 and 3x3 forms. False decides
     nothing (the caller then runs the full check).
+
+    An exactly symmetric matrix (its bytes equal its transpose's; `key` is
+    ``value.tobytes()`` when the caller has it) needs no separate finiteness
+    test: the factorisation reads one triangle, which then holds every entry,
+    and a NaN or infinity there leaves a pivot that is not a finite positive
+    number (or makes LAPACK report failure).
     """
-    if not math.isfinite(sum(map(sum, a))):
-        return False
-    diag = range(0, k * k, k + 1)
-    scale = max(1.0, *map(value.item, diag))
-    if list(map(tuple, a)) != list(zip(*a)):  # not exactly symmetric: within the tolerance?
-        tol = SYM_RTOL * scale
+    if (value.tobytes() if key is None else key) != value.T.tobytes():  # not exactly symmetric
+        a = value.tolist() if a is None else a
+        if not math.isfinite(sum(map(sum, a))):
+            return False
+        tol = SYM_RTOL * max(1.0, *value.diagonal().tolist())  # within the tolerance?
         for i in range(1, k):
             ai = a[i]
             for j in range(i):
@@ -418,7 +423,10 @@ def _small_pd_chol(value, a, k):
     U, info = _dpotrf(value.T, lower=0, clean=0)  # A = U^T U (A^T = A, read in Fortran order, no copy)
     if info:
         return False  # not positive definite (or not numerically)
-    return min(map(U.item, diag)) ** 2 > 1e-12 * scale  # pivots U_ii^2 clearly positive
+    pivots = U.diagonal().tolist()
+    low = min(pivots)
+    # pivots U_ii^2 clearly positive; NaN or infinity in a pivot: not finite
+    return math.isfinite(sum(pivots)) and low * low > 1e-12 * max(1.0, *value.diagonal().tolist())
 
 
 def _small_pd(a, k, value=None):
