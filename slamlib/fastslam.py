@@ -1205,15 +1205,6 @@ def _within_reach(z, zb0, zb1, seen, s0, s1, f):
     return (seen & (y0 <= f * s0) & (y1 <= f * s1)).any(axis=1)
 
 
-def _columns(near, m0, m1):
-    """The candidate columns of one measurement: ``near``'s, all of them when the proposal's mean ``(m0, m1)``
-    has moved beyond :data:`_ETA_REACH`, None when there is none."""
-    if float(np.max(m0 * m0 + m1 * m1, initial=0.0)) > _ETA_REACH ** 2:
-        return np.arange(near.size)
-    ci = np.flatnonzero(near)
-    return ci if ci.size else None
-
-
 def _unknown_window(state, K, name):
     """The maps grown for `K` new landmarks per particle and, as dense copies, the slots a step with unknown
     correspondences can touch: those some particle uses and the next `K` (a new landmark takes the first
@@ -1221,7 +1212,8 @@ def _unknown_window(state, K, name):
     maps = state._blocks()
     M = state.n_particles
     used = _used_slots(maps)
-    d = np.take(maps.pool.data, maps.table[:, :_n_blocks(used)], axis=0).reshape(M, -1, _NF)  # whole blocks
+    # whole blocks, up to the window's end unless the maps must grow (slots beyond `used` are empty)
+    d = np.take(maps.pool.data, maps.table[:, :_n_blocks(min(maps.N, used + K))], axis=0).reshape(M, -1, _NF)
     need = int(np.count_nonzero(d[..., _SEEN], axis=1).max(initial=0)) + K
     if need > maps.N:
         maps = _grow(state, need, name)._maps
@@ -1627,50 +1619,39 @@ def fastslam2_update_unknown(state, u, dt, z, Q, *, M, rng, p0=None, max_range=N
     return _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rng)
 
 
-def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rng, copy=True, motion=None):
-    """FastSLAM 2.0 step with unknown correspondences; ``copy=False`` may write into `state`'s arrays."""
-    z = z[z[:, 0] > 0]
-    n = state.n_particles
-    K = z.shape[0]
-    x_prev = state.poses
-    if K == 0 and max_range is None:  # nothing to associate or prune: the motion sample, the maps unchanged
-        eta = _sample_eta((np.ones(n), np.zeros(n), np.ones(n)), (np.zeros(n), np.zeros(n)), rng, n)
-        return FastSLAMState._from_maps(_move(x_prev, u, dt, L, eta, motion), state._blocks(),
-                                        _normalized(state.log_weights.copy()))
-    x_hat, B = _motion_terms(x_prev, u, dt, L, motion)
-    maps, win, (mu, Sigma, seen, counts) = _unknown_window(state, K, "the landmarks of a particle")
-    log_w = state.log_weights.copy()
+def _associate2(x_hat, B, mu, Sigma, seen, log_w, z, Q, log_p0, cols, near):
+    """FastSLAM 2.0's sequential maximum-likelihood association of a step's measurements (Table 13.3 with
+    unknown correspondences) over the candidate slots `cols`.
+
+    ``near (K, C)`` (or None: all) marks each measurement's candidates (:func:`_within_reach`); ``cols=None``:
+    none at all (the measurements leave the weights as they are). Returns the
+    proposal's information ``P`` and ``b``, ``match (M, K)`` (slot, -1 for a new landmark) and the log
+    weights, or None when the proposal's mean moved beyond :data:`_ETA_REACH`, where `near` no longer holds.
+    """
+    n, K = x_hat.shape[0], z.shape[0]
+    log_w = log_w.copy()
     rows = np.arange(n)
     P = [np.ones(n), np.zeros(n), np.ones(n)]  # information of the proposal over eta, prior N(0, I)
     b = [np.zeros(n), np.zeros(n)]
     match = np.full((n, K), -1, dtype=np.int64)  # landmark slot of each measurement, -1: new
-    cols = np.flatnonzero(seen.any(axis=0))
-    if cols.size and K:
-        # candidates: landmarks some particle predicts within reach of the step's ranges, with a margin of
-        # ten standard deviations of sensor, landmark and motion noise; any other has a likelihood below
-        # exp(-50) |2 pi Q|^-1/2, far below p0, and could never be chosen
-        d = np.hypot(mu[:, cols, 0] - x_hat[:, None, 0], mu[:, cols, 1] - x_hat[:, None, 1])
-        spread = np.sqrt(Sigma[:, cols, 0, 0] + Sigma[:, cols, 1, 1])
-        margin = 10.0 * (np.sqrt(Q[0, 0]) + spread + np.sqrt((B * B).sum(axis=(1, 2)))[:, None])
-        near = seen[:, cols] & (d >= z[:, 0].min() - margin) & (d <= z[:, 0].max() + margin)
-        cols = cols[near.any(axis=0)]
-    if cols.size and K:
+    if cols is None:  # no candidate at all: nothing to associate, every measurement a new landmark
+        return P, b, match, log_w
+    if cols.size:
         sn = seen[:, cols]
         mu_s = np.where(sn[..., None], mu[:, cols], x_hat[:, None, :2] + 1.0)  # keep h defined on empty slots
         z_bar, G, Qj = _predict_terms(x_hat, B, mu_s, Sigma[:, cols], Q)  # Table 13.3every candidate
         g00, g01, g10, g11 = G[..., 0, 0], G[..., 0, 1], G[..., 1, 0], G[..., 1, 1]
         zb0, zb1 = z_bar[..., 0], z_bar[..., 1]
         avail = sn.copy()
-        if _PREFILTER:  # the candidates of each measurement (see _within_reach)
-            near = _within_reach(z, zb0, zb1, sn, np.sqrt(Qj[0]) + np.hypot(g00, g01),
-                                 np.sqrt(Qj[2]) + np.hypot(g10, g11), _reach_factor(Q, log_p0))
-    for i in range(K if cols.size else 0):
+    for i in range(K):
         zi = z[i]
         _, (c00, c01, c11) = _inv_sym(*P)
         m0 = c00 * b[0] + c01 * b[1]  # proposal mean of eta so far
         m1 = c01 * b[0] + c11 * b[1]
-        ci = _columns(near[i], m0, m1) if _PREFILTER else slice(None)
-        if ci is None:  # no landmark of any particle can beat p0: a new landmark everywhere
+        if near is not None and float(np.max(m0 * m0 + m1 * m1)) > _ETA_REACH ** 2:
+            return None
+        ci = slice(None) if near is None else np.flatnonzero(near[i])
+        if not cols.size or near is not None and not ci.size:  # no landmark can beat p0: new everywhere
             log_w += log_p0  # w = p0
             continue
         h00, h01, h10, h11 = g00[:, ci], g01[:, ci], g10[:, ci], g11[:, ci]
@@ -1704,6 +1685,53 @@ def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rn
             jk = np.arange(cols.size)[ci][jk]  # the candidate's column
             avail[k, jk] = False
             match[k, i] = cols[jk]
+    return P, b, match, log_w
+
+
+def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rng, copy=True, motion=None):
+    """FastSLAM 2.0 step with unknown correspondences; ``copy=False`` may write into `state`'s arrays."""
+    z = z[z[:, 0] > 0]
+    n = state.n_particles
+    K = z.shape[0]
+    x_prev = state.poses
+    if K == 0 and max_range is None:  # nothing to associate or prune: the motion sample, the maps unchanged
+        eta = _sample_eta((np.ones(n), np.zeros(n), np.ones(n)), (np.zeros(n), np.zeros(n)), rng, n)
+        return FastSLAMState._from_maps(_move(x_prev, u, dt, L, eta, motion), state._blocks(),
+                                        _normalized(state.log_weights.copy()))
+    x_hat, B = _motion_terms(x_prev, u, dt, L, motion)
+    maps, win, (mu, Sigma, seen, counts) = _unknown_window(state, K, "the landmarks of a particle")
+    cols = np.flatnonzero(seen.any(axis=0))
+    if cols.size and K:
+        # candidates: landmarks some particle predicts within reach of the step's ranges, with a margin of
+        # ten standard deviations of sensor, landmark and motion noise; any other has a likelihood below
+        # exp(-50) |2 pi Q|^-1/2, far below p0, and could never be chosen
+        dx, dy = mu[:, cols, 0] - x_hat[:, None, 0], mu[:, cols, 1] - x_hat[:, None, 1]
+        d = np.hypot(dx, dy)
+        spread = np.sqrt(Sigma[:, cols, 0, 0] + Sigma[:, cols, 1, 1])
+        margin = 10.0 * (np.sqrt(Q[0, 0]) + spread + np.sqrt((B * B).sum(axis=(1, 2)))[:, None])
+        near = seen[:, cols] & (d >= z[:, 0].min() - margin) & (d <= z[:, 0].max() + margin)
+        keep = near.any(axis=0)
+        cols = cols[keep]
+    found = None
+    if _PREFILTER and cols.size and K:
+        # the candidates of each measurement (_within_reach), from bounds on the innovation's standard
+        # deviations that need neither z_bar's Jacobians nor Q_j: sqrt(Q_j,rr) <= sqrt(Q_rr) + s,
+        # sqrt(Q_j,phiphi) <= sqrt(Q_phiphi) + s / d (s^2 = tr Sigma_j), |G_r| <= |B_xy|, |G_phi| <= |B_xy| / d + |B_theta|
+        d, spread = d[:, keep], spread[:, keep]
+        phi = wrap_angle(np.arctan2(dy[:, keep], dx[:, keep]) - x_hat[:, None, 2])
+        b_xy = np.sqrt((B[:, :2] ** 2).sum(axis=(1, 2)))[:, None]
+        b_th = np.sqrt((B[:, 2] ** 2).sum(axis=1))[:, None]
+        s1 = np.full(d.shape, np.inf)  # at d = 0 the bearing can be anything
+        np.divide(spread + b_xy, d, out=s1, where=d > 0)
+        s1 += math.sqrt(Q[1, 1]) + b_th
+        near = _within_reach(z, d, phi, seen[:, cols], math.sqrt(Q[0, 0]) + spread + b_xy, s1,
+                             _reach_factor(Q, log_p0))
+        some = near.any(axis=0)
+        found = _associate2(x_hat, B, mu, Sigma, seen, state.log_weights, z, Q, log_p0, cols[some], near[:, some])
+    if found is None:  # every candidate for every measurement (also when the proposal moved beyond _ETA_REACH)
+        found = _associate2(x_hat, B, mu, Sigma, seen, state.log_weights, z, Q, log_p0,
+                            cols if cols.size and K else None, None)
+    P, b, match, log_w = found
     x = _move(x_prev, u, dt, L, _sample_eta(tuple(P), tuple(b), rng, n), motion)  # x_t ~ proposal
     matched = np.zeros_like(seen)
     kk, ii = np.nonzero(match >= 0)
