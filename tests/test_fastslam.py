@@ -431,6 +431,26 @@ def test_per_measurement_candidates_give_the_run_of_scoring_every_candidate(worl
     np.testing.assert_array_equal(res.x_est, every.x_est)
     np.testing.assert_array_equal(res.path_best, every.path_best)
 
+
+def test_fastslam2_candidates_fall_back_to_every_landmark_when_the_proposal_moves_far(world, monkeypatch):
+    # the per-measurement candidates of FastSLAM 2.0 hold while the proposal's mean of the control noise
+    # stays within _ETA_REACH standard deviations; beyond it the step scores every candidate again
+    from slamlib import fastslam as fs
+
+    run = dataclasses.replace(world, u=world.u[:60], z=world.z[:60], ids=world.ids[:60], x_true=world.x_true[:61])
+    kw = dict(n_particles=20, known=False, version=2)
+    calls = []
+    assoc = fs._associate2
+    monkeypatch.setattr(fs, "_associate2", lambda *a: calls.append(a[-2] is not None and a[-1] is None) or assoc(*a))
+    monkeypatch.setattr(fs, "_ETA_REACH", 0.05)
+    res = sl.run_fastslam(run, rng=np.random.default_rng(4), **kw)
+    assert sum(calls) > 0 and not all(calls)  # some steps fell back to every candidate, some did not
+    monkeypatch.setattr(fs, "_PREFILTER", False)
+    every = sl.run_fastslam(run, rng=np.random.default_rng(4), **kw)
+    for a, b in zip(res.state, every.state):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(res.x_est, every.x_est)
+
 def test_state_from_arrays_behaves_as_the_named_tuple():
     rng = np.random.default_rng(12)
     st = _state_with_maps(4, 10, rng)
