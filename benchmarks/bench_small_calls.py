@@ -23,10 +23,12 @@ from call to call (the contestants cycle through 37 covariances) while ``F``,
 one call) in microseconds per filter, so a faster small path can be seen not to
 slow the large one.
 
-The three contestants of a row are timed in turn, block by block (1000 calls),
-for 15 rounds, and each keeps its best block (``time.perf_counter``; the
-minimum, as ``timeit`` advises, because on a shared machine the slower blocks
-measure the neighbours); the whole run takes about half a minute.
+The three contestants of a row are timed in turn, block by block (200 calls,
+a few milliseconds: short enough to fall between the neighbours' time slices on
+a loaded machine), for 80 rounds, and each keeps its best block
+(``time.perf_counter``; the minimum, as ``timeit`` advises, because on a
+shared machine the slower blocks measure the neighbours); the whole run takes
+about half a minute.
 """
 
 from __future__ import annotations
@@ -230,14 +232,14 @@ def rows_sizes():
             ("kf_update", [lambda: sl.kf_update(xn, nx(), zn, Hn, Rn), (lambda: fk.update(xn, nx(), zn, Rn, Hn)) if fk else None,
                            lambda: bare_kf_update(xn, nx(), zn, Hn, Rn)]),
         ):
-            t = interleaved([fn for fn in fns if fn is not None], rounds=9)
+            t = interleaved([fn for fn in fns if fn is not None])
             if fns[1] is None:
                 t.insert(1, float("nan"))
             rows.append((name, n, *t))
     return rows
 
 
-def interleaved(fns, *, block=1000, rounds=15):
+def interleaved(fns, *, block=200, rounds=80):
     """Best mean time per call (us) of each of `fns`, timed in turn block by block, so that a
     change in the machine's load hits all of them alike."""
     for fn in fns:
@@ -272,7 +274,7 @@ def rows_batched():
 
 
 def main():
-    print(f"one call on a 3-state problem (us per call; best of 15 interleaved blocks of 1000 calls); filterpy "
+    print(f"one call on a 3-state problem (us per call; best of 80 interleaved blocks of 200 calls); filterpy "
           f"{'installed' if fk else 'NOT installed (pip install -e .[bench])'}")
     print(f"{'call':<12} {'slamlib':>9} {'filterpy':>9} {'bare':>9} {'sl/filterpy':>12} {'sl/bare':>8}")
     for name, s, f, b in rows_small():

@@ -361,12 +361,18 @@ def small_ok(vectors=(), matrices=(), covariances=()):
         if type(v) is not np.ndarray or v.dtype is not _F64 or v.ndim != 1 or v.size > 16:
             return False
         values += v.tolist()
+    new = []
     for m in matrices:
         if type(m) is not np.ndarray or m.dtype is not _F64 or m.ndim != 2 or m.size > 64:
             return False
-        values += m.ravel().tolist()
+        key = m.tobytes()  # a matrix found finite before (a filter's F or H) is finite again
+        if key not in _FINITE:
+            values += m.ravel().tolist()
+            new.append(key)
     if not math.isfinite(sum(values)) and not all(map(math.isfinite, values)):
         return False
+    if new:
+        _remember(_FINITE, new)
     for c in covariances:
         if type(c) is not np.ndarray or c.dtype is not _F64 or c.ndim != 2:
             return False
@@ -378,17 +384,23 @@ def small_ok(vectors=(), matrices=(), covariances=()):
             continue
         if not (_small_pd_chol(c, None, k, key) if k > 3 else _small_pd(c.tolist(), k)):
             return False
-        if len(_ACCEPTED) >= _N_ACCEPTED:
-            _ACCEPTED.clear()
-        _ACCEPTED.add(key)
+        _remember(_ACCEPTED, (key,))
     return True
 
 
-#: The float64 contents (``tobytes``) of the last square covariances :func:`small_ok` accepted: a filter's
-#: noise covariances come back call after call, and the same values pass the same check. Only matrices that
-#: passed are kept (never a verdict against), at most ``_N_ACCEPTED`` of them.
+#: The float64 contents (``tobytes``) of the last square covariances :func:`small_ok` accepted, and of the
+#: last matrices it found finite: a filter's noise covariances and model matrices come back call after call,
+#: and the same values pass the same check. Only what passed is kept (never a verdict against), at most
+#: ``_N_ACCEPTED`` of each.
 _ACCEPTED = set()
+_FINITE = set()
 _N_ACCEPTED = 32
+
+
+def _remember(memory, keys):
+    if len(memory) + len(keys) > _N_ACCEPTED:
+        memory.clear()
+    memory.update(keys)
 
 
 #: Largest covariance the small-matrix fast path checks (by Cholesky from 4 rows up).
@@ -420,7 +432,7 @@ def _small_pd_chol(value, a, k, key=None):
             for j in range(i):
                 if abs(ai[j] - a[j][i]) > tol:
                     return False
-    U, info = _dpotrf(value.T, lower=0, clean=0)  # A = U^T U (A^T = A, read in Fortran order, no copy)
+    U, info = _dpotrf(value.T, 0, 0)  # A = U^T U (lower=0, clean=0; A^T = A, read in Fortran order, no copy)
     if info:
         return False  # not positive definite (or not numerically)
     pivots = U.diagonal().tolist()

@@ -327,9 +327,15 @@ def test_small_ok_remembers_only_the_values_it_accepted():
     assert not c.small_ok((x,), (F,), (P, Q))
     with pytest.raises(ValueError, match="Q must be positive semi-definite"):
         sl.kf_predict(x, P, F, Q)
+    assert F.tobytes() in c._FINITE  # a model matrix found finite is remembered too, and checked again
+    F[2, 1] = np.nan  # once changed in place
+    assert not c.small_ok((x,), (F,), (P,))
+    with pytest.raises(ValueError, match="F must be finite"):
+        sl.kf_predict(x, P, F, P)
+    F[2, 1] = 0.5
     for k in range(3 * c._N_ACCEPTED):  # a running filter's ever new P: the memory stays small
-        assert c.small_ok((x,), (F,), (P + k * np.eye(n),))
-    assert len(c._ACCEPTED) <= c._N_ACCEPTED
+        assert c.small_ok((x,), (F + k,), (P + k * np.eye(n),))
+    assert len(c._ACCEPTED) <= c._N_ACCEPTED and len(c._FINITE) <= c._N_ACCEPTED
 
 # --------------------------------------------------------------------------- checks the filters and graphs share
 def test_thresholds_choices_types_and_record_fields():
