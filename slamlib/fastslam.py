@@ -1191,18 +1191,21 @@ def _reach_factor(Q, log_p0):
 def _within_reach(z, zb0, zb1, seen, s0, s1, f):
     """``(K, C)``: may candidate ``j`` win measurement ``i`` in some particle?
 
-    ``zb0, zb1 (M, C)`` are the predicted range and bearing, ``s0, s1 (M, C)``
-    bounds on the standard deviations of the innovation in range and bearing
-    (for FastSLAM 2.0 ``sqrt(Qj_aa) + |G_a|``: the proposal's covariance is at
-    most ``I``). A pair whose innovation exceeds ``f`` of them in either
+    ``zb0, zb1 (M, C)`` are the predicted range and bearing (``zb1`` in
+    ``[-pi, pi)``), ``s0, s1 (M, C)`` bounds on the standard deviations of the
+    innovation in range and bearing (FastSLAM 1.0: ``sqrt(S_aa)``; FastSLAM
+    2.0: ``sqrt(Qj_aa) + |G_a|``, the proposal's covariance being at most
+    ``I``, or larger bounds of these). A pair whose innovation exceeds ``f`` of them in either
     coordinate has ``nu^T L^-1 nu >= nu_a^2 / L_aa > t^2`` even after the
     proposal's mean moves it by ``|G_a| |m|``, ``|m| <= _ETA_REACH`` (see
     :func:`_reach_factor`), so its likelihood is below ``p0`` and it can
     never be chosen.
     """
     y0 = np.abs(z[:, 0, None, None] - zb0)
-    y1 = np.abs(wrap_angle(z[:, 1, None, None] - zb1))
-    return (seen & (y0 <= f * s0) & (y1 <= f * s1)).any(axis=1)
+    # |wrap(phi_i - zb1)| <= f s1 with both bearings in [-pi, pi]: |phi_i - zb1| <= f s1 or >= 2 pi - f s1
+    t1 = f * s1
+    y1 = np.abs(wrap_angle(z[:, 1])[:, None, None] - zb1)
+    return (seen & (y0 <= f * s0) & ((y1 <= t1) | (y1 >= 2.0 * np.pi - t1))).any(axis=1)
 
 
 def _unknown_window(state, K, name):
@@ -1676,15 +1679,15 @@ def _associate2(x_hat, B, mu, Sigma, seen, log_w, z, Q, log_p0, cols, near):
         log_w += np.where(old, best, log_p0)  # w = pi_c_hat, or p0 for a new landmark
         if old.any():
             k, jk = rows[old], j[old]
-            A_, b_, _ = _gauss_terms(G[:, ci][k, jk], (q00[k, jk], q01[k, jk], q11[k, jk]), y0[k, jk], y1[k, jk])
+            jc = np.arange(cols.size)[ci][jk]  # the candidate's column
+            A_, b_, _ = _gauss_terms(G[k, jc], (q00[k, jk], q01[k, jk], q11[k, jk]), y0[k, jk], y1[k, jk])
             P[0][k] += A_[0]
             P[1][k] += A_[1]
             P[2][k] += A_[2]
             b[0][k] += b_[0]
             b[1][k] += b_[1]
-            jk = np.arange(cols.size)[ci][jk]  # the candidate's column
-            avail[k, jk] = False
-            match[k, i] = cols[jk]
+            avail[k, jc] = False
+            match[k, i] = cols[jc]
     return P, b, match, log_w
 
 
