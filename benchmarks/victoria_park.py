@@ -17,8 +17,11 @@ not tuned), unknown correspondences and the car model of ``info.txt``:
 * FastSLAM 1.0 and 2.0 (per-particle maximum-likelihood association), several
   seeds, failures included.
 
-Printed: wall and CPU time of each full run (on a shared machine the CPU
-time is the figure to compare with the targets), ATE against the GPS fixes after a rigid
+Printed: the machine's load average at the start and with the targets, wall
+and CPU time of each full run (on a shared machine the CPU time is the figure
+to compare with the targets; a loaded machine still slows it), a closing
+table of each CPU time against its target (the slowest FastSLAM seed; only for
+the whole run with 100 particles), ATE against the GPS fixes after a rigid
 alignment (the GPS's own error, metres with jumps, is part of it), landmarks
 in the map, and the time of one EKF SLAM step (prediction, association and
 updates of one real laser scan's detections) from the full run's final

@@ -227,6 +227,7 @@ def test_ekf_slam_on_a_window_beats_dead_reckoning_against_gps():
     assert 50 < res.n_landmarks[-1] < 300
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("version", [1, 2])
 def test_fastslam_per_measurement_candidates_equal_scoring_every_candidate_on_the_log(version, monkeypatch):
     # the real log's scans (a dozen trees in view, hundreds in the map): the run with each measurement
