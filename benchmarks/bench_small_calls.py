@@ -227,9 +227,11 @@ def rows_sizes():
         ring = itertools.cycle([Pn + 0.01 * i * np.eye(n) for i in range(N_RING)])
         nx = ring.__next__
         for name, fns in (
-            ("kf_predict", [lambda: sl.kf_predict(xn, nx(), Fn, Qn), (lambda: fk.predict(xn, nx(), Fn, Qn)) if fk else None,
+            ("kf_predict", [lambda: sl.kf_predict(xn, nx(), Fn, Qn),
+                            (lambda: fk.predict(xn, nx(), Fn, Qn)) if fk else None,
                             lambda: bare_kf_predict(xn, nx(), Fn, Qn)]),
-            ("kf_update", [lambda: sl.kf_update(xn, nx(), zn, Hn, Rn), (lambda: fk.update(xn, nx(), zn, Rn, Hn)) if fk else None,
+            ("kf_update", [lambda: sl.kf_update(xn, nx(), zn, Hn, Rn),
+                           (lambda: fk.update(xn, nx(), zn, Rn, Hn)) if fk else None,
                            lambda: bare_kf_update(xn, nx(), zn, Hn, Rn)]),
         ):
             t = interleaved([fn for fn in fns if fn is not None])

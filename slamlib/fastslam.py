@@ -1719,7 +1719,8 @@ def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rn
     if _PREFILTER and cols.size and K:
         # the candidates of each measurement (_within_reach), from bounds on the innovation's standard
         # deviations that need neither z_bar's Jacobians nor Q_j: sqrt(Q_j,rr) <= sqrt(Q_rr) + s,
-        # sqrt(Q_j,phiphi) <= sqrt(Q_phiphi) + s / d (s^2 = tr Sigma_j), |G_r| <= |B_xy|, |G_phi| <= |B_xy| / d + |B_theta|
+        # sqrt(Q_j,phiphi) <= sqrt(Q_phiphi) + s / d (s^2 = tr Sigma_j), |G_r| <= |B_xy|,
+        # |G_phi| <= |B_xy| / d + |B_theta|
         d, spread = d[:, keep], spread[:, keep]
         phi = wrap_angle(np.arctan2(dy[:, keep], dx[:, keep]) - x_hat[:, None, 2])
         b_xy = np.sqrt((B[:, :2] ** 2).sum(axis=(1, 2)))[:, None]
