@@ -17,18 +17,23 @@ and prints microseconds per call and the ratios ``slamlib / filterpy`` (target
 <= 2) and ``slamlib / bare`` (target <= 3). The slamlib calls include their
 input validation. A second table times ``kf_predict`` and ``kf_update`` at 2 to 6
 states (2 measurements, correlated covariances) against filterpy, with the goal
-``slamlib / filterpy <= 2`` at every size. A second table times the batched calls (10,000 filters in
+``slamlib / filterpy <= 2`` at every size; as in a running filter, ``P`` changes
+from call to call (the contestants cycle through 37 covariances) while ``F``,
+``Q``, ``H`` and ``R`` stay. A second table times the batched calls (10,000 filters in
 one call) in microseconds per filter, so a faster small path can be seen not to
 slow the large one.
 
-The three contestants of a row are timed in turn, block by block (1000 calls),
-for 15 rounds, and each keeps its best block (``time.perf_counter``; the
-minimum, as ``timeit`` advises, because on a shared machine the slower blocks
-measure the neighbours); the whole run takes about half a minute.
+The three contestants of a row are timed in turn, block by block (200 calls,
+a few milliseconds: short enough to fall between the neighbours' time slices on
+a loaded machine), for 80 rounds, and each keeps its best block
+(``time.perf_counter``; the minimum, as ``timeit`` advises, because on a
+shared machine the slower blocks measure the neighbours); the whole run takes
+about half a minute.
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 import sys
 import time
@@ -197,6 +202,7 @@ def rows_small():
 
 SIZES = (2, 3, 4, 5, 6)
 GOAL_FILTERPY = 2.0  # at every size: slamlib / filterpy <= 2
+N_RING = 37  # distinct covariances P the calls of one row cycle through
 
 
 def linear_problem(n, k=2, seed=SEED):
@@ -217,20 +223,25 @@ def rows_sizes():
     rows = []
     for n in SIZES:
         xn, Pn, Fn, Qn, Hn, Rn, zn = linear_problem(n)
+        # P changes from call to call, as in a running filter (F, Q, H and R stay): every call checks a new P
+        ring = itertools.cycle([Pn + 0.01 * i * np.eye(n) for i in range(N_RING)])
+        nx = ring.__next__
         for name, fns in (
-            ("kf_predict", [lambda: sl.kf_predict(xn, Pn, Fn, Qn), (lambda: fk.predict(xn, Pn, Fn, Qn)) if fk else None,
-                            lambda: bare_kf_predict(xn, Pn, Fn, Qn)]),
-            ("kf_update", [lambda: sl.kf_update(xn, Pn, zn, Hn, Rn), (lambda: fk.update(xn, Pn, zn, Rn, Hn)) if fk else None,
-                           lambda: bare_kf_update(xn, Pn, zn, Hn, Rn)]),
+            ("kf_predict", [lambda: sl.kf_predict(xn, nx(), Fn, Qn),
+                            (lambda: fk.predict(xn, nx(), Fn, Qn)) if fk else None,
+                            lambda: bare_kf_predict(xn, nx(), Fn, Qn)]),
+            ("kf_update", [lambda: sl.kf_update(xn, nx(), zn, Hn, Rn),
+                           (lambda: fk.update(xn, nx(), zn, Rn, Hn)) if fk else None,
+                           lambda: bare_kf_update(xn, nx(), zn, Hn, Rn)]),
         ):
-            t = interleaved([fn for fn in fns if fn is not None], rounds=9)
+            t = interleaved([fn for fn in fns if fn is not None])
             if fns[1] is None:
                 t.insert(1, float("nan"))
             rows.append((name, n, *t))
     return rows
 
 
-def interleaved(fns, *, block=1000, rounds=15):
+def interleaved(fns, *, block=200, rounds=80):
     """Best mean time per call (us) of each of `fns`, timed in turn block by block, so that a
     change in the machine's load hits all of them alike."""
     for fn in fns:
@@ -265,7 +276,7 @@ def rows_batched():
 
 
 def main():
-    print(f"one call on a 3-state problem (us per call; best of 15 interleaved blocks of 1000 calls); filterpy "
+    print(f"one call on a 3-state problem (us per call; best of 80 interleaved blocks of 200 calls); filterpy "
           f"{'installed' if fk else 'NOT installed (pip install -e .[bench])'}")
     print(f"{'call':<12} {'slamlib':>9} {'filterpy':>9} {'bare':>9} {'sl/filterpy':>12} {'sl/bare':>8}")
     for name, s, f, b in rows_small():

@@ -350,7 +350,9 @@ def small_ok(vectors=(), matrices=(), covariances=()):
     Every argument must be a float64 ndarray: `vectors` 1-D with at most 16
     finite entries, `matrices` 2-D with at most 64 finite entries, and
     `covariances` from 2x2 to 8x8, symmetric and clearly positive definite (see
-    :func:`as_covariance`). The caller still compares the shapes. ``False``
+    :func:`as_covariance`; a covariance with the same values as one accepted in a
+    recent call, such as a filter's noise covariance, is accepted without a second
+    factorisation). The caller still compares the shapes. ``False``
     decides nothing: the caller then runs the full checks, which name what is
     wrong.
     """
@@ -359,26 +361,53 @@ def small_ok(vectors=(), matrices=(), covariances=()):
         if type(v) is not np.ndarray or v.dtype is not _F64 or v.ndim != 1 or v.size > 16:
             return False
         values += v.tolist()
+    new = []
     for m in matrices:
         if type(m) is not np.ndarray or m.dtype is not _F64 or m.ndim != 2 or m.size > 64:
             return False
-        values += m.ravel().tolist()
+        key = m.tobytes()  # a matrix found finite before (a filter's F or H) is finite again
+        if key not in _FINITE:
+            values += m.ravel().tolist()
+            new.append(key)
     if not math.isfinite(sum(values)) and not all(map(math.isfinite, values)):
         return False
+    if new:
+        _remember(_FINITE, new)
     for c in covariances:
         if type(c) is not np.ndarray or c.dtype is not _F64 or c.ndim != 2:
             return False
         k = c.shape[0]
-        if not (2 <= k <= SMALL_COV and c.shape[1] == k and _small_pd(c.tolist(), k, c)):
+        if not (2 <= k <= SMALL_COV and c.shape[1] == k):
             return False
+        key = c.tobytes()  # the values decide the check: a matrix accepted before is accepted again
+        if key in _ACCEPTED:
+            continue
+        if not (_small_pd_chol(c, None, k, key) if k > 3 else _small_pd(c.tolist(), k)):
+            return False
+        _remember(_ACCEPTED, (key,))
     return True
+
+
+#: The float64 contents (``tobytes``) of the last square covariances :func:`small_ok` accepted, and of the
+#: last matrices it found finite: a filter's noise covariances and model matrices come back call after call,
+#: and the same values pass the same check. Only what passed is kept (never a verdict against), at most
+#: ``_N_ACCEPTED`` of each.
+_ACCEPTED = set()
+_FINITE = set()
+_N_ACCEPTED = 32
+
+
+def _remember(memory, keys):
+    if len(memory) + len(keys) > _N_ACCEPTED:
+        memory.clear()
+    memory.update(keys)
 
 
 #: Largest covariance the small-matrix fast path checks (by Cholesky from 4 rows up).
 SMALL_COV = 8
 
-def _small_pd_chol(value, a, k):
-    """True if the float64 ``(k, k)`` array `value` (nested list `a`) is finite, symmetric and clearly
+def _small_pd_chol(value, a, k, key=None):
+    """True if the float64 ``(k, k)`` array `value` (nested list `a`, or None) is finite, symmetric and clearly
     positive definite: LAPACK's Cholesky succeeds with every pivot ``U_ii^2 > 1e-12 max(1, max a_ii)``.
 
     A successful Cholesky factorisation is backward stable (it factors ``A + E``
@@ -386,22 +415,30 @@ def _small_pd_chol(value, a, k):
     far above the full check's tolerance ``-1e-9``; the pivots' margin plays the
     role of Sylvester's criterion for the 2x2 and 3x3 forms. False decides
     nothing (the caller then runs the full check).
+
+    An exactly symmetric matrix (its bytes equal its transpose's; `key` is
+    ``value.tobytes()`` when the caller has it) needs no separate finiteness
+    test: the factorisation reads one triangle, which then holds every entry,
+    and a NaN or infinity there leaves a pivot that is not a finite positive
+    number (or makes LAPACK report failure).
     """
-    if not math.isfinite(sum(map(sum, a))):
-        return False
-    diag = range(0, k * k, k + 1)
-    scale = max(1.0, *map(value.item, diag))
-    if list(map(tuple, a)) != list(zip(*a)):  # not exactly symmetric: within the tolerance?
-        tol = SYM_RTOL * scale
+    if (value.tobytes() if key is None else key) != value.T.tobytes():  # not exactly symmetric
+        a = value.tolist() if a is None else a
+        if not math.isfinite(sum(map(sum, a))):
+            return False
+        tol = SYM_RTOL * max(1.0, *value.diagonal().tolist())  # within the tolerance?
         for i in range(1, k):
             ai = a[i]
             for j in range(i):
                 if abs(ai[j] - a[j][i]) > tol:
                     return False
-    U, info = _dpotrf(value.T, lower=0, clean=0)  # A = U^T U (A^T = A, read in Fortran order, no copy)
+    U, info = _dpotrf(value.T, 0, 0)  # A = U^T U (lower=0, clean=0; A^T = A, read in Fortran order, no copy)
     if info:
         return False  # not positive definite (or not numerically)
-    return min(map(U.item, diag)) ** 2 > 1e-12 * scale  # pivots U_ii^2 clearly positive
+    pivots = U.diagonal().tolist()
+    low = min(pivots)
+    # pivots U_ii^2 clearly positive; NaN or infinity in a pivot: not finite
+    return math.isfinite(sum(pivots)) and low * low > 1e-12 * max(1.0, *value.diagonal().tolist())
 
 
 def _small_pd(a, k, value=None):

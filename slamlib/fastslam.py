@@ -1100,20 +1100,31 @@ def _update_unknown_core(state, z, Q, log_p0, weight_cov, max_range, half_fov, c
     _, S_parts, _ = _innovation(H, Sigma[:, cols], Q)
     S = np.stack(S_parts, axis=-1)  # (M, C, 3): S00, S01, S11
 
+    fresh = np.zeros(cols.size, dtype=bool)  # columns whose z_hat and S changed during the step
+    if _PREFILTER:  # the candidates of each measurement (see _within_reach), with every refreshed column
+        near = _within_reach(z, z_hat[..., 0], z_hat[..., 1], seen[:, cols], np.sqrt(S[..., 0]), np.sqrt(S[..., 2]),
+                             _reach_factor(Q, log_p0))
+
     def refresh(k, jk):
         zh, _, Hk = landmark_measurement(x[k], mu[k, jk])
         z_hat[k, pos[jk]] = zh
         S[k, pos[jk]] = np.stack(_innovation(Hk, Sigma[k, jk], Q)[1], axis=-1)
+        fresh[pos[jk]] = True
 
-    for zk in z:
-        sn = seen[:, cols]
-        nu1 = wrap_angle(zk[1] - z_hat[..., 1])
-        # w_j = N(nu_j; 0, S_j)  (Table 13.2)
-        ll = np.where(sn, _log_gauss_2(zk[0] - z_hat[..., 0], nu1, S[..., 0], S[..., 1], S[..., 2]), -np.inf)
-        c = np.argmax(ll, axis=1)  # ties: smallest index (the candidates are in increasing order)
-        best = ll[rows, c]
-        j = cols[c]
-        is_new = best < log_p0  # c_hat = new landmark when p0 beats every w_j  (Table 13.2)
+    for i, zk in enumerate(z):
+        ci = np.flatnonzero(near[i] | fresh) if _PREFILTER else slice(None)
+        if _PREFILTER and ci.size == 0:  # no landmark of any particle can beat p0: a new landmark everywhere
+            is_new = np.ones(M, dtype=bool)
+        else:
+            sn = seen[:, cols[ci]]
+            zh, Sc = z_hat[:, ci], S[:, ci]
+            nu1 = wrap_angle(zk[1] - zh[..., 1])
+            # w_j = N(nu_j; 0, S_j)  (Table 13.2)
+            ll = np.where(sn, _log_gauss_2(zk[0] - zh[..., 0], nu1, Sc[..., 0], Sc[..., 1], Sc[..., 2]), -np.inf)
+            c = np.argmax(ll, axis=1)  # ties: smallest index (the candidates are in increasing order)
+            best = ll[rows, c]
+            j = cols[ci][c]
+            is_new = best < log_p0  # c_hat = new landmark when p0 beats every w_j  (Table 13.2)
         old = ~is_new
         if old.any():
             k, jk = rows[old], j[old]
@@ -1162,6 +1173,41 @@ def _candidates(x, mu, Sigma, seen, z, Q, log_p0):
     return np.flatnonzero(free | near.any(axis=0))
 
 
+#: Per-measurement candidates in the unknown-correspondence updates (False: every landmark of the step's
+#: candidate list is scored for every measurement, the reference the tests compare with).
+_PREFILTER = True
+#: Largest norm of the FastSLAM 2.0 proposal's mean of the control noise (in its standard deviations) for
+#: which the per-measurement candidates hold; beyond it a measurement scores every candidate.
+_ETA_REACH = 10.0
+
+
+def _reach_factor(Q, log_p0):
+    """``t + _ETA_REACH + 1``, where ``t^2 = 2 (-log p0 - log 2 pi - 1/2 log det Q)``: a landmark whose
+    innovation exceeds ``t`` standard deviations in range or bearing has ``N(nu; 0, S) < p0`` for any ``S >= Q``."""
+    t2 = 2.0 * (-log_p0 - _LOG_2PI - 0.5 * math.log(Q[0, 0] * Q[1, 1] - Q[0, 1] * Q[1, 0]))
+    return math.sqrt(max(t2, 0.0)) + _ETA_REACH + 1.0
+
+
+def _within_reach(z, zb0, zb1, seen, s0, s1, f):
+    """``(K, C)``: may candidate ``j`` win measurement ``i`` in some particle?
+
+    ``zb0, zb1 (M, C)`` are the predicted range and bearing (``zb1`` in
+    ``[-pi, pi)``), ``s0, s1 (M, C)`` bounds on the standard deviations of the
+    innovation in range and bearing (FastSLAM 1.0: ``sqrt(S_aa)``; FastSLAM
+    2.0: ``sqrt(Qj_aa) + |G_a|``, the proposal's covariance being at most
+    ``I``, or larger bounds of these). A pair whose innovation exceeds ``f`` of them in either
+    coordinate has ``nu^T L^-1 nu >= nu_a^2 / L_aa > t^2`` even after the
+    proposal's mean moves it by ``|G_a| |m|``, ``|m| <= _ETA_REACH`` (see
+    :func:`_reach_factor`), so its likelihood is below ``p0`` and it can
+    never be chosen.
+    """
+    y0 = np.abs(z[:, 0, None, None] - zb0)
+    # |wrap(phi_i - zb1)| <= f s1 with both bearings in [-pi, pi]: |phi_i - zb1| <= f s1 or >= 2 pi - f s1
+    t1 = f * s1
+    y1 = np.abs(wrap_angle(z[:, 1])[:, None, None] - zb1)
+    return (seen & (y0 <= f * s0) & ((y1 <= t1) | (y1 >= 2.0 * np.pi - t1))).any(axis=1)
+
+
 def _unknown_window(state, K, name):
     """The maps grown for `K` new landmarks per particle and, as dense copies, the slots a step with unknown
     correspondences can touch: those some particle uses and the next `K` (a new landmark takes the first
@@ -1169,7 +1215,8 @@ def _unknown_window(state, K, name):
     maps = state._blocks()
     M = state.n_particles
     used = _used_slots(maps)
-    d = np.take(maps.pool.data, maps.table[:, :_n_blocks(used)], axis=0).reshape(M, -1, _NF)  # whole blocks
+    # whole blocks, up to the window's end unless the maps must grow (slots beyond `used` are empty)
+    d = np.take(maps.pool.data, maps.table[:, :_n_blocks(min(maps.N, used + K))], axis=0).reshape(M, -1, _NF)
     need = int(np.count_nonzero(d[..., _SEEN], axis=1).max(initial=0)) + K
     if need > maps.N:
         maps = _grow(state, need, name)._maps
@@ -1575,6 +1622,75 @@ def fastslam2_update_unknown(state, u, dt, z, Q, *, M, rng, p0=None, max_range=N
     return _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rng)
 
 
+def _associate2(x_hat, B, mu, Sigma, seen, log_w, z, Q, log_p0, cols, near):
+    """FastSLAM 2.0's sequential maximum-likelihood association of a step's measurements (Table 13.3 with
+    unknown correspondences) over the candidate slots `cols`.
+
+    ``near (K, C)`` (or None: all) marks each measurement's candidates (:func:`_within_reach`); ``cols=None``:
+    none at all (the measurements leave the weights as they are). Returns the
+    proposal's information ``P`` and ``b``, ``match (M, K)`` (slot, -1 for a new landmark) and the log
+    weights, or None when the proposal's mean moved beyond :data:`_ETA_REACH`, where `near` no longer holds.
+    """
+    n, K = x_hat.shape[0], z.shape[0]
+    log_w = log_w.copy()
+    rows = np.arange(n)
+    P = [np.ones(n), np.zeros(n), np.ones(n)]  # information of the proposal over eta, prior N(0, I)
+    b = [np.zeros(n), np.zeros(n)]
+    match = np.full((n, K), -1, dtype=np.int64)  # landmark slot of each measurement, -1: new
+    if cols is None:  # no candidate at all: nothing to associate, every measurement a new landmark
+        return P, b, match, log_w
+    if cols.size:
+        sn = seen[:, cols]
+        mu_s = np.where(sn[..., None], mu[:, cols], x_hat[:, None, :2] + 1.0)  # keep h defined on empty slots
+        z_bar, G, Qj = _predict_terms(x_hat, B, mu_s, Sigma[:, cols], Q)  # Table 13.3every candidate
+        g00, g01, g10, g11 = G[..., 0, 0], G[..., 0, 1], G[..., 1, 0], G[..., 1, 1]
+        zb0, zb1 = z_bar[..., 0], z_bar[..., 1]
+        avail = sn.copy()
+    for i in range(K):
+        zi = z[i]
+        _, (c00, c01, c11) = _inv_sym(*P)
+        m0 = c00 * b[0] + c01 * b[1]  # proposal mean of eta so far
+        m1 = c01 * b[0] + c11 * b[1]
+        if near is not None and float(np.max(m0 * m0 + m1 * m1)) > _ETA_REACH ** 2:
+            return None
+        ci = slice(None) if near is None else np.flatnonzero(near[i])
+        if not cols.size or near is not None and not ci.size:  # no landmark can beat p0: new everywhere
+            log_w += log_p0  # w = p0
+            continue
+        h00, h01, h10, h11 = g00[:, ci], g01[:, ci], g10[:, ci], g11[:, ci]
+        q00, q01, q11 = Qj[0][:, ci], Qj[1][:, ci], Qj[2][:, ci]
+        y0 = zi[0] - zb0[:, ci]
+        y1 = wrap_angle(zi[1] - zb1[:, ci])
+        r0 = y0 - (h00 * m0[:, None] + h01 * m1[:, None])  # innovation against the proposal mean
+        r1 = wrap_angle(y1 - (h10 * m0[:, None] + h11 * m1[:, None]))
+        # L_j = G_j C G_j^T + Q_j  (Table 13.3with the proposal's covariance C so far)
+        a00 = h00 * c00[:, None] + h01 * c01[:, None]
+        a01 = h00 * c01[:, None] + h01 * c11[:, None]
+        a10 = h10 * c00[:, None] + h11 * c01[:, None]
+        a11 = h10 * c01[:, None] + h11 * c11[:, None]
+        L00 = a00 * h00 + a01 * h01 + q00
+        L01 = a00 * h10 + a01 * h11 + q01
+        L11 = a10 * h10 + a11 * h11 + q11
+        # pi_j = N(r_j; 0, L_j); pi_new = p0
+        ll = np.where(avail[:, ci], _log_gauss_2(r0, r1, L00, L01, L11), -np.inf)
+        j = np.argmax(ll, axis=1)  # c_hat = argmax_j pi_j; ties: smallest index
+        best = ll[rows, j]
+        old = best >= log_p0
+        log_w += np.where(old, best, log_p0)  # w = pi_c_hat, or p0 for a new landmark
+        if old.any():
+            k, jk = rows[old], j[old]
+            jc = np.arange(cols.size)[ci][jk]  # the candidate's column
+            A_, b_, _ = _gauss_terms(G[k, jc], (q00[k, jk], q01[k, jk], q11[k, jk]), y0[k, jk], y1[k, jk])
+            P[0][k] += A_[0]
+            P[1][k] += A_[1]
+            P[2][k] += A_[2]
+            b[0][k] += b_[0]
+            b[1][k] += b_[1]
+            avail[k, jc] = False
+            match[k, i] = cols[jc]
+    return P, b, match, log_w
+
+
 def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rng, copy=True, motion=None):
     """FastSLAM 2.0 step with unknown correspondences; ``copy=False`` may write into `state`'s arrays."""
     z = z[z[:, 0] > 0]
@@ -1587,60 +1703,39 @@ def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rn
                                         _normalized(state.log_weights.copy()))
     x_hat, B = _motion_terms(x_prev, u, dt, L, motion)
     maps, win, (mu, Sigma, seen, counts) = _unknown_window(state, K, "the landmarks of a particle")
-    log_w = state.log_weights.copy()
-    rows = np.arange(n)
-    P = [np.ones(n), np.zeros(n), np.ones(n)]  # information of the proposal over eta, prior N(0, I)
-    b = [np.zeros(n), np.zeros(n)]
-    match = np.full((n, K), -1, dtype=np.int64)  # landmark slot of each measurement, -1: new
     cols = np.flatnonzero(seen.any(axis=0))
     if cols.size and K:
         # candidates: landmarks some particle predicts within reach of the step's ranges, with a margin of
         # ten standard deviations of sensor, landmark and motion noise; any other has a likelihood below
         # exp(-50) |2 pi Q|^-1/2, far below p0, and could never be chosen
-        d = np.hypot(mu[:, cols, 0] - x_hat[:, None, 0], mu[:, cols, 1] - x_hat[:, None, 1])
+        dx, dy = mu[:, cols, 0] - x_hat[:, None, 0], mu[:, cols, 1] - x_hat[:, None, 1]
+        d = np.hypot(dx, dy)
         spread = np.sqrt(Sigma[:, cols, 0, 0] + Sigma[:, cols, 1, 1])
         margin = 10.0 * (np.sqrt(Q[0, 0]) + spread + np.sqrt((B * B).sum(axis=(1, 2)))[:, None])
         near = seen[:, cols] & (d >= z[:, 0].min() - margin) & (d <= z[:, 0].max() + margin)
-        cols = cols[near.any(axis=0)]
-    if cols.size and K:
-        sn = seen[:, cols]
-        mu_s = np.where(sn[..., None], mu[:, cols], x_hat[:, None, :2] + 1.0)  # keep h defined on empty slots
-        z_bar, G, Qj = _predict_terms(x_hat, B, mu_s, Sigma[:, cols], Q)  # Table 13.3every candidate
-        g00, g01, g10, g11 = G[..., 0, 0], G[..., 0, 1], G[..., 1, 0], G[..., 1, 1]
-        avail = sn.copy()
-    for i in range(K if cols.size else 0):
-        zi = z[i]
-        _, (c00, c01, c11) = _inv_sym(*P)
-        m0 = c00 * b[0] + c01 * b[1]  # proposal mean of eta so far
-        m1 = c01 * b[0] + c11 * b[1]
-        y0 = zi[0] - z_bar[..., 0]
-        y1 = wrap_angle(zi[1] - z_bar[..., 1])
-        r0 = y0 - (g00 * m0[:, None] + g01 * m1[:, None])  # innovation against the proposal mean
-        r1 = wrap_angle(y1 - (g10 * m0[:, None] + g11 * m1[:, None]))
-        # L_j = G_j C G_j^T + Q_j  (Table 13.3with the proposal's covariance C so far)
-        a00 = g00 * c00[:, None] + g01 * c01[:, None]
-        a01 = g00 * c01[:, None] + g01 * c11[:, None]
-        a10 = g10 * c00[:, None] + g11 * c01[:, None]
-        a11 = g10 * c01[:, None] + g11 * c11[:, None]
-        L00 = a00 * g00 + a01 * g01 + Qj[0]
-        L01 = a00 * g10 + a01 * g11 + Qj[1]
-        L11 = a10 * g10 + a11 * g11 + Qj[2]
-        # pi_j = N(r_j; 0, L_j); pi_new = p0
-        ll = np.where(avail, _log_gauss_2(r0, r1, L00, L01, L11), -np.inf)
-        j = np.argmax(ll, axis=1)  # c_hat = argmax_j pi_j; ties: smallest index
-        best = ll[rows, j]
-        old = best >= log_p0
-        log_w += np.where(old, best, log_p0)  # w = pi_c_hat, or p0 for a new landmark
-        if old.any():
-            k, jk = rows[old], j[old]
-            A_, b_, _ = _gauss_terms(G[k, jk], (Qj[0][k, jk], Qj[1][k, jk], Qj[2][k, jk]), y0[k, jk], y1[k, jk])
-            P[0][k] += A_[0]
-            P[1][k] += A_[1]
-            P[2][k] += A_[2]
-            b[0][k] += b_[0]
-            b[1][k] += b_[1]
-            avail[k, jk] = False
-            match[k, i] = cols[jk]
+        keep = near.any(axis=0)
+        cols = cols[keep]
+    found = None
+    if _PREFILTER and cols.size and K:
+        # the candidates of each measurement (_within_reach), from bounds on the innovation's standard
+        # deviations that need neither z_bar's Jacobians nor Q_j: sqrt(Q_j,rr) <= sqrt(Q_rr) + s,
+        # sqrt(Q_j,phiphi) <= sqrt(Q_phiphi) + s / d (s^2 = tr Sigma_j), |G_r| <= |B_xy|,
+        # |G_phi| <= |B_xy| / d + |B_theta|
+        d, spread = d[:, keep], spread[:, keep]
+        phi = wrap_angle(np.arctan2(dy[:, keep], dx[:, keep]) - x_hat[:, None, 2])
+        b_xy = np.sqrt((B[:, :2] ** 2).sum(axis=(1, 2)))[:, None]
+        b_th = np.sqrt((B[:, 2] ** 2).sum(axis=1))[:, None]
+        s1 = np.full(d.shape, np.inf)  # at d = 0 the bearing can be anything
+        np.divide(spread + b_xy, d, out=s1, where=d > 0)
+        s1 += math.sqrt(Q[1, 1]) + b_th
+        near = _within_reach(z, d, phi, seen[:, cols], math.sqrt(Q[0, 0]) + spread + b_xy, s1,
+                             _reach_factor(Q, log_p0))
+        some = near.any(axis=0)
+        found = _associate2(x_hat, B, mu, Sigma, seen, state.log_weights, z, Q, log_p0, cols[some], near[:, some])
+    if found is None:  # every candidate for every measurement (also when the proposal moved beyond _ETA_REACH)
+        found = _associate2(x_hat, B, mu, Sigma, seen, state.log_weights, z, Q, log_p0,
+                            cols if cols.size and K else None, None)
+    P, b, match, log_w = found
     x = _move(x_prev, u, dt, L, _sample_eta(tuple(P), tuple(b), rng, n), motion)  # x_t ~ proposal
     matched = np.zeros_like(seen)
     kk, ii = np.nonzero(match >= 0)

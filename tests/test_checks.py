@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+import slamlib as sl
 from slamlib import _checks as c
 
 
@@ -288,6 +289,53 @@ def test_small_covariances_up_to_8x8_are_checked_without_an_eigendecomposition(n
         with pytest.raises(ValueError, match=match):
             c.as_covariance(bad, "P", n)
 
+
+
+@pytest.mark.parametrize("n", [2, 3, 4, 5, 6, 8])
+def test_small_ok_refuses_a_covariance_with_any_nonfinite_entry(n):
+    # from 4x4 an exactly symmetric covariance is not scanned for NaN or infinity: the Cholesky
+    # factorisation's pivots must reveal one in every place, in one triangle or in both
+    rng = np.random.default_rng(40 + n)
+    B = rng.normal(size=(n, n))
+    P = B @ B.T + np.eye(n)
+    assert c.small_ok((), (), (P,))
+    for i in range(n):
+        for j in range(i, n):
+            for bad in (np.nan, np.inf, -np.inf):
+                for both in (False, True):
+                    Pb = P.copy()
+                    Pb[i, j] = bad
+                    if both:
+                        Pb[j, i] = bad
+                    assert not c.small_ok((), (), (Pb,)), (i, j, bad, both)
+                    with pytest.raises(ValueError, match="P"):
+                        c.as_covariance(Pb, "P", n)
+
+
+def test_small_ok_remembers_only_the_values_it_accepted():
+    # a covariance accepted once (a filter's noise) is accepted again without a second factorisation;
+    # the same array changed in place is checked again, and a bad one still gets the error naming it
+    rng = np.random.default_rng(44)
+    n = 5
+    B = rng.normal(size=(n, n))
+    Q = B @ B.T + np.eye(n)
+    P = Q + np.eye(n)
+    x, F = rng.normal(size=n), rng.normal(size=(n, n))
+    assert c.small_ok((x,), (F,), (P, Q))
+    assert Q.tobytes() in c._ACCEPTED
+    Q[0, 0] = -1.0  # in place: no longer positive definite
+    assert not c.small_ok((x,), (F,), (P, Q))
+    with pytest.raises(ValueError, match="Q must be positive semi-definite"):
+        sl.kf_predict(x, P, F, Q)
+    assert F.tobytes() in c._FINITE  # a model matrix found finite is remembered too, and checked again
+    F[2, 1] = np.nan  # once changed in place
+    assert not c.small_ok((x,), (F,), (P,))
+    with pytest.raises(ValueError, match="F must be finite"):
+        sl.kf_predict(x, P, F, P)
+    F[2, 1] = 0.5
+    for k in range(3 * c._N_ACCEPTED):  # a running filter's ever new P: the memory stays small
+        assert c.small_ok((x,), (F + k,), (P + k * np.eye(n),))
+    assert len(c._ACCEPTED) <= c._N_ACCEPTED and len(c._FINITE) <= c._N_ACCEPTED
 
 # --------------------------------------------------------------------------- checks the filters and graphs share
 def test_thresholds_choices_types_and_record_fields():

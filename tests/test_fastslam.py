@@ -407,6 +407,50 @@ def test_unknown_association_scores_only_what_could_win_and_gives_the_same_run(w
     np.testing.assert_array_equal(res.x_est, every.x_est)
 
 
+
+@pytest.mark.parametrize("version,max_range", [(1, None), (1, 8.0), (2, None), (2, 8.0)])
+def test_per_measurement_candidates_give_the_run_of_scoring_every_candidate(world, version, max_range, monkeypatch):
+    # each measurement scores only the landmarks that some particle predicts within reach of it (range and
+    # bearing); the bound must never leave out one that could win: the run is bit for bit the run that
+    # scores every candidate of the step for every measurement (fs._PREFILTER = False)
+    from slamlib import fastslam as fs
+
+    run = sl.add_clutter(dataclasses.replace(world, u=world.u[:80], z=world.z[:80], ids=world.ids[:80],
+                                             x_true=world.x_true[:81]), 1.0, rng=np.random.default_rng(2))
+    kw = dict(n_particles=25, known=False, max_range=max_range, resample_threshold=0.5, version=version)
+    kept = []
+    reach = fs._within_reach
+    monkeypatch.setattr(fs, "_within_reach", lambda *a: kept.append((reach(*a).size, reach(*a).sum())) or reach(*a))
+    res = sl.run_fastslam(run, rng=np.random.default_rng(1), **kw)
+    pairs, near = np.array(kept).sum(axis=0)
+    assert near < 0.75 * pairs  # a good share of the (measurement, landmark) pairs is left out
+    monkeypatch.setattr(fs, "_PREFILTER", False)
+    every = sl.run_fastslam(run, rng=np.random.default_rng(1), **kw)
+    for a, b in zip(res.state, every.state):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(res.x_est, every.x_est)
+    np.testing.assert_array_equal(res.path_best, every.path_best)
+
+
+def test_fastslam2_candidates_fall_back_to_every_landmark_when_the_proposal_moves_far(world, monkeypatch):
+    # the per-measurement candidates of FastSLAM 2.0 hold while the proposal's mean of the control noise
+    # stays within _ETA_REACH standard deviations; beyond it the step scores every candidate again
+    from slamlib import fastslam as fs
+
+    run = dataclasses.replace(world, u=world.u[:60], z=world.z[:60], ids=world.ids[:60], x_true=world.x_true[:61])
+    kw = dict(n_particles=20, known=False, version=2)
+    calls = []
+    assoc = fs._associate2
+    monkeypatch.setattr(fs, "_associate2", lambda *a: calls.append(a[-2] is not None and a[-1] is None) or assoc(*a))
+    monkeypatch.setattr(fs, "_ETA_REACH", 0.05)
+    res = sl.run_fastslam(run, rng=np.random.default_rng(4), **kw)
+    assert sum(calls) > 0 and not all(calls)  # some steps fell back to every candidate, some did not
+    monkeypatch.setattr(fs, "_PREFILTER", False)
+    every = sl.run_fastslam(run, rng=np.random.default_rng(4), **kw)
+    for a, b in zip(res.state, every.state):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(res.x_est, every.x_est)
+
 def test_state_from_arrays_behaves_as_the_named_tuple():
     rng = np.random.default_rng(12)
     st = _state_with_maps(4, 10, rng)

@@ -225,3 +225,21 @@ def test_ekf_slam_on_a_window_beats_dead_reckoning_against_gps():
     ekf = victoria_gps_ate(run, res.x)[0]
     assert ekf < 0.8 * dr, (ekf, dr)
     assert 50 < res.n_landmarks[-1] < 300
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("version", [1, 2])
+def test_fastslam_per_measurement_candidates_equal_scoring_every_candidate_on_the_log(version, monkeypatch):
+    # the real log's scans (a dozen trees in view, hundreds in the map): the run with each measurement
+    # scoring only the landmarks within reach of it is bit for bit the run scoring every candidate
+    from slamlib import fastslam as fs
+
+    run = load_victoria_park(t_max=60.0)
+    kw = dict(n_particles=30, known=False, version=version, motion=run.motion)
+    res = sl.run_fastslam(run, rng=np.random.default_rng(5), **kw)
+    monkeypatch.setattr(fs, "_PREFILTER", False)
+    every = sl.run_fastslam(run, rng=np.random.default_rng(5), **kw)
+    assert res.seen.sum() > 30
+    for a, b in zip(res.state, every.state):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(res.path_best, every.path_best)
