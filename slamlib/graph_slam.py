@@ -31,8 +31,8 @@ are assembled in coordinate (COO) form into a compressed-column matrix whose
 pattern is computed once per graph, and the system is solved by a sparse LU
 factorisation (SuperLU, no pivoting) in a fill-reducing order computed once per
 graph (minimum degree on the graph of variable blocks, SuperLU's
-``MMD_AT_PLUS_A``), which on ``H`` (symmetric positive definite) is
-effectively a sparse Cholesky.
+``MMD_AT_PLUS_A``, postordered on its elimination tree), which on ``H`` (symmetric
+positive definite) is effectively a sparse Cholesky.
 
 Gauge freedom: ``F`` depends only on relative quantities, so moving all poses
 and landmarks together by one rigid transform leaves it unchanged and ``H`` is
@@ -41,7 +41,8 @@ holding the first pose where it is (``fixed=(0,)``): its rows and columns are
 removed from the system.
 
 Two optimisers: Gauss-Newton (solve ``H dx = -b``, step, repeat) and
-Levenberg-Marquardt (solve ``(H + mu I) dx = -b`` with ``mu = lambda mean(diag H)``,
+Levenberg-Marquardt (solve ``(H + mu I) dx = -b`` with ``mu = lambda mean(diag H)``, or ``mu = lambda``
+as GTSAM does with ``damping="identity"``,
 accept the step only if it lowers ``F``, divide ``lambda`` by 10 after an accepted step and
 multiply it by 10 after a rejected one). Both stop when ``F`` changes by less than ``rtol``
 relative to its value (or, for a rejected step, when the quadratic model promises less), or
@@ -117,8 +118,10 @@ __all__ = [
 #: Solver options of SuperLU. ``H`` is symmetric positive definite, so the factorisation
 #: pivots on the diagonal (no row exchanges: in effect a sparse Cholesky factorisation) and
 #: keeps the symmetric order; the fill-reducing order is computed once per graph on its
-#: blocks (:func:`_fill_reducing_order`) and built into the system, so SuperLU factorises it
-#: as it comes ("NATURAL"). Chosen by measurement (``benchmarks/bench_graph_slam.py``).
+#: blocks (:func:`_fill_reducing_order`: minimum degree, postordered on its elimination tree) and
+#: built into the system, so SuperLU factorises it as it comes ("NATURAL"). Chosen by measurement
+#: on Intel, M3500, w10000, w20000, city10000 and sphere2500 against SuperLU's own COLAMD and
+#: MMD_AT_PLUS_A orders computed per factorisation (``python benchmarks/bench_graph_slam.py solver``).
 SPLU_OPTIONS = dict(permc_spec="NATURAL", diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
 #: Levenberg-Marquardt: the damping is divided by this factor after a step that lowers the cost and
 #: multiplied by it after one that does not (Marquardt's rule with GTSAM's factor); a rejected step whose
@@ -569,7 +572,8 @@ def _fill_reducing_order(n_var, terms, free):
     The order is computed once per graph on the graph of *variable blocks*
     (poses, landmarks), which has the sparsity pattern of ``H`` with each
     block shrunk to one entry: minimum-degree ordering on ``A^T + A`` (SuperLU's
-    ``MMD_AT_PLUS_A``), blocks then expanded to their variables. Factorising the
+    ``MMD_AT_PLUS_A``), postordered on the elimination tree of that order (:func:`_postorder`:
+    the same fill, larger supernodes), blocks then expanded to their variables. Factorising the
     permuted ``H`` in natural order then needs no ordering per iteration.
     """
     # blocks: a block starts at every offset a term uses; the variables of a block are contiguous
