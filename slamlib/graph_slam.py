@@ -498,9 +498,12 @@ class _Layout:
     ``offset_b .. offset_b + q``. Values of the blocks ``A^T W A``, ``A^T W B``,
     ``B^T W A``, ``B^T W B`` are summed into the compressed-column data of
     ``H`` by one ``bincount`` (entries of fixed variables go to a dump slot).
+    When all variables come in blocks of one size (pose graphs), the pattern is
+    found on the blocks (:meth:`_block_pattern`), otherwise from every entry
+    (:meth:`_scalar_pattern`, or with ``blocks=False``); both give the same arrays.
     """
 
-    def __init__(self, n_var, terms, fixed_vars, *, order=False):
+    def __init__(self, n_var, terms, fixed_vars, *, order=False, blocks=True):
         free = np.ones(n_var, dtype=bool)
         free[list(fixed_vars)] = False
         self.n_var = n_var
@@ -509,14 +512,66 @@ class _Layout:
         new = np.full(n_var, -1, dtype=np.int64)
         new[self.free_idx] = _fill_reducing_order(n_var, terms, free) if order else np.arange(n)
         self.new = new  # variable -> row of the reduced system (-1 for fixed variables)
-        rows, cols, brow = [], [], []
+        brow = []
+        for oa, p, ob, q in terms:
+            brow += [(np.asarray(oa, dtype=np.int64)[:, None] + np.arange(p)).ravel(),
+                     (np.asarray(ob, dtype=np.int64)[:, None] + np.arange(q)).ravel()]
+        bvar = new[np.concatenate(brow)]
+        self.bslot = np.where(bvar >= 0, bvar, n)
+        d = _uniform_blocks(n_var, terms, new) if blocks else 0
+        if d:
+            self._block_pattern(terms, d)
+        else:
+            self._scalar_pattern(terms)
+
+    def _block_pattern(self, terms, d):
+        """The pattern of a graph whose variables all come in blocks of ``d`` (poses), found on the blocks: the
+        same arrays as :meth:`_scalar_pattern`, with ``d * d`` times fewer keys to sort."""
+        n = self.n
+        nbf = n // d
+        lead = self.new[::d]
+        bnew = np.where(lead >= 0, lead // d, -1)  # block -> block of the reduced system (-1 when fixed)
+        br, bc = [], []
+        for oa, _, ob, _ in terms:
+            a, b = bnew[np.asarray(oa, dtype=np.int64) // d], bnew[np.asarray(ob, dtype=np.int64) // d]
+            for r, c in ((a, a), (a, b), (b, a), (b, b)):
+                br.append(r)
+                bc.append(c)
+        br, bc = np.concatenate(br), np.concatenate(bc)
+        keep = (br >= 0) & (bc >= 0)
+        ub, uinv = np.unique(bc[keep] * nbf + br[keep], return_inverse=True)  # column-major: CSC order of blocks
+        ucol, urow = ub // nbf, ub % nbf
+        first = np.searchsorted(ucol, np.arange(nbf + 1))  # first block of each block column
+        m = np.diff(first)  # blocks per block column
+        # entry (i, j) of block u sits at d*d*first[col] + j*d*m[col] + d*(u - first[col]) + i in the CSC data
+        base = d * d * first[ucol] + d * (np.arange(ub.size) - first[ucol])
+        stride = d * m[ucol]
+        ar = np.arange(d)
+        pos = base[:, None, None] + ar[None, :, None] + ar[None, None, :] * stride[:, None, None]  # (U, i, j)
+        self.nnz = int(ub.size * d * d)
+        self.slot = np.full((br.size, d, d), self.nnz, dtype=np.int64)
+        self.slot[keep] = pos[uinv]
+        self.slot = self.slot.ravel()
+        indices = np.empty(self.nnz, dtype=np.int32)
+        indices[pos.ravel()] = np.broadcast_to((d * urow)[:, None, None] + ar[None, :, None], pos.shape).ravel()
+        self.indices = indices
+        indptr = np.empty(n + 1, dtype=np.int64)
+        indptr[:n] = (d * d * first[:-1, None] + ar[None, :] * (d * m)[:, None]).ravel()
+        indptr[n] = self.nnz
+        self.indptr = indptr.astype(np.int32)
+        diag_block = np.searchsorted(ub, np.arange(nbf) * (nbf + 1))
+        self.diag = (base[diag_block, None] + ar[None, :] * (1 + stride[diag_block, None])).ravel()
+
+    def _scalar_pattern(self, terms):
+        """The pattern from every entry of every block (any block sizes)."""
+        n, new = self.n, self.new
+        rows, cols = [], []
         for oa, p, ob, q in terms:
             va = np.asarray(oa, dtype=np.int64)[:, None] + np.arange(p)  # (E, p) variable indices
             vb = np.asarray(ob, dtype=np.int64)[:, None] + np.arange(q)
             for r, c in ((va, va), (va, vb), (vb, va), (vb, vb)):
                 rows.append(np.broadcast_to(r[:, :, None], (r.shape[0], r.shape[1], c.shape[1])).ravel())
                 cols.append(np.broadcast_to(c[:, None, :], (r.shape[0], r.shape[1], c.shape[1])).ravel())
-            brow += [va.ravel(), vb.ravel()]
         rows = new[np.concatenate(rows)]
         cols = new[np.concatenate(cols)]
         keep = (rows >= 0) & (cols >= 0)
@@ -527,8 +582,6 @@ class _Layout:
         self.slot[keep] = inv
         self.indices = (uniq % n).astype(np.int32)
         self.indptr = np.searchsorted(uniq // n, np.arange(n + 1)).astype(np.int32)
-        bvar = new[np.concatenate(brow)]
-        self.bslot = np.where(bvar >= 0, bvar, n)
         self.diag = np.searchsorted(uniq, np.arange(n) * (n + 1))  # data positions of the diagonal
 
     def values(self, blocks):
@@ -564,6 +617,20 @@ class _Layout:
     def solve(self, data, rhs):
         """``H^-1 rhs`` by a sparse LU factorisation of ``H`` (system order)."""
         return splu(self.matrix(data), **SPLU_OPTIONS).solve(rhs)
+
+
+def _uniform_blocks(n_var, terms, new):
+    """``d`` when every variable lies in a block of ``d`` (all terms ``d x d`` at multiples of ``d``) that stays
+    whole and in order in the reduced system (or is fixed whole), else 0."""
+    d = terms[0][1]
+    if any(p != d or q != d for _, p, _, q in terms) or n_var % d:
+        return 0
+    if any(np.any(np.asarray(o) % d) for t in terms for o in (t[0], t[2])):
+        return 0
+    Nv = new.reshape(-1, d)
+    fixed = np.all(Nv < 0, axis=1)
+    whole = (Nv[:, 0] % d == 0) & np.all(Nv == Nv[:, :1] + np.arange(d), axis=1)
+    return d if np.all(fixed | whole) else 0
 
 
 def _fill_reducing_order(n_var, terms, free):

@@ -737,3 +737,23 @@ def test_postorder_of_the_block_order_keeps_the_fill_and_puts_children_first():
         return L2.nnz
     assert fill(rank) == fill(lu.perm_c)
     assert not np.array_equal(rank, lu.perm_c)  # the postorder moves blocks on this graph
+
+
+@pytest.mark.parametrize("fixed", [(), (0,), (0, 5)])
+@pytest.mark.parametrize("order", [False, True])
+def test_block_pattern_equals_the_pattern_of_every_entry(fixed, order):
+    """The sparsity pattern found on the pose blocks (d * d fewer keys to sort) is the one found from every entry:
+    the same compressed-column arrays, the same slot for every entry of every edge block, the same diagonal."""
+    from slamlib.graph_slam import _Layout, _uniform_blocks
+
+    g = load_m3500()
+    terms = [(3 * g.edges[:, 0], 3, 3 * g.edges[:, 1], 3)]
+    fixed_vars = [3 * f + c for f in fixed for c in range(3)]
+    fast = _Layout(3 * g.n_poses, terms, fixed_vars, order=order)
+    ref = _Layout(3 * g.n_poses, terms, fixed_vars, order=order, blocks=False)
+    assert _uniform_blocks(3 * g.n_poses, terms, fast.new) == 3
+    for name in ("nnz", "indices", "indptr", "slot", "bslot", "diag"):
+        np.testing.assert_array_equal(getattr(fast, name), getattr(ref, name), err_msg=name)
+    # a landmark graph (3 x 3 and 3 x 2 blocks) keeps the pattern of every entry
+    assert _uniform_blocks(12, [(np.array([0]), 3, np.array([3]), 3), (np.array([0]), 3, np.array([6]), 2)],
+                           np.arange(12)) == 0
