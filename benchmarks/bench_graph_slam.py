@@ -23,12 +23,15 @@ process:
 * **Assembly** of ``H`` and ``b`` for M3500 from the edge blocks: the library's precomputed
   compressed-column pattern filled by one ``bincount``, against the bare
   ``scipy.sparse.coo_matrix((values, (rows, cols))).tocsc()`` (target: within 3x).
-* **Sparse solver choice**: one factorisation of M3500's ``H`` (first pose fixed) by SuperLU with
-  each column ordering it offers, computed per factorisation, and with the library's choice (a
-  minimum-degree order of the pose blocks, computed once per graph, factorised as given); time and
-  fill (non-zeros of ``L + U``). CHOLMOD (``scikit-sparse``) is not measured: it ships only as a
-  source distribution that needs the SuiteSparse headers, so it does not install with the README's
-  ``pip`` command.
+* **Sparse solver choice** (``python benchmarks/bench_graph_slam.py solver``): one factorisation of
+  the damped normal equations of every benchmark graph (Intel, M3500, w10000, w20000, city10000,
+  sphere2500; the first pose fixed) by SuperLU in symmetric mode with diagonal pivots: its own
+  COLAMD and MMD_AT_PLUS_A orders (computed per factorisation), and the minimum-degree order of
+  the pose blocks computed once per graph, as SuperLU returns it and postordered on its
+  elimination tree (the library's choice: the same fill, and SuperLU's symmetric mode does not
+  postorder an order it is given). Repeats interleaved, medians. CHOLMOD (``scikit-sparse``) is
+  not measured: it ships only as a source distribution that needs the SuiteSparse headers, so it
+  does not install with the README's ``pip`` command.
 
 Timings are medians over repeats (``time.perf_counter``). BLAS runs single-threaded
 (``OPENBLAS_NUM_THREADS=1`` and friends unless set already); GTSAM runs as installed.
@@ -251,33 +254,78 @@ def edge_figures(repeats=50):
     print(f"  sl.build_linear_system (checks, pattern, edges, assembly): {1e3 * t_sys:.1f} ms")
 
 
+def _benchmark_graphs():
+    """Every pose graph of the benchmarks: (name, graph, unknowns per pose, initial guess, edge function)."""
+    from slamlib import graph_slam3d as g3
+    from slamlib.datasets import load_city10000, load_g2o, load_g2o3d
+
+    graphs = [("Intel", load_intel()), ("M3500", load_m3500())]
+    if gtsam is not None:  # the large graphs ship in GTSAM's wheel
+        graphs += [("w10000", load_g2o(gtsam.findExampleDataFile("w10000.graph"))),
+                   ("w20000", load_g2o(gtsam.findExampleDataFile("w20000.txt")))]
+    graphs.append(("city10000", load_city10000().graph))
+    for name, g in graphs:
+        yield name, g, 3, sl.pose_graph_initial_guess(g.n_poses, g.edges, g.Z), gs._se2_edges_local
+    g = load_g2o3d(sl.datasets.data_path("pose_graphs", "sphere2500.txt.gz"))
+    yield "sphere2500", g, 6, g3.pose_graph3d_initial_guess(g.n_poses, g.edges, g.Z), g3._se3_edges
+
+
 def solver_figures(repeats=5):
-    g = load_m3500()
-    n = g.n_poses
-    X = sl.pose_graph_initial_guess(n, g.edges, g.Z)
-    e, A, B = gs._se2_edges(X[g.edges[:, 0]], X[g.edges[:, 1]], g.Z)
-    terms = [(3 * g.edges[:, 0], 3, 3 * g.edges[:, 1], 3)]
-    plain = gs._Layout(3 * n, terms, (0, 1, 2))
-    H = plain.assemble([(A, B, e, g.Omega)])[0]
-    print(f"\nSparse solver: one factorisation of M3500's H ({H.shape[0]} unknowns, {H.nnz} non-zeros), SuperLU")
-    print(f"  {'column ordering':44s} {'time [ms]':>9s} {'nnz(L+U)':>10s}")
-    for spec in ("NATURAL", "COLAMD", "MMD_ATA", "MMD_AT_PLUS_A"):
-        t, lu = _median_time(lambda: splu(H, permc_spec=spec, diag_pivot_thresh=0.0,
-                                          options=dict(SymmetricMode=True)), 1 if spec == "NATURAL" else repeats)
-        print(f"  {spec + ' (computed per factorisation)':44s} {1e3 * t:9.1f} {lu.L.nnz + lu.U.nnz:10d}")
-    t_ord, ordered = _median_time(lambda: gs._Layout(3 * n, terms, (0, 1, 2), order=True), repeats)
-    Hp = ordered.assemble([(A, B, e, g.Omega)])[0]
-    t, lu = _median_time(lambda: splu(Hp, **gs.SPLU_OPTIONS), repeats)
-    print(f"  {'slamlib: block minimum degree, once per graph':44s} {1e3 * t:9.1f} {lu.L.nnz + lu.U.nnz:10d}"
-          f"   (pattern and order: {1e3 * t_ord:.0f} ms, once)")
-    print("  CHOLMOD (scikit-sparse): not measured; only a source distribution needing SuiteSparse headers")
+    """One factorisation of each graph's damped normal equations (first pose fixed, at the odometry guess) by
+    SuperLU in several orders, the repeats of all orders interleaved; median time and non-zeros of L + U
+    (SuperLU's count, which includes the explicit zeros of its relaxed supernodes)."""
+    opts = dict(diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
+    print("\nSparse solver: one factorisation of H + 1e-7 mean(diag H) I by SuperLU (symmetric mode, diagonal "
+          f"pivots), median of {repeats} interleaved repeats [ms] (nnz(L + U) in thousands)")
+    labels = ("COLAMD", "MMD_AT_PLUS_A", "block MMD", "block MMD post")
+    print(f"  {'graph':10s} {'unknowns':>8s} " + " ".join(f"{lab:>20s}" for lab in labels))
+    for name, g, d, X0, edge_fn in _benchmark_graphs():
+        n = g.n_poses
+        e, A, B = edge_fn(X0[g.edges[:, 0]], X0[g.edges[:, 1]], g.Z)
+        terms = [(d * g.edges[:, 0], d, d * g.edges[:, 1], d)]
+        plain = gs._Layout(d * n, terms, list(range(d)))
+        data, _ = plain.values([(A, B, e, g.Omega)])
+        data[plain.diag] += 1e-7 * data[plain.diag].mean()
+        H = plain.matrix(data)
+        # the block orders: minimum degree on the graph of poses, as given by SuperLU and postordered (the library's)
+        ea, eb = g.edges[:, 0], g.edges[:, 1]
+        G = sp.csc_matrix((np.concatenate([np.ones(2 * ea.size), np.full(n, 4.0 * ea.size + 1.0)]),
+                           (np.concatenate([ea, eb, np.arange(n)]), np.concatenate([eb, ea, np.arange(n)]))),
+                          shape=(n, n))
+        lu = splu(G, permc_spec="MMD_AT_PLUS_A", **opts)
+        runs = {"COLAMD": lambda: splu(H, permc_spec="COLAMD", **opts),
+                "MMD_AT_PLUS_A": lambda: splu(H, permc_spec="MMD_AT_PLUS_A", **opts)}
+        for label, rank in (("block MMD", lu.perm_c), ("block MMD post", gs._postorder(lu.L)[lu.perm_c])):
+            var = np.arange(d, d * n)
+            perm = var[np.lexsort((var, rank[var // d]))] - d
+            Hp = H[perm][:, perm].tocsc()
+            Hp.sort_indices()
+            runs[label] = lambda Hp=Hp: splu(Hp, permc_spec="NATURAL", **opts)
+        times = {k: [] for k in runs}
+        fill = {}
+        for _ in range(repeats):
+            for k, fn in runs.items():
+                t0 = time.perf_counter()
+                out = fn()
+                times[k].append(time.perf_counter() - t0)
+                fill[k] = out.L.nnz + out.U.nnz
+        print(f"  {name:10s} {H.shape[0]:8d} " + " ".join(
+            f"{1e3 * statistics.median(times[k]):9.1f} ({fill[k] / 1e3:7.0f}k)" for k in labels), flush=True)
+    print("  The library factorises in 'block MMD post' (computed once per graph); CHOLMOD (scikit-sparse) is not "
+          "measured: it ships only as a source distribution that needs the SuiteSparse headers")
 
 
-def main():
+def main(argv=None):
+    import sys
+
+    sections = list(argv if argv is not None else sys.argv[1:]) or ["solve", "edges", "solver"]
     print(f"GTSAM: {'installed' if gtsam is not None else 'not installed, comparison skipped'}\n")
-    solve_figures()
-    edge_figures()
-    solver_figures()
+    if "solve" in sections:
+        solve_figures()
+    if "edges" in sections:
+        edge_figures()
+    if "solver" in sections:
+        solver_figures()
 
 
 if __name__ == "__main__":

@@ -34,6 +34,13 @@ DEAD_ORDER = ("dead code for build_linear_system: it assembles H with _Layout(or
 ORDER_VALUES = ("changes the values (not the pattern) of the matrix used only to compute a fill-reducing order, or "
                 "the pivot threshold of that factorisation: the minimum-degree column order depends on the pattern "
                 "alone, and any order of the free variables gives the same dx up to rounding")
+POSTORDER = ("changes the postorder of the block elimination tree (or skips it) while the order stays a permutation "
+             "of the free variables: any order gives the same dx up to rounding (a mutant that breaks the "
+             "permutation fails the solve and is killed)")
+BLOCK_PATTERN = ("chooses between the two constructions of the sparsity pattern (on the pose blocks or from every "
+                 "entry), which give identical arrays (tests/test_graph_slam.py::"
+                 "test_block_pattern_equals_the_pattern_of_every_entry): the contract's pose graphs take one or "
+                 "the other, with the same H, b and dx")
 CONNECTED = ("the connectivity check anchored at pose 1 instead of 0: on the connected graphs the contract "
              "requires (otherwise H[3:, 3:] is singular) both anchors pass")
 RESHAPE_NEG = "reshape(-2, 3) == reshape(-1, 3): NumPy (2.x) treats any negative size as the unknown one"
@@ -264,13 +271,18 @@ EQUIVALENT = {
     },
     "build_linear_system": {
         "_fill_reducing_order: *": DEAD_ORDER,
+        "_postorder: *": DEAD_ORDER,
+        "_uniform_blocks: *": BLOCK_PATTERN,
     },
     "gauss_newton_step": {
         "gauss_newton_step: [_require_connected(X.shape[0], edges, (0,))] 0 -> 1": CONNECTED,
         "_update_poses: [out = X + dx.reshape(-1, 3)] 1 -> 2": RESHAPE_NEG,
         "_fill_reducing_order: [val = np.concatenate(*": ORDER_VALUES,
-        "_fill_reducing_order: [rank = splu(G, permc_spec='MMD_AT_PLUS_A', diag_pivot_thresh=0.0, *] 0.0 -> 1.0":
+        "_fill_reducing_order: [lu = splu(G, permc_spec='MMD_AT_PLUS_A', diag_pivot_thresh=0.0, *] 0.0 -> 1.0":
             ORDER_VALUES,
+        "_fill_reducing_order: [if np.array_equal(lu.perm_r, rank):] *": POSTORDER,
+        "_postorder: *": POSTORDER,
+        "_uniform_blocks: *": BLOCK_PATTERN,
     },
     "icp_align": {
         "_rigid_fit: [C = (Q - mq).T @ (P - mp)] Q - mq -> Q + mq": CENTRED,

@@ -605,3 +605,155 @@ def test_optimize_step_option_is_checked():
             sl.optimize_pose_graph(X0, edges, Z, Omega, step=sl.gauss_newton_step, **kw)
     with pytest.raises(TypeError, match="step must be callable"):
         sl.optimize_pose_graph(X0, edges, Z, Omega, method="gn", step=3)
+
+
+# --------------------------------------------------------------------------- GTSAM's error and damping; the ordering
+try:
+    import gtsam
+except ImportError:  # the dev extra installs it
+    gtsam = None
+needs_gtsam = pytest.mark.skipif(gtsam is None, reason="gtsam not installed (the dev extra installs it)")
+
+
+def _log_edges(xi, xj, z):
+    from slamlib.graph_slam import _se2_log_edges
+    return _se2_log_edges(np.atleast_2d(xi), np.atleast_2d(xj), np.atleast_2d(z))
+
+
+@needs_gtsam
+def test_log_error_equals_gtsam_logmap_near_zero_and_pi():
+    rng = np.random.default_rng(3)
+    xi, xj, z = rng.normal(size=(40, 3)), rng.normal(size=(40, 3)), rng.normal(size=(40, 3))
+    z[:10, 2] = sl.wrap_angle(xj[:10, 2] - xi[:10, 2]) + rng.normal(scale=1e-6, size=10)  # angle error near 0
+    z[10:20, 2] = sl.wrap_angle(xj[10:20, 2] - xi[10:20, 2] - np.pi + 1e-3)  # near pi
+    e, _, _ = _log_edges(xi, xj, z)
+    for k in range(40):
+        rel = gtsam.Pose2(*z[k]).between(gtsam.Pose2(*xi[k]).between(gtsam.Pose2(*xj[k])))
+        np.testing.assert_allclose(e[k], gtsam.Pose2.Logmap(rel), rtol=1e-9, atol=1e-12)
+
+
+def test_log_error_jacobians_match_finite_differences_of_the_local_perturbation():
+    from slamlib.graph_slam import _compose, _se2_exp
+    rng = np.random.default_rng(4)
+    for th_err in (0.0, 1e-5, 0.7, 3.0):
+        xi, xj = rng.normal(size=3), rng.normal(size=3)
+        z = rng.normal(size=3)
+        z[2] = sl.wrap_angle(xj[2] - xi[2] - th_err)
+        _, A, B = _log_edges(xi, xj, z)
+        for which, J in ((0, A[0]), (1, B[0])):
+            def f(d):
+                a, b = (_compose(xi[None], _se2_exp(d[None]))[0], xj) if which == 0 else \
+                    (xi, _compose(xj[None], _se2_exp(d[None]))[0])
+                return _log_edges(a, b, z)[0][0]
+            np.testing.assert_allclose(_central_jacobian(f, np.zeros(3)), J, atol=1e-6)
+
+
+@needs_gtsam
+@pytest.mark.parametrize("load", [load_intel, load_m3500])
+def test_log_error_with_identity_damping_follows_gtsams_levenberg_marquardt(load):
+    """With GTSAM's error, damping (lambda I, initial 1e-5, factor 10) and retraction, each accepted iterate's chi2
+    is GTSAM's after the same iteration (the mechanism behind w20000's match in benchmarks/bench_3d.py)."""
+    g = load()
+    X0 = sl.pose_graph_initial_guess(g.n_poses, g.edges, g.Z)
+    graph = gtsam.NonlinearFactorGraph()
+    for (i, j), z, W in zip(g.edges, g.Z, g.Omega):
+        graph.add(gtsam.BetweenFactorPose2(int(i), int(j), gtsam.Pose2(*z), gtsam.noiseModel.Gaussian.Information(W)))
+    graph.add(gtsam.NonlinearEqualityPose2(0, gtsam.Pose2(*X0[0])))
+    values = gtsam.Values()
+    for k, x in enumerate(X0):
+        values.insert(k, gtsam.Pose2(*x))
+    opt = gtsam.LevenbergMarquardtOptimizer(graph, values, gtsam.LevenbergMarquardtParams())
+    trace = [2 * opt.error()]
+    for _ in range(4):
+        opt.iterate()
+        trace.append(2 * opt.error())
+    res = sl.optimize_pose_graph(X0, g.edges, g.Z, g.Omega, error="log", damping="identity", lm_lambda=1e-5,
+                                 max_iter=4)
+    accepted = [res.chi2[0]] + [c for a, c in zip(res.chi2[:-1], res.chi2[1:]) if c != a]
+    np.testing.assert_allclose(accepted, trace[:len(accepted)], rtol=1e-6)
+    # the default damping (lambda mean(diag H)) takes other steps from the same guess
+    mean = sl.optimize_pose_graph(X0, g.edges, g.Z, g.Omega, error="log", lm_lambda=1e-5, max_iter=1)
+    assert abs(mean.chi2[1] / trace[1] - 1) > 1e-4
+
+
+def test_identity_damping_solves_h_plus_lambda_i():
+    """damping='identity' adds lambda itself to the diagonal of H (the default adds lambda mean(diag H))."""
+    from slamlib.graph_slam import _Layout, _se2_edges_local, _update_poses_local
+
+    rng = np.random.default_rng(5)
+    _, edges, Z, Omega, X0 = _ring_graph(rng)
+    X0 = X0 + rng.normal(0, [0.3, 0.3, 0.05], X0.shape)
+    X0[0] = _ring_graph(np.random.default_rng(5))[4][0]
+    lay = _Layout(3 * X0.shape[0], [(3 * edges[:, 0], 3, 3 * edges[:, 1], 3)], (0, 1, 2))
+    e, A, B = _se2_edges_local(X0[edges[:, 0]], X0[edges[:, 1]], Z)
+    H, b = lay.assemble([(A, B, e, Omega)])
+    lam = 50.0
+    for damping, mu in (("identity", lam), ("mean", lam * H.diagonal().mean())):
+        dx = np.linalg.solve(H.toarray() + mu * np.eye(H.shape[0]), -b)
+        want = _update_poses_local(X0, np.concatenate([np.zeros(3), dx]))
+        res = sl.optimize_pose_graph(X0, edges, Z, Omega, damping=damping, lm_lambda=lam, max_iter=1)
+        assert res.chi2[1] < res.chi2[0]  # the step was accepted
+        np.testing.assert_allclose(res.X, want, atol=1e-9)
+
+
+def test_error_and_damping_arguments_are_checked():
+    g = load_intel()
+    X0 = sl.pose_graph_initial_guess(g.n_poses, g.edges, g.Z)
+    with pytest.raises(ValueError, match="error"):
+        sl.optimize_pose_graph(X0, g.edges, g.Z, g.Omega, error="t2v")
+    with pytest.raises(ValueError, match="damping"):
+        sl.optimize_pose_graph(X0, g.edges, g.Z, g.Omega, damping="diag")
+    with pytest.raises(ValueError, match="error='g2o'"):
+        sl.optimize_pose_graph(X0, g.edges, g.Z, g.Omega, method="gn", error="log", step=sl.gauss_newton_step)
+
+
+def test_postorder_of_the_block_order_keeps_the_fill_and_puts_children_first():
+    """The block order is the minimum-degree order postordered on its elimination tree: every block comes after
+    the blocks of its subtree, and the factor of the block graph has exactly the fill of the unpostordered order."""
+    import scipy.sparse as sp
+    from scipy.sparse.linalg import splu
+    from slamlib.graph_slam import _postorder
+
+    g = load_m3500()
+    n, ea, eb = g.n_poses, g.edges[:, 0], g.edges[:, 1]
+    G = sp.csc_matrix((np.concatenate([np.ones(2 * ea.size), np.full(n, 1e5)]),
+                       (np.concatenate([ea, eb, np.arange(n)]), np.concatenate([eb, ea, np.arange(n)]))), shape=(n, n))
+    opts = dict(diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
+    lu = splu(G, permc_spec="MMD_AT_PLUS_A", **opts)
+    pos = _postorder(lu.L)
+    assert sorted(pos) == list(range(n))
+    L = sp.tril(lu.L, -1).tocsc()
+    L.eliminate_zeros()
+    L.sort_indices()
+    has = np.flatnonzero(np.diff(L.indptr) > 0)
+    parent = L.indices[L.indptr[has]]
+    assert np.all(pos[parent] > pos[has])  # a parent after its child
+    rank = pos[lu.perm_c]
+
+    def fill(r):
+        inv = np.argsort(r)  # the block at each position
+        L2 = sp.tril(splu(G[inv][:, inv].tocsc(), permc_spec="NATURAL", **opts).L, -1).tocsc()
+        L2.eliminate_zeros()
+        return L2.nnz
+    assert fill(rank) == fill(lu.perm_c)
+    assert not np.array_equal(rank, lu.perm_c)  # the postorder moves blocks on this graph
+
+
+@pytest.mark.parametrize("fixed", [(), (0,), (0, 5)])
+@pytest.mark.parametrize("order", [False, True])
+def test_block_pattern_equals_the_pattern_of_every_entry(fixed, order):
+    """The sparsity pattern found on the pose blocks (d * d fewer keys to sort) is the one found from every entry:
+    the same compressed-column arrays, the same slot for every entry of every edge block, the same diagonal."""
+    from slamlib.graph_slam import _Layout, _uniform_blocks
+
+    g = load_m3500()
+    terms = [(3 * g.edges[:, 0], 3, 3 * g.edges[:, 1], 3)]
+    fixed_vars = [3 * f + c for f in fixed for c in range(3)]
+    fast = _Layout(3 * g.n_poses, terms, fixed_vars, order=order)
+    ref = _Layout(3 * g.n_poses, terms, fixed_vars, order=order, blocks=False)
+    assert _uniform_blocks(3 * g.n_poses, terms, fast.new) == 3
+    for name in ("nnz", "indices", "indptr", "slot", "bslot", "diag"):
+        np.testing.assert_array_equal(getattr(fast, name), getattr(ref, name), err_msg=name)
+    # a landmark graph (3 x 3 and 3 x 2 blocks) keeps the pattern of every entry
+    assert _uniform_blocks(12, [(np.array([0]), 3, np.array([3]), 3), (np.array([0]), 3, np.array([6]), 2)],
+                           np.arange(12)) == 0
