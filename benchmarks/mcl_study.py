@@ -65,15 +65,15 @@ CLEARANCE = 0.5  # [m] from the nearest wall, for the simulated paths
 # name -> (run_mcl variant, MCLParams overrides): the defaults, plain MCL, and one mechanism changed at a time
 CONFIGS = {
     "defaults": ("augmented", {}),
-    "plain MCL": ("mcl", {}),
+    "plain MCL": ("mcl", {"init_candidates": 0, "estimate_radius": 0.0}),
+    "MCL with the defaults' start and estimate": ("mcl", {}),
+    "uniform start (no scan-guided start)": ("augmented", {"init_candidates": 0}),
+    "estimate at the mode's mean": ("augmented", {"estimate_radius": 0.0}),
     "no mode-preserving resampling": ("augmented", {"mode_particles": 0}),
     "no sensor resetting (p_min 0)": ("augmented", {"augmented.p_min": 0.0}),
-    "tempering tau 0.1": ("augmented", {"likelihood_exponent": 0.1}),
-    "every 20th beam": ("augmented", {"beam_step": 20}),
-    "estimate hysteresis 3": ("augmented", {"estimate_hysteresis": 3.0}),
+    "tempering tau 0.3": ("augmented", {"likelihood_exponent": 0.3}),
+    "every 5th beam": ("augmented", {"beam_step": 5}),
     "KLD-sampling": ("kld", {}),
-    "5000 particles": ("augmented", {"n_particles": 5000, "augmented.candidates": 5000}),
-    "20 000 particles": ("augmented", {"n_particles": 20_000, "augmented.candidates": 20_000}),
 }
 
 _WORK = {}
@@ -191,8 +191,9 @@ def judge(res, truth):
     err = np.hypot(*(res.estimate[:, :2] - truth[:, :2]).T)
     half = err[len(err) // 2:]
     wrong_sure = (err > RADIUS) & (res.mode_mass > CONFIDENT)
+    wrong_conf = (err > RADIUS) & (res.confidence > CONFIDENT)
     return dict(strict=bool(np.all(half < RADIUS)), share=float(np.mean(half < RADIUS)),
-                confidently_wrong=int(wrong_sure.sum()), updates=len(res), runtime=float(res.runtime),
+                confidently_wrong=int(wrong_sure.sum()), confidently_wrong_conf=int(wrong_conf.sum()), updates=len(res), runtime=float(res.runtime),
                 final_error=float(err[-1]), final_mode_mass=float(res.mode_mass[-1]),
                 median_n_modes_2nd_half=float(np.median(res.n_modes[len(err) // 2:])))
 
