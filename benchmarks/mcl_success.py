@@ -1,6 +1,7 @@
 """Global localization on the CMU Wean Hall logs: how often does MCL find the robot?
 
-For each shipped log and each seed, MCL starts from a uniform cloud over the free space and
+For each shipped log and each seed, MCL starts with no knowledge of its pose (by default from the first scan,
+``MCLParams.init_candidates``) and
 filters the whole log with the library defaults (``sl.MCLParams()`` with the log's sensor offset
 and maximum range, ``sl.run_mcl``'s default variant). The logs have no ground truth, so every run
 is judged against a reference track:

@@ -109,6 +109,7 @@ _VARIANTS = ("mcl", "augmented", "kld")
 _PROPOSALS = ("sensor", "uniform")
 _MODE_BUDGET = 0.5  # at most this share of the particles goes to the minimum shares of modes
 _MODE_REPORT = 0.01  # modes with less mass are not counted in MCLStepInfo.n_modes
+_CONFIDENCE_RADIUS = 0.5  # [m] MCLStepInfo.confidence: posterior mass within this distance of the estimate
 _CLUSTER_CELL = 1.0  # [m] cells of the position histogram that finds the clusters (modes) of the belief
 
 
@@ -310,6 +311,19 @@ class MCLParams:
         that mode's mass is at least ``1 / estimate_hysteresis`` of the
         heaviest mode's; otherwise it moves to the heaviest mode. ``1`` always
         takes the heaviest.
+    estimate_radius : float
+        The estimate is moved from the heaviest mode's mean to the densest
+        place of the mode by mean-shift steps over the particles within this
+        distance [m] (``0``: the mode's mean). A mode stretched along a
+        corridor has its mean where the particles are sparse; its densest
+        place is where the scans fit best.
+    init_candidates : int
+        Global localization starts from the first scan (:func:`mcl_initialize`
+        with ``scan``): this many poses uniform over the free space are weighted
+        by the first scan's (tempered) likelihood and ``n_particles`` are drawn
+        from them, so the particles start where the scan fits the map instead
+        of one per 0.04 m^2 everywhere. ``0`` starts from ``n_particles``
+        uniform poses (Table 8.2).
     augmented : AugmentedParams
         Used by :func:`augmented_mcl_step` (the default variant of
         :func:`run_mcl`).
@@ -340,6 +354,8 @@ class MCLParams:
     mode_particles: int = 100
     mode_floor: float = 1e-6
     estimate_hysteresis: float = 1.0
+    estimate_radius: float = 0.5
+    init_candidates: int = 200_000
     augmented: AugmentedParams = field(default_factory=AugmentedParams)
     kld: KLDParams = field(default_factory=KLDParams)
 
@@ -363,6 +379,8 @@ class MCLParams:
         if thr > 1.0:
             raise ValueError(f"resample_threshold must be in [0, 1], got {thr}")
         as_index(self.mode_particles, "mode_particles")
+        as_index(self.init_candidates, "init_candidates")
+        as_scalar(self.estimate_radius, "estimate_radius", nonnegative=True)
         h = as_scalar(self.estimate_hysteresis, "estimate_hysteresis", positive=True)
         if h < 1.0:
             raise ValueError(f"estimate_hysteresis must be >= 1, got {h}")
@@ -477,6 +495,12 @@ class MCLStepInfo(NamedTuple):
         Number of modes holding at least 1 % of the mass (found greedily:
         the heaviest mode, then the heaviest among the remaining particles,
         ...; at most 8).
+    confidence : float
+        Posterior mass within 0.5 m of the estimate: the filter's probability
+        that its estimate is within 0.5 m of the true pose. A mode stretched
+        over metres can hold all the mass while the estimate is still
+        uncertain by more than 0.5 m; this measures the claim at the scale
+        of the estimate.
     """
 
     ess: float
@@ -490,6 +514,7 @@ class MCLStepInfo(NamedTuple):
     estimate: np.ndarray
     mode_mass: float = 1.0
     n_modes: int = 1
+    confidence: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -528,11 +553,14 @@ class MCLResult:
     final : MCLState
         Particle set after the last step.
     runtime : float
-        Wall time of the filter loop [s].
+        Wall time of the filter loop and of the initial particle set [s].
     mode_mass : ndarray, shape (S,)
         Mass of the heaviest mode after every update (:class:`MCLStepInfo`).
     n_modes : ndarray of int, shape (S,)
         Number of modes holding at least 1 % of the mass.
+    confidence : ndarray, shape (S,)
+        Posterior mass within 0.5 m of the estimate after every update
+        (:class:`MCLStepInfo`).
     """
 
     scan_index: np.ndarray
@@ -553,6 +581,7 @@ class MCLResult:
     runtime: float
     mode_mass: np.ndarray = None
     n_modes: np.ndarray = None
+    confidence: np.ndarray = None
 
     def __len__(self):
         return self.scan_index.shape[0]
@@ -669,7 +698,7 @@ def odometry_steps(odom_poses, *, min_translation=0.2, min_rotation=0.2, turn_in
     return index, u
 
 
-def mcl_initialize(model, n=None, *, rng, poses=None):
+def mcl_initialize(model, n=None, *, rng, poses=None, scan=None):
     """A particle set spread uniformly over the map's free space (global localization).
 
     Parameters
@@ -682,11 +711,22 @@ def mcl_initialize(model, n=None, *, rng, poses=None):
         Source of randomness (used by ``sample_free_poses``).
     poses : ndarray, shape (M, 3), optional
         Start from these particles instead (position tracking).
+    scan : tuple (ranges, angles), optional
+        The first scan (global localization only, with
+        ``params.init_candidates > 0``): ``init_candidates`` uniform free
+        poses are weighted by this scan's tempered likelihood
+        ``q(x) ~ p(z | x, m)^tau`` and `n` particles are drawn from them
+        (low-variance). The particles are an importance sample of the uniform
+        prior with proposal ``q``: their log-weights are ``-tau log p(z | x, m)``
+        (normalised), so the first filter update, which multiplies by
+        ``p(z | x, m)^tau`` at the same poses, leaves them equally weighted.
+        Far more candidates than particles are affordable (one scan, few
+        beams), so many more particles start near the true pose.
 
     Returns
     -------
     MCLState
-        Equal weights, ``w_slow = w_fast = 0``.
+        Equal weights (importance weights with `scan`), ``w_slow = w_fast = 0``.
 
     References
     ----------
@@ -697,7 +737,17 @@ def mcl_initialize(model, n=None, *, rng, poses=None):
     check_rng(rng)
     if poses is None:
         n = model.params.n_particles if n is None else as_index(n, "n", lower=1)
-        poses = maps.sample_free_poses(model.grid, n, rng=rng, threshold=model.params.free_threshold)
+        p = model.params
+        if scan is not None and p.init_candidates > 0:
+            ranges, angles = as_scan(*scan)
+            z, a = _subsample(ranges, angles, p)
+            cand = maps.sample_free_poses(model.grid, p.init_candidates, rng=rng, threshold=p.free_threshold)
+            tll = p.likelihood_exponent * _scan_loglik(model, cand, z, a)
+            if np.any(np.isfinite(tll)):
+                q = _safe_normalize(tll)
+                idx = _low_variance_n(np.exp(q), n, rng)
+                return MCLState(poses=cand[idx], log_weights=_safe_normalize(-tll[idx]))
+        poses = maps.sample_free_poses(model.grid, n, rng=rng, threshold=p.free_threshold)
     else:
         poses = as_array(poses, "poses", (None, 3))
         if poses.shape[0] == 0:
@@ -705,6 +755,13 @@ def mcl_initialize(model, n=None, *, rng, poses=None):
         poses[:, 2] = wrap_angle(poses[:, 2])
     m = poses.shape[0]
     return MCLState(poses=poses, log_weights=np.full(m, -np.log(m)))
+
+
+def _low_variance_n(w, n, rng):
+    """`n` indices drawn from normalised weights `w` (any length) by low-variance resampling (Table 4.4)."""
+    c = np.cumsum(w)
+    ptr = rng.uniform(0.0, 1.0 / n) + np.arange(n) / n  # r + (m - 1) / n
+    return np.minimum(np.searchsorted(c, ptr * c[-1], side="left"), w.size - 1)
 
 
 # --------------------------------------------------------------------------- measurement
@@ -974,7 +1031,7 @@ def mcl_step(state, u, ranges, angles, model, *, rng):
     state, u, ranges, angles, model = _check_step_args(state, u, ranges, angles, model, rng)
     poses, ll = _predict_and_weight(state, u, ranges, angles, model, rng)
     log_w, log_w_avg = _update(state, poses, ll, model)
-    summary = _summary(poses, log_w, state.estimate, model.params.estimate_hysteresis)
+    summary = _summary(poses, log_w, state.estimate, model.params.estimate_hysteresis, model.params.estimate_radius)
     w, ess, do = _resample_mask(log_w, model.params.resample_threshold)
     if do:
         # draw i with probability proportional to w_t^[i]  (Table 8.2 lines 8-11)
@@ -1064,7 +1121,7 @@ def augmented_mcl_step(state, u, ranges, angles, model, *, rng):
     aug = p.augmented
     poses, ll = _predict_and_weight(state, u, ranges, angles, model, rng)
     log_w, log_w_avg = _update(state, poses, ll, model)
-    summary = _summary(poses, log_w, state.estimate, p.estimate_hysteresis)
+    summary = _summary(poses, log_w, state.estimate, p.estimate_hysteresis, p.estimate_radius)
     log_slow, log_fast = _averages(state, log_w_avg, aug)
     # prior probability of a new pose: max(0, 1 - w_fast / w_slow)  (Table 8.3); 1 if no particle fits at all
     p_inject = 1.0 if not np.isfinite(log_w_avg) else max(aug.p_min, _injection_probability(log_slow, log_fast))
@@ -1240,14 +1297,14 @@ def kld_mcl_step(state, u, ranges, angles, model, *, rng):
     log_w_avg = float(logsumexp(tll[finite]) - np.log(tll.size)) if np.any(finite) else -np.inf
     ess = float(particle.effective_sample_size(np.exp(log_w)))
     log_slow, log_fast = _averages(state, log_w_avg, p.augmented)  # tracked, not used
-    summary = _summary(poses, log_w, state.estimate, p.estimate_hysteresis)
+    summary = _summary(poses, log_w, state.estimate, p.estimate_hysteresis, p.estimate_radius)
     new = MCLState(poses=poses, log_weights=log_w, log_w_slow=log_slow, log_w_fast=log_fast, estimate=summary[3])
     return new, MCLStepInfo(ess, poses.shape[0], True, 0, log_w_avg, *summary)
 
 
 # --------------------------------------------------------------------------- summaries
-def _summary(poses, log_w, previous=None, hysteresis=1.0):
-    """Mean, spread, heading spread, estimate, mass of the heaviest mode, number of modes (>= 1 %)."""
+def _summary(poses, log_w, previous=None, hysteresis=1.0, radius=0.0):
+    """Mean, spread, heading spread, estimate, mass of the heaviest mode, number of modes (>= 1 %), confidence."""
     w = np.exp(log_w)
     xy = w @ poses[:, :2]
     c, s = np.dot(w, np.cos(poses[:, 2])), np.dot(w, np.sin(poses[:, 2]))
@@ -1261,9 +1318,13 @@ def _summary(poses, log_w, previous=None, hysteresis=1.0):
         kept, kept_mass, _ = _mean_shift(poses, w, previous[:2])
         if kept_mass * hysteresis >= masses[0]:
             estimate = kept
+    if radius > 0:  # from the mode's mean to its densest place
+        estimate = _mean_shift(poses, w, estimate[:2], radius / 1.5, steps=3)[0]
+    d2 = np.sum((poses[:, :2] - estimate[:2]) ** 2, axis=1)
+    confidence = float(min(np.sum(w[d2 <= _CONFIDENCE_RADIUS ** 2]), 1.0))
     # circular mean heading atan2(sum w sin, sum w cos); R = |sum w e^{i theta}|
     return (np.array([xy[0], xy[1], circular_mean(poses[:, 2], w)]), spread, heading_spread, estimate,
-            float(masses[0]), int(np.count_nonzero(masses >= _MODE_REPORT)))
+            float(masses[0]), int(np.count_nonzero(masses >= _MODE_REPORT)), confidence)
 
 
 def _modes(poses, w, max_modes=8):
@@ -1347,10 +1408,10 @@ def _cluster_mean(poses, w, cell=_CLUSTER_CELL, with_mass=False):
     return out if with_mass else out[0]
 
 
-def _mean_shift(poses, w, centre, cell=_CLUSTER_CELL):
-    """Two mean-shift steps (radius 1.5 cells) from `centre`: the mode's pose, its mass and its particles."""
+def _mean_shift(poses, w, centre, cell=_CLUSTER_CELL, steps=2):
+    """`steps` mean-shift steps (radius 1.5 cells) from `centre`: the mode's pose, its mass and its particles."""
     near, wn = np.ones(w.size, dtype=bool), w
-    for _ in range(2):
+    for _ in range(steps):
         inside = np.sum((poses[:, :2] - centre) ** 2, axis=1) <= (1.5 * cell) ** 2
         if not np.any(w[inside] > 0):
             break
@@ -1525,8 +1586,9 @@ def run_mcl(model, odom_poses, ranges, angles, *, rng, variant="augmented", init
         snap = np.unique(np.round(np.linspace(0, S - 1, n_snap)).astype(np.intp)) if n_snap else np.empty(0, np.intp)
     else:
         snap = np.unique(np.asarray([as_index(s, "snapshots", S) for s in snapshots], dtype=np.intp))
-    if init is None:
-        state = mcl_initialize(model, rng=rng)
+    t0 = time.perf_counter()  # the run's time includes the start from the first scan
+    if init is None:  # global localization: uniform, or drawn by the first scan (params.init_candidates)
+        state = mcl_initialize(model, rng=rng, scan=(z_all[index[0]], ang) if S else None)
     elif isinstance(init, MCLState):
         state = init
     else:
@@ -1544,19 +1606,20 @@ def run_mcl(model, odom_poses, ranges, angles, *, rng, variant="augmented", init
     log_w_fast = np.empty(S)
     mode_mass = np.empty(S)
     n_modes = np.empty(S, dtype=np.intp)
+    confidence = np.empty(S)
     shots = []
     snap_set = set(snap.tolist())
-    t0 = time.perf_counter()
     for s in range(S):  # a loop over time steps; every step is vectorised over particles
         state, info = step(state, u[s], z_all[index[s]], ang, model, rng=rng)
         mean[s], estimate[s], spread[s], hspread[s] = info.mean, info.estimate, info.spread, info.heading_spread
         ess[s], count[s], injected[s] = info.ess, info.n_particles, info.n_injected
         log_w_avg[s], log_w_slow[s], log_w_fast[s] = info.log_w_avg, state.log_w_slow, state.log_w_fast
-        mode_mass[s], n_modes[s] = info.mode_mass, info.n_modes
+        mode_mass[s], n_modes[s], confidence[s] = info.mode_mass, info.n_modes, info.confidence
         if s in snap_set:
             shots.append(state)
     runtime = time.perf_counter() - t0
     return MCLResult(scan_index=index, t=t_all[index], mean=mean, estimate=estimate, spread=spread, heading_spread=hspread, ess=ess,
                      n_particles=count, n_injected=injected, log_w_avg=log_w_avg, log_w_slow=log_w_slow,
                      log_w_fast=log_w_fast, snapshot_steps=snap,
-                     snapshots=shots, final=state, runtime=runtime, mode_mass=mode_mass, n_modes=n_modes)
+                     snapshots=shots, final=state, runtime=runtime, mode_mass=mode_mass, n_modes=n_modes,
+                     confidence=confidence)

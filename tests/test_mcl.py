@@ -67,7 +67,8 @@ def _simulate(truth, *, rng, kidnap_at=None, sigma_z=0.03, drift=0.02):
 
 
 SIM_PARAMS = dict(n_particles=2000, z_max=Z_MAX, sigma_hit=0.2, likelihood_exponent=0.3, min_translation=0.1,
-                  min_rotation=0.1, sensor_offset=0.25, occupied_threshold=0.5, free_threshold=0.2)
+                  min_rotation=0.1, sensor_offset=0.25, occupied_threshold=0.5, free_threshold=0.2,
+                  init_candidates=0, estimate_radius=0.0)  # Table 8.2's uniform start, the estimate at the mode's mean
 
 
 def _error(result, truth):
@@ -429,7 +430,9 @@ def test_cmu_run_settled_in_the_wrong_corridor_recovers(wean):
     """
     grid, log, params, model, ref = wean
     s0 = 39
-    lost = mcl.run_mcl(model, log.laser_pose, log.ranges, log.angles, rng=np.random.default_rng(1), times=log.laser_t,
+    table_8_2 = mcl.prepare_mcl(grid, mcl.MCLParams(sensor_offset=log.sensor_offset, z_max=log.max_range,
+                                                    init_candidates=0, estimate_radius=0.0))  # uniform start
+    lost = mcl.run_mcl(table_8_2, log.laser_pose, log.ranges, log.angles, rng=np.random.default_rng(1), times=log.laser_t,
                        variant="mcl", max_steps=s0 + 1, snapshots=[s0])
     err0 = np.hypot(*(lost.estimate[s0, :2] - ref.mean[s0, :2]))
     assert err0 > 10.0 and lost.spread[s0] < 0.5, (err0, lost.spread[s0])
@@ -535,7 +538,7 @@ def test_estimate_is_the_heaviest_cluster():
     b = np.array([14.0, 3.0, -2.0]) + rng.normal(0, 0.1, (400, 3))
     poses = np.vstack([a, b])
     lw = np.full(1000, -np.log(1000))
-    mean, _, _, est, mass, n_modes = mcl._summary(poses, lw)
+    mean, _, _, est, mass, n_modes = mcl._summary(poses, lw)[:6]
     assert abs(mean[0] - 6.8) < 0.2  # the mean lies between the clusters
     np.testing.assert_allclose(est[:2], a[:, :2].mean(axis=0), atol=1e-9)
     assert abs(sl.angle_diff(est[2], 0.5)) < 0.05
@@ -566,7 +569,7 @@ def test_particle_modes_lists_every_mode_with_its_mass():
 def test_a_uniform_cloud_is_not_a_confident_mode(sim):
     grid, *_ = sim
     poses = sl.sample_free_poses(grid, 5000, rng=np.random.default_rng(0))
-    _, _, _, _, mass, n_modes = mcl._summary(poses, np.full(5000, -np.log(5000)))
+    _, _, _, _, mass, n_modes = mcl._summary(poses, np.full(5000, -np.log(5000)))[:6]
     assert mass < 0.2 and n_modes == 8  # spread over the map: no mode holds much
 
 
@@ -761,3 +764,68 @@ def test_study_truth_between_updates_follows_the_odometry():
     np.testing.assert_allclose(got[2], Ref.mean[1])
     np.testing.assert_allclose(got[1], sl.odometry_motion(Ref.mean[0], sl.odometry_from_poses(odom[0], odom[2])))
     np.testing.assert_allclose(got[3], sl.odometry_motion(Ref.mean[1], sl.odometry_from_poses(odom[3], odom[4])))
+
+
+# --------------------------------------------------------------------------- scan-guided start, estimate, confidence
+def _near(poses, pose, r=0.5, dth=np.deg2rad(15.0)):
+    return (np.hypot(*(poses[:, :2] - pose[:2]).T) < r) & (np.abs(sl.angle_diff(poses[:, 2], pose[2])) < dth)
+
+
+def test_scan_guided_start_puts_many_more_particles_near_the_truth(sim):
+    grid, truth, _, z = sim
+    params = mcl.MCLParams(**{**SIM_PARAMS, "n_particles": 500, "init_candidates": 50_000})
+    model = mcl.prepare_mcl(grid, params)
+    guided = mcl.mcl_initialize(model, rng=np.random.default_rng(0), scan=(z[0], ANGLES))
+    uniform = mcl.mcl_initialize(model, rng=np.random.default_rng(0))
+    assert guided.poses.shape == (500, 3)
+    assert _near(guided.poses, truth[0]).sum() >= 10 * max(_near(uniform.poses, truth[0]).sum(), 1)
+    # without candidates the scan is ignored: the uniform start
+    off = mcl.prepare_mcl(grid, mcl.MCLParams(**{**SIM_PARAMS, "n_particles": 500, "init_candidates": 0}))
+    again = mcl.mcl_initialize(off, rng=np.random.default_rng(0), scan=(z[0], ANGLES))
+    np.testing.assert_array_equal(again.poses, uniform.poses)
+
+
+def test_scan_guided_start_is_an_importance_sample_of_the_uniform_prior(sim):
+    """The start's weights undo its proposal: the first update with the same scan leaves equal weights."""
+    grid, _, _, z = sim
+    params = mcl.MCLParams(**{**SIM_PARAMS, "n_particles": 400, "init_candidates": 20_000, "resample_threshold": 0.0})
+    model = mcl.prepare_mcl(grid, params)
+    state = mcl.mcl_initialize(model, rng=np.random.default_rng(1), scan=(z[0], ANGLES))
+    assert np.ptp(state.log_weights) > 1.0  # importance weights, not equal
+    after, info = mcl.mcl_step(state, np.zeros(3), z[0], ANGLES, model, rng=np.random.default_rng(2))
+    np.testing.assert_allclose(after.log_weights, -np.log(400), atol=1e-9)
+    assert info.ess == pytest.approx(400.0)
+
+
+def test_confidence_is_the_mass_within_half_a_metre_of_the_estimate():
+    rng = np.random.default_rng(0)
+    # one mode stretched along 2.8 m of corridor: it holds all the mass, but little of it is near any one point
+    line = np.column_stack([rng.uniform(0.0, 2.8, 2000), rng.normal(0.0, 0.05, 2000), np.zeros(2000)])
+    info = mcl._summary(line, np.full(2000, -np.log(2000)), radius=0.5)
+    assert info[5] == 1 and info[4] > 0.99  # one mode with all the mass
+    assert info[6] < 0.45  # ... yet the estimate is within 0.5 m with probability ~1/3
+    tight = np.column_stack([rng.normal(1.0, 0.1, 2000), rng.normal(0.0, 0.1, 2000), np.zeros(2000)])
+    assert mcl._summary(tight, np.full(2000, -np.log(2000)))[6] > 0.99
+
+
+def test_estimate_radius_moves_the_estimate_to_the_densest_place_of_the_mode():
+    rng = np.random.default_rng(0)
+    core = np.column_stack([rng.normal(0.0, 0.1, 1500), rng.normal(0.0, 0.1, 1500), np.zeros(1500)])
+    tail = np.column_stack([rng.uniform(0.3, 1.4, 1500), rng.normal(0.0, 0.1, 1500), np.zeros(1500)])
+    poses = np.vstack([core, tail])
+    lw = np.full(3000, -np.log(3000))
+    at_mean = mcl._summary(poses, lw, radius=0.0)
+    at_core = mcl._summary(poses, lw, radius=0.5)
+    assert abs(at_mean[3][0]) > 0.3  # the mode's mean is pulled into the tail
+    assert abs(at_core[3][0]) < 0.2  # the densest place is the core
+
+
+def test_run_mcl_reports_confidence_and_rejects_bad_new_parameters(sim):
+    grid, _, odom, z = sim
+    model = mcl.prepare_mcl(grid, mcl.MCLParams(**{**SIM_PARAMS, "n_particles": 300, "init_candidates": 3000}))
+    res = mcl.run_mcl(model, odom, z, ANGLES, rng=np.random.default_rng(0), max_steps=5)
+    assert res.confidence.shape == (len(res),) and np.all((res.confidence >= 0) & (res.confidence <= 1))
+    with pytest.raises(ValueError, match="init_candidates"):
+        mcl.MCLParams(init_candidates=-1)
+    with pytest.raises(ValueError, match="estimate_radius"):
+        mcl.MCLParams(estimate_radius=-0.5)
