@@ -41,6 +41,7 @@ evaluation resumes and two library versions never share a cached run.
     nice -n 10 python benchmarks/mcl_holdout.py                          # defaults and plain MCL
     nice -n 10 python benchmarks/mcl_holdout.py --slamlib ../other-tree  # another tree's defaults
     nice -n 10 python benchmarks/mcl_holdout.py --configs overrides --set likelihood_exponent=0.1
+    python benchmarks/mcl_holdout.py --compare a.json b.json               # their tables side by side
 
 This evaluates; it must never be used to choose a parameter.
 """
@@ -123,6 +124,7 @@ def draw_mismatch(rng):
         p_short=float(rng.uniform(0.05, 0.2)),
         p_rand=float(rng.uniform(0.02, 0.06)),
         p_dropout=float(rng.uniform(0.02, 0.1)),
+        p_max=0.0,  # single max-range readings (the filter's mixture; the control set only)
         laser_yaw=float(np.deg2rad(rng.uniform(-1.0, 1.0))),
         trans_scale=sign() * float(rng.uniform(0.02, 0.05)),
         rot_scale=sign() * float(rng.uniform(0.0, 0.03)),
@@ -230,6 +232,7 @@ def _scans(obs_grid, truth, angles, mm, rng, z_max, sensor_offset):
     u = rng.uniform(size=(P, K))
     z = np.where(u < mm["p_short"], short, hit)
     z = np.where((u >= mm["p_short"]) & (u < mm["p_short"] + mm["p_rand"]), rng.uniform(0.0, z_max, (P, K)), z)
+    z = np.where((u >= mm["p_short"] + mm["p_rand"]) & (u < mm["p_short"] + mm["p_rand"] + mm["p_max"]), z_max, z)
     for p in range(P):
         if rng.random() < mm["passer_by"]:  # a person walking by: a block of beams cut short
             k0, n = int(rng.integers(K)), int(rng.integers(5, 21))
@@ -264,9 +267,20 @@ def _odometry(truth, mm, rng):
     return odom
 
 
-def simulate_holdout_trial(world, angles, n_updates, rng, *, z_max=cmu.CMU_MAX_RANGE,
+def filter_models(mm):
+    """`mm` with the filter's own models: no obstacles in the scans, the beam mixture, unbiased odometry."""
+    return dict(mm, passer_by=0.0, sigma_factor=1.0, correlated_sigma=0.0, p_short=0.05, p_rand=0.05, p_dropout=0.0,
+                p_max=0.05, laser_yaw=0.0, trans_scale=0.0, rot_scale=0.0, rot_drift=0.0, noise_factor=1.0)
+
+
+def simulate_holdout_trial(world, angles, n_updates, rng, *, control=False, z_max=cmu.CMU_MAX_RANGE,
                            sensor_offset=cmu.CMU_SENSOR_OFFSET):
-    """One hold-out drive: truth, odometry, ranges and times at every scan, and its mismatch draw."""
+    """One hold-out drive: truth, odometry, ranges and times at every scan, and its mismatch draw.
+
+    With `control`, the same drive (same truth) is sensed with the filter's own models
+    (:func:`filter_models`, scans of the map without the obstacles): the control set that tells the
+    mismatch's share of the failures from the drives'.
+    """
     mm = draw_mismatch(rng)
     every = int(round(mm["scan_step"] / SUB))
     for _ in range(50):
@@ -292,6 +306,11 @@ def simulate_holdout_trial(world, angles, n_updates, rng, *, z_max=cmu.CMU_MAX_R
     step_t = np.where(spins, SPIN_RATE / 0.5, SUB / mm["speed"])  # turns in place at 0.5 rad/s
     times = np.cumsum(step_t)[pick] - step_t[0]
     ranges = _scans(obs_grid, truth, angles, mm, rng, z_max, sensor_offset)
+    if control:
+        crng = np.random.default_rng(int(rng.integers(2 ** 62)))
+        mm = filter_models(mm)
+        ranges = _scans(world["grid"], truth, angles, mm, crng, z_max, sensor_offset)
+        odom = _odometry(truth, mm, crng)
     mm = dict(mm, obstacle_radius=list(mm["obstacle_radius"]), discs=discs.round(3).tolist(),
               turn_in_place_share=float(spins.mean()), length=float(np.sum(np.hypot(*np.diff(truth[:, :2], axis=0).T))))
     return dict(truth=truth, odom=odom, ranges=ranges, times=times, mismatch=mm)
@@ -304,9 +323,10 @@ def trial_digest(trial):
     return h.hexdigest()[:12]
 
 
-def make_sim_trials(world, angles, n, n_updates, seed):
+def make_sim_trials(world, angles, n, n_updates, seed, *, control=False):
     ss = np.random.SeedSequence([seed, 0])
-    return [simulate_holdout_trial(world, angles, n_updates, np.random.default_rng(s)) for s in ss.spawn(n)]
+    return [simulate_holdout_trial(world, angles, n_updates, np.random.default_rng(s), control=control)
+            for s in ss.spawn(n)]
 
 
 # --------------------------------------------------------------------------- log trials
@@ -377,8 +397,8 @@ def _run(job):
     kw = {} if variant is None else {"variant": variant}
     grid = _WORK["grid"]
     rng = np.random.default_rng(seed)
-    if kind == "sim":
-        trial = _WORK["sims"][key]
+    if kind != "logs":
+        trial = _WORK["sims"][kind][key]
         params = _success_params(_Geom(), overrides)
         res = sl.run_mcl(sl.prepare_mcl(grid, params), trial["odom"], trial["ranges"], _WORK["angles"], rng=rng,
                          times=trial["times"], max_steps=_WORK["updates"], **kw)
@@ -392,7 +412,7 @@ def _run(job):
                          times=log.laser_t[a:], max_steps=h, **kw)
         truth = truth_at(ref, log.laser_pose, res.scan_index + a)
     out = judge(res, truth)
-    out.update(config=config, set=kind, trial=key if kind == "sim" else list(key), seed=seed,
+    out.update(config=config, set=kind, trial=key if kind != "logs" else list(key), seed=seed,
                duration=float(res.t[-1] - res.t[0]))
     return out
 
@@ -432,8 +452,27 @@ def _by_factor(runs, sims):
     return rows
 
 
+def compare(paths):
+    """Side by side: the tables of several ``--json`` outputs (e.g. two library versions)."""
+    print(f"{'slamlib':10s} {'configuration':14s} {'set':5s} {'strict success (95 % CI)':>27s} {'share within':>12s} "
+          f"{'conf. wrong updates':>19s} {'conf. wrong trials (95 % CI)':>30s} {'CPU [s]':>8s} {'data':>13s}")
+    for p in paths:
+        with open(p) as f:
+            d = json.load(f)
+        for c, row in d["table"].items():
+            for s, t in row.items():
+                lo, hi = wilson(t["confidently_wrong_trials"], t["trials"])
+                print(f"{d['slamlib']['hash']:10s} {c:14s} {s:5s} {t['strict']:4d}/{t['trials']:<3d} = {t['strict_rate']:4.0%} "
+                      f"[{t['strict_ci'][0]:4.0%}, {t['strict_ci'][1]:4.0%}] {t['share_within']:12.0%} "
+                      f"{t['confidently_wrong_updates']:9d}/{t['updates']:<9d} "
+                      f"{t['confidently_wrong_trials']:9d}/{t['trials']:<3d} [{lo:4.0%}, {hi:4.0%}]     "
+                      f"{t['cpu_s']:8.0f} {d['settings'].get('digests', {}).get(s, s):>13s}")
+        print(f"{'':10s} ({d['slamlib']['path']}; {d['slamlib']['commit']})")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--compare", nargs="+", metavar="JSON", help="print the tables of these --json outputs, run nothing")
     ap.add_argument("--configs", nargs="+", default=["defaults", "plain MCL"],
                     help="defaults, 'plain MCL' and/or overrides (the latter from --set / --variant)")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
@@ -442,7 +481,8 @@ def main(argv=None):
     ap.add_argument("--slamlib", default=_ROOT, help="the tree whose slamlib is evaluated (default: this one)")
     ap.add_argument("--trials", type=int, default=48, help="simulated trials")
     ap.add_argument("--log-starts", type=int, default=5, help="start points per log (at most 9)")
-    ap.add_argument("--sets", nargs="+", default=["sim", "logs"], choices=["sim", "logs"])
+    ap.add_argument("--sets", nargs="+", default=["sim", "logs"], choices=["sim", "logs", "control"],
+                    help="control: the sim set's drives sensed with the filter's own models (a diagnostic)")
     ap.add_argument("--updates", type=int, default=40, help="filter updates per simulated trial")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--seed", type=int, default=BASE_SEED)
@@ -450,6 +490,8 @@ def main(argv=None):
                     help="prefix of the cache files (runs, simulated trials, reference tracks)")
     ap.add_argument("--json", help="write the summary and every run to this file")
     args = ap.parse_args(argv)
+    if args.compare:
+        return compare(args.compare)
     if args.seed == STUDY_SEED:
         raise SystemExit(f"--seed {STUDY_SEED} is the study's: a hold-out needs another")
     if args.jobs > 2:
@@ -469,25 +511,30 @@ def main(argv=None):
     if fresh and os.path.abspath(args.slamlib) != _ROOT:
         print("warning: the reference tracks were computed with this slamlib; run the default tree first "
               "so that every tree is judged against the same truth")
-    sims_path = args.cache + f"_sims_s{args.seed}_u{args.updates}_n{args.trials}.pkl.gz"
-    sims = []
-    if "sim" in args.sets:
-        if os.path.exists(sims_path):
-            with gzip.open(sims_path, "rb") as f:
-                sims = pickle.load(f)
+    all_sims = {}
+    for kind in ("sim", "control"):
+        if kind not in args.sets:
+            continue
+        path = args.cache + f"_{kind}s_s{args.seed}_u{args.updates}_n{args.trials}.pkl.gz"
+        if os.path.exists(path):
+            with gzip.open(path, "rb") as f:
+                all_sims[kind] = pickle.load(f)
         else:
-            sims = make_sim_trials(holdout_world(grid), angles, args.trials, args.updates, args.seed)
-            with gzip.open(sims_path, "wb") as f:
-                pickle.dump(sims, f)
-    digest = hashlib.sha1("".join(trial_digest(t) for t in sims).encode()).hexdigest()[:12]
+            all_sims[kind] = make_sim_trials(holdout_world(grid), angles, args.trials, args.updates, args.seed,
+                                             control=kind == "control")
+            with gzip.open(path, "wb") as f:
+                pickle.dump(all_sims[kind], f)
+    sims = all_sims.get("sim") or all_sims.get("control") or []
+    digests = {k: hashlib.sha1("".join(trial_digest(t) for t in v).encode()).hexdigest()[:12] for k, v in all_sims.items()}
+    digest = digests.get("sim", "")
     keys = log_starts(refs, args.log_starts, args.seed) if "logs" in args.sets else []
     run_ss = np.random.SeedSequence([args.seed, 2])
     seeds = [int(s.generate_state(1)[0]) for s in run_ss.spawn(len(sims) + len(keys))]
-    trials = [("sim", i, seeds[i]) for i in range(len(sims))] + \
+    trials = [(kind, i, seeds[i]) for kind in all_sims for i in range(len(sims))] + \
              [("logs", k, seeds[len(sims) + i]) for i, k in enumerate(keys)]
     if sims:
         upd = [sl.odometry_steps(t["odom"])[0].size for t in sims]
-        print(f"{len(sims)} simulated hold-out trials (data digest {digest}): {min(args.updates, min(upd))}-"
+        print(f"{len(sims)} simulated hold-out trials per set (data digests {digests}): {min(args.updates, min(upd))}-"
               f"{args.updates} updates, {np.median([t['mismatch']['length'] for t in sims]):.1f} m median drive, "
               f"{np.median([t['times'][-1] for t in sims]):.0f} s median duration")
     if keys:
@@ -501,10 +548,10 @@ def main(argv=None):
         return json.dumps([c, variant, sorted(overrides), tag])
 
     def ckey(c, kind, key, seed):
-        return json.dumps([label(c), kind, key if kind == "sim" else list(key), seed])
+        return json.dumps([label(c), kind, key if kind != "logs" else list(key), seed])
 
     jobs = [(c, kind, key, seed) for c in configs for kind, key, seed in trials]
-    cache_path = args.cache + f"_runs_s{args.seed}_u{args.updates}.jsonl"
+    cache_path = args.cache + f"_runs_s{args.seed}_u{args.updates}_n{args.trials}.jsonl"
     done = {}
     if os.path.exists(cache_path):
         with open(cache_path) as f:
@@ -513,12 +560,12 @@ def main(argv=None):
                 done[r["cache_key"]] = r
     todo = [j for j in jobs if ckey(*j) not in done]
     print(f"{len(jobs)} runs, {len(jobs) - len(todo)} of them cached in {cache_path}", flush=True)
-    data = dict(sims=sims, logs=logs, refs=refs, angles=angles, updates=args.updates, configs=configs)
+    data = dict(sims=all_sims, logs=logs, refs=refs, angles=angles, updates=args.updates, configs=configs)
     t1 = time.perf_counter()
     if todo:
         with open(cache_path, "a") as f, get_context("fork").Pool(args.jobs, initializer=_init, initargs=(data,)) as pool:
             for i, r in enumerate(pool.imap_unordered(_run, todo, chunksize=1)):
-                r["cache_key"] = ckey(r["config"], r["set"], r["trial"] if r["set"] == "sim" else tuple(r["trial"]), r["seed"])
+                r["cache_key"] = ckey(r["config"], r["set"], r["trial"] if r["set"] != "logs" else tuple(r["trial"]), r["seed"])
                 r["label"] = label(r["config"])
                 f.write(json.dumps(r) + "\n")
                 f.flush()
@@ -542,11 +589,11 @@ def main(argv=None):
                   f"{t['confidently_wrong_trials']:9d}/{t['trials']:<3d} [{lo:4.0%}, {hi:4.0%}]     "
                   f"{t['cpu_s']:8.0f} {t['real_time_factor']:10.1f}x")
             t["confidently_wrong_trials_ci"] = [lo, hi]
-    if sims:
+    if "sim" in all_sims:
         for c in configs:
             mine = [r for r in runs if r["config"] == c and r["set"] == "sim"]
             print(f"\n{c}, sim: strict success below / above the median of each mismatch factor")
-            for f, med, k1, n1, k2, n2 in _by_factor(mine, sims):
+            for f, med, k1, n1, k2, n2 in _by_factor(mine, all_sims["sim"]):
                 print(f"  {f:20s} median {med:7.3f}: {k1:3d}/{n1:<3d} vs {k2:3d}/{n2:<3d}")
     if keys:
         for c in configs:
@@ -561,7 +608,7 @@ def main(argv=None):
         with open(args.json, "w") as f:
             json.dump(dict(slamlib=dict(path=os.path.dirname(sl.__file__), hash=tag, commit=commit),
                            settings=dict(seed=args.seed, trials=len(sims), updates=args.updates, log_trials=keys,
-                                         sim_digest=digest, radius=RADIUS, confident=CONFIDENT),
+                                         sim_digest=digest, digests=digests, radius=RADIUS, confident=CONFIDENT),
                            configs={c: dict(variant=v, overrides=o) for c, (v, o) in configs.items()},
                            table=table, runs=runs), f)
     return table, runs

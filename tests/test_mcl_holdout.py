@@ -49,6 +49,19 @@ def test_trials_are_reproducible_feasible_and_long_enough(world, angles):
         assert np.all((t["ranges"] >= 0) & (t["ranges"] <= cmu.CMU_MAX_RANGE))
 
 
+def test_the_control_set_drives_the_same_with_the_filter_models(world, angles):
+    sim = H.make_sim_trials(world, angles, 1, 12, 7)[0]
+    ctl = H.make_sim_trials(world, angles, 1, 12, 7, control=True)[0]
+    np.testing.assert_array_equal(sim["truth"], ctl["truth"])
+    assert not np.array_equal(sim["ranges"], ctl["ranges"]) and not np.array_equal(sim["odom"], ctl["odom"])
+    z_map = sl.ray_cast(world["grid"], ctl["truth"], angles, cmu.CMU_MAX_RANGE, sensor_offset=0.25, threshold=H.OCCUPIED)
+    near = z_map < 10.0
+    err = (ctl["ranges"] - z_map)[near]
+    hit = np.abs(err) < 1.0
+    assert np.std(err[hit]) == pytest.approx(H.REF_SIGMA_HIT, rel=0.15)  # the filter's sigma_hit, no obstacles
+    assert np.mean(ctl["ranges"][near] == cmu.CMU_MAX_RANGE) == pytest.approx(0.05, abs=0.02)
+
+
 def test_obstacles_are_in_the_scans_but_not_in_the_map(world, angles):
     truth = np.array([[30.0, 40.3, 0.0]])  # the long corridor, looking along it
     assert H._clearance(world, np.empty((0, 3)), truth[0, :2]) > 0.3
