@@ -412,6 +412,9 @@ def _run(job):
                          times=log.laser_t[a:], max_steps=h, **kw)
         truth = truth_at(ref, log.laser_pose, res.scan_index + a)
     out = judge(res, truth)
+    if getattr(res, "confidence", None) is not None:  # a library that reports mass near its estimate as well
+        err = np.hypot(*(res.estimate[:, :2] - truth[:, :2]).T)
+        out["confidently_wrong_conf"] = int(np.sum((err > RADIUS) & (np.asarray(res.confidence) > CONFIDENT)))
     out.update(config=config, set=kind, trial=key if kind != "logs" else list(key), seed=seed,
                duration=float(res.t[-1] - res.t[0]))
     return out
@@ -589,6 +592,12 @@ def main(argv=None):
                   f"{t['confidently_wrong_trials']:9d}/{t['trials']:<3d} [{lo:4.0%}, {hi:4.0%}]     "
                   f"{t['cpu_s']:8.0f} {t['real_time_factor']:10.1f}x")
             t["confidently_wrong_trials_ci"] = [lo, hi]
+            mine = [r for r in runs if r["config"] == c and r["set"] == s]
+            if mine and all("confidently_wrong_conf" in r for r in mine):
+                t["confidently_wrong_conf_updates"] = sum(r["confidently_wrong_conf"] for r in mine)
+                t["confidently_wrong_conf_trials"] = sum(r["confidently_wrong_conf"] > 0 for r in mine)
+                print(f"{'':20s} confidently wrong by MCLResult.confidence (mass within 0.5 m of the estimate) > 0.9: "
+                      f"{t['confidently_wrong_conf_updates']} updates in {t['confidently_wrong_conf_trials']} trials")
     if "sim" in all_sims:
         for c in configs:
             mine = [r for r in runs if r["config"] == c and r["set"] == "sim"]
