@@ -455,6 +455,22 @@ def _by_factor(runs, sims):
     return rows
 
 
+def tracking_check(sims, angles, updates, seed):
+    """How many trials are solvable at all: plain MCL started at the truth (2000 particles, 10 cm, 2 deg)
+    with ``MCLParams()``, judged by the strict criterion (an upper bound for global localization)."""
+    grid = cmu.load_cmu_map()
+    model = sl.prepare_mcl(grid, _success_params(_Geom(), []))
+    ok = []
+    for i, t in enumerate(sims):
+        rng = np.random.default_rng([seed, 3, i])
+        init = t["truth"][0] + rng.normal(size=(2000, 3)) * [0.1, 0.1, np.deg2rad(2.0)]
+        res = sl.run_mcl(model, t["odom"], t["ranges"], angles, rng=rng, variant="mcl", init=init,
+                         times=t["times"], max_steps=updates)
+        err = np.hypot(*(res.estimate[:, :2] - t["truth"][res.scan_index, :2]).T)
+        ok.append(bool(np.all(err[len(err) // 2:] < RADIUS)))
+    return ok
+
+
 def compare(paths):
     """Side by side: the tables of several ``--json`` outputs (e.g. two library versions)."""
     print(f"{'slamlib':10s} {'configuration':14s} {'set':5s} {'strict success (95 % CI)':>27s} {'share within':>12s} "
@@ -492,6 +508,8 @@ def main(argv=None):
     ap.add_argument("--cache", default=os.path.join(tempfile.gettempdir(), "mcl_holdout"),
                     help="prefix of the cache files (runs, simulated trials, reference tracks)")
     ap.add_argument("--json", help="write the summary and every run to this file")
+    ap.add_argument("--tracking-check", action="store_true",
+                    help="also report how many simulated trials plain MCL tracks when started at the truth")
     args = ap.parse_args(argv)
     if args.compare:
         return compare(args.compare)
@@ -545,6 +563,22 @@ def main(argv=None):
         print(f"  the study's start updates: " + "; ".join(f"log {n}: {study_offsets(len(refs[n]['scan_index'])).tolist()}"
                                                           for n in sorted(refs)))
     print(f"set-up {time.perf_counter() - t0:.0f} s", flush=True)
+    tracking = {}
+    if args.tracking_check:
+        for kind, trial_list in all_sims.items():
+            path = args.cache + f"_tracking_{kind}_s{args.seed}_u{args.updates}_n{args.trials}.json"
+            if os.path.exists(path):  # computed once (by the first tree run), so every tree gets the same subset
+                with open(path) as f:
+                    ok = json.load(f)
+            else:
+                ok = tracking_check(trial_list, angles, args.updates, args.seed)
+                with open(path, "w") as f:
+                    json.dump(ok, f)
+            lo, hi = wilson(sum(ok), len(ok))
+            tracking[kind] = dict(strict=sum(ok), trials=len(ok), ci=[lo, hi], ok=ok)
+            print(f"{kind}: plain MCL started at the truth is strictly right in {sum(ok)}/{len(ok)} trials "
+                  f"[{lo:.0%}, {hi:.0%}] (how many are solvable at all)", flush=True)
+
 
     def label(c):
         variant, overrides = configs[c]
@@ -593,6 +627,13 @@ def main(argv=None):
                   f"{t['cpu_s']:8.0f} {t['real_time_factor']:10.1f}x")
             t["confidently_wrong_trials_ci"] = [lo, hi]
             mine = [r for r in runs if r["config"] == c and r["set"] == s]
+            if s in tracking:  # the trials that plain MCL tracks from the truth: what global localization can reach
+                sub = [r for r in mine if tracking[s]["ok"][r["trial"]]]
+                k = sum(r["strict"] for r in sub)
+                lo2, hi2 = wilson(k, len(sub))
+                t["strict_solvable"] = [k, len(sub), lo2, hi2]
+                print(f"{'':20s} of the {len(sub)} trials tracked from the truth: strict {k}/{len(sub)} "
+                      f"[{lo2:.0%}, {hi2:.0%}], confidently wrong in {sum(r['confidently_wrong'] > 0 for r in sub)}")
             if mine and all("confidently_wrong_conf" in r for r in mine):
                 t["confidently_wrong_conf_updates"] = sum(r["confidently_wrong_conf"] for r in mine)
                 t["confidently_wrong_conf_trials"] = sum(r["confidently_wrong_conf"] > 0 for r in mine)
@@ -619,7 +660,7 @@ def main(argv=None):
                            settings=dict(seed=args.seed, trials=len(sims), updates=args.updates, log_trials=keys,
                                          sim_digest=digest, digests=digests, radius=RADIUS, confident=CONFIDENT),
                            configs={c: dict(variant=v, overrides=o) for c, (v, o) in configs.items()},
-                           table=table, runs=runs), f)
+                           table=table, tracking=tracking, runs=runs), f)
     return table, runs
 
 
