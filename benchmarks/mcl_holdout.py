@@ -27,12 +27,21 @@ saw, with the study's criteria (``judge`` and ``summarize`` are imported from it
   ``mcl_success.py``, computed once and kept in a file beside the cache, so every configuration
   (and every library version) is judged against the same truth.
 
+* **control** (a diagnostic, ``--sets ... control``): the sim set's drives (the same true poses)
+  sensed with the filter's own models: scans of the map without the obstacles with the beam mixture,
+  odometry without bias with the filter's ``alpha``. Its gap to **sim** is the mismatch's share of the
+  failures; its gap to the study's simulated set is the drives' share.
+
+``--tracking-check`` runs plain MCL started at the truth on every simulated trial (computed once, by
+the first tree evaluated, and read from a file after): the trials it tracks are those a global
+localizer can solve at all, and strict success is also printed on that subset.
+
 Success and confidently-wrong are the study's: strict success = the estimate within 0.5 m at every
 update of the second half; confidently wrong = more than 0.5 m off while ``mode_mass`` > 0.9. Rates
 come with Wilson 95 % intervals (log trials of one log overlap: their interval is optimistic).
 
 Configurations: ``defaults`` (``MCLParams()`` with ``run_mcl``'s default variant), ``plain MCL``
-(the same parameters, ``variant="mcl"``) and ``overrides`` (``--set KEY=VALUE`` and ``--variant``,
+(the same parameters, ``variant="mcl"``: with another tree, that tree's defaults) and ``overrides`` (``--set KEY=VALUE`` and ``--variant``,
 as ``mcl_success.py`` takes them). ``--slamlib DIR`` evaluates the ``slamlib`` of another tree (the
 trials and references are the cached ones, so the trees are judged on identical data); every run is
 cached under its configuration and a hash of the ``slamlib`` source that ran it, so an interrupted
