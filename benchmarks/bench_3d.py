@@ -290,7 +290,7 @@ def incremental_figures(names=("city10000", "M3500")):
             return float(np.sqrt(np.mean(np.sum((X[:, :2] - truth[:, :2]) ** 2, axis=1)))) if truth is not None else np.nan
 
         def row(label, t, chi2, X):
-            ms = 1000 * np.asarray(t)
+            ms = None if t is None else 1000 * np.asarray(t)
             times = (f"{ms.mean():8.3f} {np.median(ms):8.3f} {np.percentile(ms, 95):8.3f} {ms.max():8.1f}"
                      if t is not None else f"{'-':>8s} {'-':>8s} {'-':>8s} {'-':>8s}")
             print(f"  {label:20s} {times} {chi2:12.3f} {chi2 / batch.chi2[-1] - 1:+9.3%} {rmse(X):10.4f}")
