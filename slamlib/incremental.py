@@ -169,8 +169,8 @@ def incremental_pose_graph(edges, Z, Omega, *, window=60, threshold=0.01, snapsh
         Largest change (``max |dx|, |dy|, |dtheta|``, metres and radians) of a re-solved pose next
         to a held one that leaves the held part held; a larger change doubles the re-solved part.
         The default was chosen on the first 5000 poses of City10000 (``tools/incremental_city10000.py
-        --select``): the largest of 0.1, 0.03 and 0.01 whose chi2 stays within 0.2 % of the batch
-        optimum's after every 1000th measurement. It is also iSAM2's relinearisation threshold.
+        --select``): the largest of 0.1, 0.03, 0.01 and 0.003 whose chi2 stays within 0.2 % of the
+        batch optimum's after every 1000th measurement. It is also iSAM2's relinearisation threshold.
     snapshot_steps : sequence of int, keyword-only
         Measurements after which to keep a copy of the estimate.
 

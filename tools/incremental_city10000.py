@@ -13,8 +13,8 @@ City10000, the position RMSE against the reference poses) of the three estimates
 ``--select`` runs the smoother on the first 5000 poses of City10000 only, for each threshold of
 :data:`THRESHOLDS`, and writes ``chapters/data/incremental_threshold.json``: the chi2 of the estimate against
 that of the batch optimum of the same measurements after every :data:`CHECK`-th measurement (a run may end
-anywhere), and the mean time per measurement. The rule: the largest threshold whose chi2 stays within
-:data:`SELECT_TOL` of batch at every check; the runs above, on the whole of City10000 and on M3500, did not take
+anywhere), the same for the position RMSE against the reference poses, and the mean time per measurement.
+The rule: the largest threshold whose chi2 stays within :data:`SELECT_TOL` of batch's at every check; the runs above, on the whole of City10000 and on M3500, did not take
 part in the choice. The chapter reads the files (it does not run the updates itself). BLAS runs
 single-threaded.
 """
@@ -40,7 +40,7 @@ from bench_3d import run_isam2  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[1] / "chapters" / "data"
 BIN = 500
-THRESHOLDS = (0.1, 0.03, 0.01)
+THRESHOLDS = (0.1, 0.03, 0.01, 0.003)
 SELECT_POSES = 5000
 SELECT_TOL = 2e-3  # a fifth of the goal (final chi2 within 1 % of batch)
 CHECK = 1000
@@ -72,28 +72,39 @@ def step_stats(t):
 
 
 def select():
-    edges, Z, Om, X0, _ = load("city10000", poses=SELECT_POSES)
+    edges, Z, Om, X0, truth = load("city10000", poses=SELECT_POSES)
     # a run may end after any measurement: the error is checked at every CHECK-th one, not only the last
     checks = list(range(CHECK - 1, len(edges), CHECK)) + [len(edges) - 1]
     batch = {}
     for k in checks:
         e, z, w = edges[:k + 1], Z[:k + 1], Om[:k + 1]
-        batch[k] = float(sl.optimize_pose_graph(X0[:int(e.max()) + 1], e, z, w).chi2[-1])
+        n = int(e.max()) + 1
+        b = sl.optimize_pose_graph(X0[:n], e, z, w)
+        batch[k] = (float(b.chi2[-1]), _rmse(b.X, truth[:n]))
     rows = []
     for th in THRESHOLDS:
         res = incremental_pose_graph(edges, Z, Om, threshold=th, snapshot_steps=checks)
-        rel = [sl.pose_graph_chi2(res.snapshots[k], edges[:k + 1], Z[:k + 1], Om[:k + 1]) / batch[k] - 1
+        rel = [sl.pose_graph_chi2(res.snapshots[k], edges[:k + 1], Z[:k + 1], Om[:k + 1]) / batch[k][0] - 1
                for k in checks]
-        rows.append({"threshold": th, "chi2_rel": rel, "worst": max(rel), "final": rel[-1],
+        rel_rmse = [_rmse(res.snapshots[k], truth[:res.snapshots[k].shape[0]]) / batch[k][1] - 1 for k in checks]
+        rows.append({"threshold": th, "chi2_rel": rel, "rmse_rel": rel_rmse,
+                     "worst": max(max(rel), max(abs(r) for r in rel_rmse)), "worst_chi2": max(rel),
+                     "worst_rmse": max(abs(r) for r in rel_rmse), "final": rel[-1],
                      "mean_ms": float(res.step_time.mean() * 1000), "full_solves": int(res.batch_steps.size)})
-        print({k: v for k, v in rows[-1].items() if k != "chi2_rel"}, flush=True)
+        print({k: v for k, v in rows[-1].items() if not k.endswith("_rel")}, flush=True)
     out = {"poses": SELECT_POSES, "measurements": len(edges), "checks": checks, "rows": rows}
     choose(out)
 
 
+def _rmse(X, truth):
+    return float(np.sqrt(np.mean(np.sum((X[:, :2] - truth[:, :2]) ** 2, axis=1))))
+
+
 def choose(out):
-    """The rule applied to the rows of the study: the largest threshold within SELECT_TOL at every check."""
-    ok = [r["threshold"] for r in out["rows"] if r["worst"] <= SELECT_TOL]
+    """The rule applied to the rows of the study: the largest threshold whose chi2 stays within SELECT_TOL of the
+    batch optimum's at every check. (The RMSE against the reference poses is recorded, not used: right after a
+    closure it swings by percents for every threshold, one Gauss-Newton step not being converged.)"""
+    ok = [r["threshold"] for r in out["rows"] if r["worst_chi2"] <= SELECT_TOL]
     out.update(tol=SELECT_TOL, chosen=max(ok) if ok else None)
     (DATA / "incremental_threshold.json").write_text(json.dumps(out, indent=1) + "\n")
     print(json.dumps({k: v for k, v in out.items() if k != "rows"}, indent=1))
