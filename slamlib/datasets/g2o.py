@@ -333,7 +333,8 @@ def load_g2o(path):
         NaN or inf, a vertex defined twice, an edge to an undefined vertex, an edge from a
         vertex to itself, an information matrix that is not positive definite; a landmark
         id that is also a pose's, a sighting from an undefined pose or (when the file has
-        ``VERTEX_XY`` records) of an undefined landmark; or a file without vertices or edges. A file of edges only (``w20000``) gets the odometry guess
+        ``VERTEX_XY`` records) of an undefined landmark; or a file without vertices or edges.
+        A file of edges only (``w20000``) gets the odometry guess
         (:func:`slamlib.graph_slam.pose_graph_initial_guess`) as ``X`` and must be connected.
 
     Notes
