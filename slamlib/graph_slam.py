@@ -20,6 +20,9 @@ Edges (Grisetti et al. 2010, the formulation of g2o):
   ``m`` from pose ``x``, ``e = [r_hat - r, wrap(phi_hat - phi)]`` with
   ``[r_hat, phi_hat]`` the measurement model of :mod:`slamlib.sensors`
   (Eq. 6.40) and ``Omega = Q^-1``.
+* **Pose-point** (g2o's ``EDGE_SE2_XY``): the landmark's position in the pose's
+  frame, ``z = [x, y]``, ``e = R(theta)^T (m - t) - z`` (a landmark graph with
+  ``obs_model="point"``).
 
 Linearising every error at the current estimate, ``e_k(x + dx) ~ e_k + J_k dx``,
 turns ``F`` into a quadratic whose minimiser solves the normal equations
@@ -427,6 +430,37 @@ def _landmark_edges(x, m, z):
     e = z_hat - z
     e[:, 1] = wrap_angle(e[:, 1])
     return e, Hx, Hm
+
+
+def _point_edges(x, m, z):
+    """Errors ``R(theta)^T (m - t) - z`` and Jacobians of pose-point edges, all at once.
+
+    ``x (S, 3)``, ``m (S, 2)``, ``z (S, 2)``; returns ``e (S, 2)``, ``Hx (S, 2, 3)``, ``Hm (S, 2, 2)``
+    for the perturbation ``x + dx``, ``m + dm`` (g2o's ``EDGE_SE2_XY``).
+    """
+    c, s = np.cos(x[:, 2]), np.sin(x[:, 2])
+    dx = m[:, 0] - x[:, 0]
+    dy = m[:, 1] - x[:, 1]
+    e = np.empty((x.shape[0], 2))
+    # e = R^T (m - t) - z  (Kuemmerle et al. 2011, g2o's EDGE_SE2_XY)
+    e[:, 0] = c * dx + s * dy - z[:, 0]
+    e[:, 1] = -s * dx + c * dy - z[:, 1]
+    # de/dm = R^T, de/dt = -R^T, de/dtheta = dR^T/dtheta (m - t)
+    Hm = np.empty((x.shape[0], 2, 2))
+    Hm[:, 0, 0] = c
+    Hm[:, 0, 1] = s
+    Hm[:, 1, 0] = -s
+    Hm[:, 1, 1] = c
+    Hx = np.empty((x.shape[0], 2, 3))
+    Hx[:, :, :2] = -Hm
+    Hx[:, 0, 2] = -s * dx + c * dy
+    Hx[:, 1, 2] = -c * dx - s * dy
+    return e, Hx, Hm
+
+
+#: Measurement models of a landmark graph's sightings: name -> (errors and Jacobians, description).
+_OBS_MODELS = {"range_bearing": (_landmark_edges, "[r, phi], range and bearing"),
+               "point": (_point_edges, "[x, y], the landmark in the pose's frame")}
 
 
 def _chi2_terms(e, Omega):
@@ -1352,11 +1386,15 @@ class LandmarkGraph(NamedTuple):
     obs_edges : int ndarray, shape (S, 2)
         Pose-landmark edges ``(pose index, landmark row)``.
     obs_Z : ndarray, shape (S, 2)
-        Range-bearing measurements ``[r, phi]``.
+        Their measurements: range-bearing ``[r, phi]``, or with ``obs_model="point"`` the
+        landmark's position ``[x, y]`` in the pose's frame.
     obs_Omega : ndarray, shape (S, 2, 2)
         Their information matrices (``Q^-1``).
     landmark_ids : int ndarray, shape (K,)
         The landmark (of the data set) each row stands for.
+    obs_model : {"range_bearing", "point"}
+        The measurement model of `obs_Z`: ``e = [r_hat - r, wrap(phi_hat - phi)]`` (default), or
+        ``e = R(theta)^T (m - t) - z`` (g2o's ``EDGE_SE2_XY``).
     """
 
     X0: np.ndarray
@@ -1368,6 +1406,7 @@ class LandmarkGraph(NamedTuple):
     obs_Z: np.ndarray
     obs_Omega: np.ndarray
     landmark_ids: np.ndarray
+    obs_model: str = "range_bearing"
 
 
 class LandmarkGraphResult(NamedTuple):
@@ -1407,6 +1446,7 @@ def _check_landmark_graph(graph):
     S = obs.shape[0]
     Zl = as_array(graph.obs_Z, "graph.obs_Z", (S, 2))
     Wl = as_information(graph.obs_Omega, "graph.obs_Omega", S, 2)
+    check_choice(graph.obs_model, "graph.obs_model", {k: v[1] for k, v in _OBS_MODELS.items()})
     # connectivity over poses and landmarks together (landmark v is node n + v)
     pairs = np.concatenate([odo, np.column_stack([obs[:, 0], n + obs[:, 1]])])
     n_comp, label = _components(n + K, pairs)
@@ -1415,11 +1455,11 @@ def _check_landmark_graph(graph):
         what = f"pose {loose[0]}" if loose[0] < n else f"landmark row {loose[0] - n}"
         raise ValueError(f"the graph is disconnected: {n_comp} connected components; {loose.size} poses or "
                          f"landmarks (e.g. {what}) are linked to pose 0 by no chain of edges")
-    return X0, L0, odo, Zo, Wo, obs, Zl, Wl
+    return X0, L0, odo, Zo, Wo, obs, Zl, Wl, _OBS_MODELS[graph.obs_model][0]
 
 
-def landmark_graph_errors(X, L, obs_edges, obs_Z):
-    """Errors and Jacobians of all range-bearing edges of a landmark graph, at once.
+def landmark_graph_errors(X, L, obs_edges, obs_Z, *, model="range_bearing"):
+    """Errors and Jacobians of all pose-landmark edges of a landmark graph, at once.
 
     Parameters
     ----------
@@ -1430,12 +1470,15 @@ def landmark_graph_errors(X, L, obs_edges, obs_Z):
     obs_edges : int ndarray, shape (S, 2)
         ``(pose, landmark)`` pairs.
     obs_Z : ndarray, shape (S, 2)
-        Measurements ``[r, phi]``.
+        Measurements ``[r, phi]`` (or ``[x, y]`` with ``model="point"``).
+    model : {"range_bearing", "point"}, keyword-only
+        The measurement model (:class:`LandmarkGraph`'s ``obs_model``).
 
     Returns
     -------
     e : ndarray, shape (S, 2)
-        ``h(x, m) - z`` with the bearing wrapped.
+        ``h(x, m) - z`` with the bearing wrapped; with ``model="point"``,
+        ``R(theta)^T (m - t) - z``.
     Hx : ndarray, shape (S, 2, 3)
         ``de / dx`` (Table 7.2 line 13).
     Hm : ndarray, shape (S, 2, 2)
@@ -1444,8 +1487,9 @@ def landmark_graph_errors(X, L, obs_edges, obs_Z):
     References
     ----------
     Thrun, Burgard & Fox (2005), Eq. 6.40, Table 7.2 line 13, Table 11.2 lines 18-21
-    (GraphSLAM's measurement terms).
+    (GraphSLAM's measurement terms); Kuemmerle et al. (2011) (g2o's ``EDGE_SE2_XY``).
     """
+    check_choice(model, "model", {k: v[1] for k, v in _OBS_MODELS.items()})
     X = as_array(X, "X", (None, 3))
     L = as_array(L, "L", (None, 2))
     obs = np.asarray(obs_edges)
@@ -1455,10 +1499,10 @@ def landmark_graph_errors(X, L, obs_edges, obs_Z):
                      or obs[:, 1].max() >= L.shape[0]):
         raise ValueError("obs_edges refers to a pose or landmark that does not exist")
     Z = as_array(obs_Z, "obs_Z", (obs.shape[0], 2))
-    return _landmark_edges(X[obs[:, 0]], L[obs[:, 1]], Z)
+    return _OBS_MODELS[model][0](X[obs[:, 0]], L[obs[:, 1]], Z)
 
 
-def _landmark_problem(X0, L0, odo, Zo, Wo, obs, Zl, Wl, robust, k, fixed):
+def _landmark_problem(X0, L0, odo, Zo, Wo, obs, Zl, Wl, obs_fn, robust, k, fixed):
     n, K = X0.shape[0], L0.shape[0]
     terms = [(3 * odo[:, 0], 3, 3 * odo[:, 1], 3), (3 * obs[:, 0], 3, 3 * n + 2 * obs[:, 1], 2)]
     layout = _Layout(3 * n + 2 * K, terms, [3 * f + c for f in fixed for c in range(3)], order=True)
@@ -1467,7 +1511,7 @@ def _landmark_problem(X0, L0, odo, Zo, Wo, obs, Zl, Wl, robust, k, fixed):
     def evaluate(state):
         X, L = state
         e1, A1, B1 = _se2_edges(X[oi], X[oj], Zo)
-        e2, A2, B2 = _landmark_edges(X[pi], L[lj], Zl)
+        e2, A2, B2 = obs_fn(X[pi], L[lj], Zl)
         s1, s2 = _chi2_terms(e1, Wo), _chi2_terms(e2, Wl)
         rho1, w1 = _kernel(s1, robust, k[3])
         rho2, w2 = _kernel(s2, robust, k[2])
@@ -1501,11 +1545,11 @@ def landmark_graph_chi2(graph, X=None, L=None):
     ----------
     Thrun, Burgard & Fox (2005), Eq. 11.17 (the GraphSLAM log posterior).
     """
-    X0, L0, odo, Zo, Wo, obs, Zl, Wl = _check_landmark_graph(graph)
+    X0, L0, odo, Zo, Wo, obs, Zl, Wl, obs_fn = _check_landmark_graph(graph)
     X = X0 if X is None else as_array(X, "X", X0.shape)
     L = L0 if L is None else as_array(L, "L", L0.shape)
     e1, _, _ = _se2_edges(X[odo[:, 0]], X[odo[:, 1]], Zo)
-    e2, _, _ = _landmark_edges(X[obs[:, 0]], L[obs[:, 1]], Zl)
+    e2, _, _ = obs_fn(X[obs[:, 0]], L[obs[:, 1]], Zl)
     return float(_chi2_terms(e1, Wo).sum() + _chi2_terms(e2, Wl).sum())
 
 
@@ -1532,14 +1576,14 @@ def landmark_graph_system(graph, X=None, L=None):
     Thrun, Burgard & Fox (2005), Table 11.2 (GraphSLAM_linearize: the information form
     ``Omega``, ``xi`` of the full SLAM posterior).
     """
-    X0, L0, odo, Zo, Wo, obs, Zl, Wl = _check_landmark_graph(graph)
+    X0, L0, odo, Zo, Wo, obs, Zl, Wl, obs_fn = _check_landmark_graph(graph)
     X = X0 if X is None else as_array(X, "X", X0.shape)
     L = L0 if L is None else as_array(L, "L", L0.shape)
     n, K = X0.shape[0], L0.shape[0]
     terms = [(3 * odo[:, 0], 3, 3 * odo[:, 1], 3), (3 * obs[:, 0], 3, 3 * n + 2 * obs[:, 1], 2)]
     layout = _Layout(3 * n + 2 * K, terms, (0, 1, 2))
     e1, A1, B1 = _se2_edges(X[odo[:, 0]], X[odo[:, 1]], Zo)
-    e2, A2, B2 = _landmark_edges(X[obs[:, 0]], L[obs[:, 1]], Zl)
+    e2, A2, B2 = obs_fn(X[obs[:, 0]], L[obs[:, 1]], Zl)
     return layout.assemble([(A1, B1, e1, Wo), (A2, B2, e2, Wl)])
 
 
@@ -1548,7 +1592,8 @@ def optimize_landmark_graph(graph, *, method="lm", max_iter=100, rtol=1e-9, robu
     """Maximum a posteriori poses and landmarks of a landmark graph (full SLAM).
 
     Minimises ``sum rho(e^T Omega e)`` over all pose-pose edges (odometry) and
-    pose-landmark range-bearing edges, with the first pose fixed (the gauge).
+    pose-landmark edges (range-bearing, or positions in the pose's frame with the graph's
+    ``obs_model="point"``), with the first pose fixed (the gauge).
     The same sparse machinery as :func:`optimize_pose_graph`: the variables are
     the ``3n`` pose coordinates followed by ``2K`` landmark coordinates.
 
@@ -1572,12 +1617,12 @@ def optimize_landmark_graph(graph, *, method="lm", max_iter=100, rtol=1e-9, robu
     Grisetti et al. (2010), Algorithm 1.
     """
     start = time.perf_counter()
-    X0, L0, odo, Zo, Wo, obs, Zl, Wl = _check_landmark_graph(graph)
+    X0, L0, odo, Zo, Wo, obs, Zl, Wl, obs_fn = _check_landmark_graph(graph)
     max_iter, rtol = _method_args(method, max_iter, rtol)
     robust, _ = _robust_args(robust, robust_scale, 3)
     k = {2: DEFAULT_ROBUST_SCALE[2], 3: DEFAULT_ROBUST_SCALE[3]} if robust_scale is None else \
         {2: float(robust_scale), 3: float(robust_scale)}
-    layout, evaluate, update = _landmark_problem(X0, L0, odo, Zo, Wo, obs, Zl, Wl, robust, k, (0,))
+    layout, evaluate, update = _landmark_problem(X0, L0, odo, Zo, Wo, obs, Zl, Wl, obs_fn, robust, k, (0,))
     (X, L), chi2s, costs, it, conv, _ = _optimize((X0, L0), evaluate, layout, update, method=method,
                                                   max_iter=max_iter, rtol=rtol,
                                                   lm_lambda=as_scalar(lm_lambda, "lm_lambda", positive=True))

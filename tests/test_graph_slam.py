@@ -377,7 +377,8 @@ def test_g2o_loader_maps_ids_to_rows(tmp_path):
     ("EDGE_SE2 2 2 1.0 0 0 10 0 0 10 0 100", r"joins vertex 2 to itself"),
     ("EDGE_SE2 1 2 nan 0 0 10 0 0 10 0 100", r"'nan' is not finite"),
     ("VERTEX_SE2 1 5 5 0", r"vertex 1 is defined twice \(first on line 3\)"),
-    ("VERTEX_XY 9 1 1", r"unsupported record 'VERTEX_XY'"),
+    ("EDGE_BEARING 1 9 0.5", r"unsupported record 'EDGE_BEARING'"),
+    ("VERTEX_XY 9 1", r"VERTEX_XY needs 3 fields"),
     ("VERTEX_SE2 9 1 1", r"VERTEX_SE2 needs 4 fields"),
 ])
 def test_g2o_loader_errors_name_file_and_line(tmp_path, line, match):
@@ -394,6 +395,51 @@ def test_g2o_loader_missing_file_and_empty_file(tmp_path):
         load_g2o(tmp_path / "nope.g2o")
     with pytest.raises(ValueError, match="no VERTEX_SE2"):
         load_g2o(_write(tmp_path, "# nothing\n"))
+
+
+G2O_LANDMARKS = G2O + """EDGE_SE2_XY 0 10 2.0 1.0 4 1 5
+LANDMARK2 2 10 0.1 1.0 4 0 4
+EDGE_SE2_XY 1 7 0.5 -1.0 4 0 4
+"""
+
+
+def test_g2o_loader_reads_landmarks_and_point_sightings(tmp_path):
+    g = load_g2o(_write(tmp_path, G2O_LANDMARKS))
+    assert (g.n_poses, g.n_edges, g.n_landmarks) == (3, 2, 2)
+    np.testing.assert_array_equal(g.landmark_ids, [7, 10])
+    np.testing.assert_array_equal(g.obs_edges, [[0, 1], [2, 1], [1, 0]])
+    np.testing.assert_allclose(g.obs_Z, [[2.0, 1.0], [0.1, 1.0], [0.5, -1.0]])
+    np.testing.assert_allclose(g.obs_Omega[0], [[4, 1], [1, 5]])
+    # no VERTEX_XY: each landmark starts at its first sighting, t_i + R_i z
+    np.testing.assert_allclose(g.landmarks, [[1.5, -1.0], [2.0, 1.0]])
+    lg = g.landmark_graph()
+    assert lg.obs_model == "point" and sl.landmark_graph_chi2(lg) > 0
+    # with VERTEX_XY records the file's positions are the initial estimate
+    g = load_g2o(_write(tmp_path, G2O_LANDMARKS + "VERTEX_XY 10 3 3\nVERTEX_XY 7 1 1\n"))
+    np.testing.assert_allclose(g.landmarks, [[1.0, 1.0], [3.0, 3.0]])
+    # a pose graph has no landmark fields, and no landmark graph
+    g = load_g2o(_write(tmp_path, G2O))
+    assert g.landmarks is None and g.obs_edges is None and g.n_landmarks == 0
+    with pytest.raises(ValueError, match="has no landmark"):
+        g.landmark_graph()
+
+
+@pytest.mark.parametrize("line, match", [
+    ("LANDMARK2 5 10 1 1 4 0 4", r"LANDMARK2 5 10 refers to pose 5, which no VERTEX_SE2"),
+    ("LANDMARK2 1 2 1 1 4 0 4", r"refers to landmark 2, which is a pose"),
+    ("EDGE_SE2_XY 1 10 1 1 4 0", r"EDGE_SE2_XY needs 7 fields"),
+    ("EDGE_SE2_XY 1 10 1 inf 4 0 4", r"'inf' is not finite"),
+    ("EDGE_SE2_XY 1 10 1 1 4 5 4", r"EDGE_SE2_XY 1 10 is not positive definite"),
+    ("VERTEX_XY 1 3 3", r"VERTEX_XY 1 has the id of a pose"),
+    ("VERTEX_XY 10 0 0", r"landmark 10 is defined twice \(first on line 11\)"),
+    ("LANDMARK2 1 11 1 1 4 0 4", r"refers to landmark 11, which no VERTEX_XY record defines"),
+])
+def test_g2o_loader_landmark_errors_name_file_and_line(tmp_path, line, match):
+    text = G2O_LANDMARKS + "VERTEX_XY 10 3 3\nVERTEX_XY 7 1 1\n" + line + "\n"
+    path = _write(tmp_path, text)
+    with pytest.raises(ValueError, match=match) as info:
+        load_g2o(path)
+    assert f"{path}:{len(text.splitlines())}:" in str(info.value)
 
 
 # --------------------------------------------------------------------------- real pose graphs
@@ -453,6 +499,59 @@ def test_landmark_edge_jacobians_are_the_sensor_model_and_match_differences():
             diff = hi - lo
             diff[1] = sl.wrap_angle(diff[1])
             np.testing.assert_allclose(Hm[k][:, c], diff / (2 * eps), atol=1e-6)
+
+
+def test_point_edge_errors_and_jacobians_match_finite_differences():
+    rng = np.random.default_rng(19)
+    X = np.column_stack([rng.normal(0, 2, (5, 2)), rng.uniform(-np.pi, np.pi, 5)])
+    L = rng.normal(0, 4, (3, 2))
+    obs = np.array([[0, 0], [1, 2], [4, 1], [2, 2]])
+    Z = rng.normal(0, 3, (4, 2))
+    e, Hx, Hm = sl.landmark_graph_errors(X, L, obs, Z, model="point")
+    for k, (p, j) in enumerate(obs):
+        c, s = np.cos(X[p, 2]), np.sin(X[p, 2])
+        R = np.array([[c, -s], [s, c]])
+        np.testing.assert_allclose(e[k], R.T @ (L[j] - X[p, :2]) - Z[k], atol=1e-12)
+    eps = 1e-6
+    for k, (p, j) in enumerate(obs):
+        for c in range(3):
+            d = np.zeros((5, 3))
+            d[p, c] = eps
+            diff = (sl.landmark_graph_errors(X + d, L, obs, Z, model="point")[0][k]
+                    - sl.landmark_graph_errors(X - d, L, obs, Z, model="point")[0][k])
+            np.testing.assert_allclose(Hx[k][:, c], diff / (2 * eps), atol=1e-6)
+        for c in range(2):
+            d = np.zeros((3, 2))
+            d[j, c] = eps
+            diff = (sl.landmark_graph_errors(X, L + d, obs, Z, model="point")[0][k]
+                    - sl.landmark_graph_errors(X, L - d, obs, Z, model="point")[0][k])
+            np.testing.assert_allclose(Hm[k][:, c], diff / (2 * eps), atol=1e-6)
+    with pytest.raises(ValueError, match="model must be 'range_bearing'"):
+        sl.landmark_graph_errors(X, L, obs, Z, model="xy")
+
+
+#: Optimum chi2 of g2o's victoriaPark_reduced_1k (g2o's EDGE_SE2 and EDGE_SE2_XY errors) from the odometry guess;
+#: GTSAM's LM on the same errors (CustomFactor) agrees to 1e-11 (test_victoria_park_1k_matches_gtsam).
+VICTORIA_1K_CHI2 = 80.194785543
+
+
+def _victoria_park_1k():
+    gtsam = pytest.importorskip("gtsam")
+    return load_g2o(gtsam.findExampleDataFile("victoriaPark_reduced_1k.g2o"))
+
+
+def test_victoria_park_1k_landmark_graph_converges_with_gn_and_lm():
+    g = _victoria_park_1k()
+    assert (g.n_poses, g.n_edges, g.n_landmarks, g.obs_edges.shape[0]) == (1000, 999, 48, 606)
+    assert g.vertex_ids.max() == 1054 and np.intersect1d(g.vertex_ids, g.landmark_ids).size == 0
+    lg = g.landmark_graph()
+    assert sl.landmark_graph_chi2(lg) > 3e5
+    for method in ("gn", "lm"):
+        res = sl.optimize_landmark_graph(lg, method=method)
+        assert res.converged and res.iterations <= 10
+        np.testing.assert_allclose(res.chi2[-1], VICTORIA_1K_CHI2, rtol=1e-9)
+    with pytest.raises(ValueError, match="graph.obs_model must be"):
+        sl.optimize_landmark_graph(lg._replace(obs_model="xy"))
 
 
 def test_landmark_graph_slam_beats_dead_reckoning_in_simulation():
@@ -757,3 +856,72 @@ def test_block_pattern_equals_the_pattern_of_every_entry(fixed, order):
     # a landmark graph (3 x 3 and 3 x 2 blocks) keeps the pattern of every entry
     assert _uniform_blocks(12, [(np.array([0]), 3, np.array([3]), 3), (np.array([0]), 3, np.array([6]), 2)],
                            np.arange(12)) == 0
+
+
+def _gtsam_point_factor(z, W, pose_key, point_key):
+    """GTSAM factor with g2o's EDGE_SE2_XY error ``R^T (l - t) - z`` (Pose2.transformTo and its Jacobians)."""
+    def error(this, values, H):
+        x, lm = values.atPose2(this.keys()[0]), values.atPoint2(this.keys()[1])
+        Dx, Dl = np.zeros((2, 3), order="F"), np.zeros((2, 2), order="F")
+        q = x.transformTo(lm, Dx, Dl)
+        if H is not None:
+            H[0], H[1] = Dx, Dl
+        return q - z
+    return gtsam.CustomFactor(gtsam.noiseModel.Gaussian.Information(W), [pose_key, point_key], error)
+
+
+def _gtsam_g2o_pose_factor(z, W, i, j):
+    """GTSAM factor with g2o's EDGE_SE2 error and its Jacobians for GTSAM's retraction ``X Exp(d)``."""
+    from slamlib.graph_slam import _se2_edges_local
+
+    def error(this, values, H):
+        a, b = values.atPose2(this.keys()[0]), values.atPose2(this.keys()[1])
+        e, A, B = _se2_edges_local(np.array([[a.x(), a.y(), a.theta()]]), np.array([[b.x(), b.y(), b.theta()]]),
+                                   z[None])
+        if H is not None:
+            H[0], H[1] = A[0], B[0]
+        return e[0]
+    return gtsam.CustomFactor(gtsam.noiseModel.Gaussian.Information(W), [i, j], error)
+
+
+@needs_gtsam
+def test_victoria_park_1k_matches_gtsam():
+    """Same graph, same initial guess, first pose held: GTSAM's LM with g2o's errors (CustomFactor) reaches slamlib's
+    chi2 to 1e-9; with BetweenFactorPose2 (the SE(2) log error) GTSAM minimises another cost, 1e-5 away, and each
+    solution is the better one under its own error."""
+    g = _victoria_park_1k()
+    n = g.n_poses
+    res = sl.optimize_landmark_graph(g.landmark_graph())
+    values = gtsam.Values()
+    for k, x in enumerate(g.X):
+        values.insert(k, gtsam.Pose2(*x))
+    for k, lm in enumerate(g.landmarks):
+        values.insert(n + k, lm.copy())
+    ours = gtsam.Values()
+    for k, x in enumerate(res.X):
+        ours.insert(k, gtsam.Pose2(*x))
+    for k, lm in enumerate(res.landmarks):
+        ours.insert(n + k, lm.copy())
+    params = gtsam.LevenbergMarquardtParams()
+    params.setRelativeErrorTol(1e-9)
+    params.setAbsoluteErrorTol(0.0)
+    chi2 = {}
+    for pose_edges in ("g2o", "between"):
+        graph = gtsam.NonlinearFactorGraph()
+        for (i, j), z, W in zip(g.edges, g.Z, g.Omega):
+            if pose_edges == "g2o":
+                graph.add(_gtsam_g2o_pose_factor(z.copy(), W.copy(), int(i), int(j)))
+            else:
+                graph.add(gtsam.BetweenFactorPose2(int(i), int(j), gtsam.Pose2(*z),
+                                                   gtsam.noiseModel.Gaussian.Information(W)))
+        for (i, k), z, W in zip(g.obs_edges, g.obs_Z, g.obs_Omega):
+            graph.add(_gtsam_point_factor(z.copy(), W.copy(), int(i), int(n + k)))
+        graph.add(gtsam.NonlinearEqualityPose2(0, gtsam.Pose2(*g.X[0])))
+        if pose_edges == "g2o":  # the same cost at the same guess
+            np.testing.assert_allclose(2 * graph.error(values), res.chi2[0], rtol=1e-12)
+        sol = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+        chi2[pose_edges] = (2 * graph.error(sol), 2 * graph.error(ours))
+    np.testing.assert_allclose(chi2["g2o"][0], res.chi2[-1], rtol=1e-9)
+    gt_between, ours_between = chi2["between"]
+    assert 1e-7 < abs(gt_between / res.chi2[-1] - 1) < 1e-4
+    assert gt_between < ours_between

@@ -4,7 +4,11 @@ A g2o file lists one record per line:
 
 * ``VERTEX_SE2 id x y theta``: a pose (its initial estimate);
 * ``EDGE_SE2 i j dx dy dtheta I11 I12 I13 I22 I23 I33``: pose ``j`` measured
-  from pose ``i``, with the upper triangle of its ``3 x 3`` information matrix.
+  from pose ``i``, with the upper triangle of its ``3 x 3`` information matrix;
+* ``VERTEX_XY id x y``: a point landmark (its initial estimate);
+* ``EDGE_SE2_XY i j x y I11 I12 I22`` (or ``LANDMARK2``, the same fields): landmark
+  ``j`` seen from pose ``i`` at ``(x, y)`` in the pose's frame, with the upper
+  triangle of its ``2 x 2`` information matrix.
 
 Blank lines and lines starting with ``#`` are skipped. Any other record, a
 wrong number of fields, a number that does not parse or is not finite, a
@@ -61,6 +65,17 @@ class PoseGraph(NamedTuple):
         The file the graph was read from.
     equivalences : int ndarray, shape (K, 2), or None
         Row pairs of TORO's ``EQUIV`` records (not constraints), None when there are none.
+    landmarks : ndarray, shape (K, 2), or None
+        Point landmarks (``VERTEX_XY``, or for a landmark without one the position of its first
+        sighting, ``t_i + R_i z``), in the order of their ids; None when the file has no landmark.
+    landmark_ids : int ndarray, shape (K,), or None
+        The file's id of each row of `landmarks` (sorted).
+    obs_edges : int ndarray, shape (S, 2), or None
+        ``(pose row, landmark row)`` of each sighting (``EDGE_SE2_XY`` / ``LANDMARK2``).
+    obs_Z : ndarray, shape (S, 2), or None
+        The landmark's position ``[x, y]`` in the pose's frame.
+    obs_Omega : ndarray, shape (S, 2, 2), or None
+        Their information matrices.
     """
 
     X: np.ndarray
@@ -70,6 +85,11 @@ class PoseGraph(NamedTuple):
     vertex_ids: np.ndarray
     source: str
     equivalences: np.ndarray | None = None
+    landmarks: np.ndarray | None = None
+    landmark_ids: np.ndarray | None = None
+    obs_edges: np.ndarray | None = None
+    obs_Z: np.ndarray | None = None
+    obs_Omega: np.ndarray | None = None
 
     @property
     def n_poses(self) -> int:
@@ -80,6 +100,30 @@ class PoseGraph(NamedTuple):
     def n_edges(self) -> int:
         """Number of edges ``E``."""
         return int(self.edges.shape[0])
+
+    @property
+    def n_landmarks(self) -> int:
+        """Number of landmarks ``K`` (0 for a pose graph)."""
+        return 0 if self.landmarks is None else int(self.landmarks.shape[0])
+
+    def landmark_graph(self):
+        """The graph as a :class:`slamlib.graph_slam.LandmarkGraph` with ``obs_model="point"``.
+
+        Poses start at `X`, landmarks at `landmarks`; solve it with
+        :func:`slamlib.graph_slam.optimize_landmark_graph`.
+
+        Raises
+        ------
+        ValueError
+            If the file had no landmark.
+        """
+        from ..graph_slam import LandmarkGraph
+
+        if self.landmarks is None:
+            raise ValueError(f"{self.source} has no landmark (no EDGE_SE2_XY or LANDMARK2 record)")
+        return LandmarkGraph(X0=self.X, L0=self.landmarks, odo_edges=self.edges, odo_Z=self.Z, odo_Omega=self.Omega,
+                             obs_edges=self.obs_edges, obs_Z=self.obs_Z, obs_Omega=self.obs_Omega,
+                             landmark_ids=self.landmark_ids, obs_model="point")
 
 
 class PoseGraph3D(NamedTuple):
@@ -148,6 +192,9 @@ _RECORDS = {
     "EDGE_SE2": ("edge", 2, "i j dx dy dtheta I11 I12 I13 I22 I23 I33", "ii" + "f" * 9),
     "EDGE2": ("edge", 2, "i j dx dy dtheta I11 I12 I22 I33 I13 I23", "ii" + "f" * 9),
     "EQUIV": ("equiv", 2, "i j", "ii"),
+    "VERTEX_XY": ("point", 2, "id x y", "iff"),
+    "EDGE_SE2_XY": ("sighting", 2, "i j x y I11 I12 I22", "ii" + "f" * 5),
+    "LANDMARK2": ("sighting", 2, "i j x y I11 I12 I22", "ii" + "f" * 5),
     "VERTEX_SE3:QUAT": ("vertex", 3, "id x y z qx qy qz qw", "i" + "f" * 7),
     "VERTEX3": ("vertex", 3, "id x y z roll pitch yaw", "i" + "f" * 6),
     "EDGE_SE3:QUAT": ("edge", 3, "i j x y z qx qy qz qw I11 .. I66 (21 upper-triangle entries)", "ii" + "f" * 28),
@@ -162,7 +209,7 @@ def _parse(path, dim):
     """The records of a pose-graph file of dimension `dim` (2 or 3), checked line by line."""
     vid, vval, vline, vtag = [], [], [], []
     eij, eval_, eline, etag = [], [], [], []
-    equiv = []
+    equiv, points, sightings = [], [], []
     for lineno, raw in enumerate(_lines(path), start=1):
         line = raw.strip()
         if not line or line.startswith("#"):
@@ -187,9 +234,13 @@ def _parse(path, dim):
             eval_.append(vals[2:])
             eline.append(lineno)
             etag.append(tag)
-        else:
+        elif kind == "equiv":
             equiv.append((vals[0], vals[1], lineno))
-    return vid, vval, vline, vtag, eij, eval_, eline, etag, equiv
+        elif kind == "point":
+            points.append((vals[0], vals[1:], lineno))
+        else:
+            sightings.append((vals[0], vals[1], vals[2:], lineno, tag))
+    return vid, vval, vline, vtag, eij, eval_, eline, etag, equiv, points, sightings
 
 
 def _vertex_rows(path, vid, vline, eij, eline, etag, *, need_vertices, vertex_name):
@@ -251,7 +302,10 @@ def load_g2o(path):
     Records: g2o's ``VERTEX_SE2 id x y theta`` and
     ``EDGE_SE2 i j dx dy dtheta I11 I12 I13 I22 I23 I33``, and TORO's ``VERTEX2`` (the same
     fields) and ``EDGE2 i j dx dy dtheta I11 I12 I22 I33 I13 I23`` (TORO's order of the
-    information entries) and ``EQUIV i j``. Blank lines and ``#`` comments are skipped.
+    information entries) and ``EQUIV i j``; point landmarks: g2o's ``VERTEX_XY id x y`` and
+    ``EDGE_SE2_XY i j x y I11 I12 I22`` (landmark ``j`` at ``(x, y)`` in the frame of pose ``i``,
+    information by its upper triangle), also tagged ``LANDMARK2`` (``victoriaPark``). Blank lines
+    and ``#`` comments are skipped.
 
     Parameters
     ----------
@@ -263,7 +317,11 @@ def load_g2o(path):
     PoseGraph
         ``X (n, 3)``, ``edges (E, 2)`` (row indices), ``Z (E, 3)``,
         ``Omega (E, 3, 3)``, ``vertex_ids (n,)``, ``source``, and ``equivalences (K, 2)``
-        (rows of TORO's ``EQUIV`` pairs; None when the file has none).
+        (rows of TORO's ``EQUIV`` pairs; None when the file has none); with landmarks also
+        ``landmarks (K, 2)``, ``landmark_ids (K,)``, ``obs_edges (S, 2)`` (pose row, landmark
+        row), ``obs_Z (S, 2)``, ``obs_Omega (S, 2, 2)`` (None without), and
+        :meth:`PoseGraph.landmark_graph` gives the problem
+        :func:`slamlib.graph_slam.optimize_landmark_graph` solves.
 
     Raises
     ------
@@ -273,8 +331,10 @@ def load_g2o(path):
         Naming the file and line: an unknown record type (3-D records included), a wrong
         number of fields, a field that is not a number (or an id that is not an integer),
         NaN or inf, a vertex defined twice, an edge to an undefined vertex, an edge from a
-        vertex to itself, an information matrix that is not positive definite; or a file
-        without vertices or edges. A file of edges only (``w20000``) gets the odometry guess
+        vertex to itself, an information matrix that is not positive definite; a landmark
+        id that is also a pose's, a sighting from an undefined pose or (when the file has
+        ``VERTEX_XY`` records) of an undefined landmark; or a file without vertices or edges.
+        A file of edges only (``w20000``) gets the odometry guess
         (:func:`slamlib.graph_slam.pose_graph_initial_guess`) as ``X`` and must be connected.
 
     Notes
@@ -285,7 +345,9 @@ def load_g2o(path):
     the file is read in g2o's order (the rule GTSAM's reader applies line by line). TORO's
     ``EQUIV i j`` records (two vertices that are one place) are returned in
     ``equivalences`` and not made into constraints (GTSAM's reader skips them too).
-    Headings are kept as written (the optimisers wrap them).
+    Headings are kept as written (the optimisers wrap them). Poses and landmarks share the
+    file's ids; a landmark without ``VERTEX_XY`` starts at its first sighting, ``t_i + R_i z``
+    from pose ``i``'s initial estimate.
 
     References
     ----------
@@ -296,7 +358,7 @@ def load_g2o(path):
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"g2o file {path} not found")
-    vid, vval, vline, vtag, eij, evals, eline, etag, equiv = _parse(path, 2)
+    vid, vval, vline, vtag, eij, evals, eline, etag, equiv, points, sightings = _parse(path, 2)
     sorted_ids, order, pos, eij = _vertex_rows(path, vid, vline, eij, eline, etag, need_vertices=False,
                                                vertex_name="VERTEX_SE2")
     ev = np.array(evals, dtype=np.float64).reshape(-1, 9)
@@ -322,8 +384,53 @@ def load_g2o(path):
         from ..graph_slam import pose_graph_initial_guess
 
         X = pose_graph_initial_guess(sorted_ids.size, pos, ev[:, :3])
+    lm = _landmarks(path, sorted_ids, X, points, sightings) if points or sightings else {}
     return PoseGraph(X=X, edges=pos, Z=ev[:, :3].copy(), Omega=Omega, vertex_ids=sorted_ids, source=str(path),
-                     equivalences=eq)
+                     equivalences=eq, **lm)
+
+
+def _landmarks(path, pose_ids, X, points, sightings):
+    """The landmark fields of :class:`PoseGraph` from ``VERTEX_XY`` and sighting records, checked."""
+    pose_set = set(pose_ids.tolist())
+    first = {}
+    for lid, _, lineno in points:
+        if lid in pose_set:
+            raise ValueError(f"{path}:{lineno}: VERTEX_XY {lid} has the id of a pose")
+        if lid in first:
+            raise ValueError(f"{path}:{lineno}: landmark {lid} is defined twice (first on line {first[lid]})")
+        first[lid] = lineno
+    for i, j, _, lineno, tag in sightings:
+        if i not in pose_set:
+            raise ValueError(f"{path}:{lineno}: {tag} {i} {j} refers to pose {i}, which no VERTEX_SE2 or EDGE_SE2 "
+                             "record defines")
+        if j in pose_set:
+            raise ValueError(f"{path}:{lineno}: {tag} {i} {j} refers to landmark {j}, which is a pose")
+        if points and j not in first:
+            raise ValueError(f"{path}:{lineno}: {tag} {i} {j} refers to landmark {j}, which no VERTEX_XY record "
+                             "defines")
+    ids = np.array(sorted(set(first) | {s[1] for s in sightings}), dtype=np.int64)
+    S = len(sightings)
+    obs = np.zeros((S, 2), dtype=np.int64)
+    if S:
+        obs[:, 0] = np.searchsorted(pose_ids, [s[0] for s in sightings])
+        obs[:, 1] = np.searchsorted(ids, [s[1] for s in sightings])
+    vals = np.array([s[2] for s in sightings], dtype=np.float64).reshape(S, 5)
+    Z = vals[:, :2].copy()
+    Omega = np.empty((S, 2, 2))
+    Omega[:, 0, 0], Omega[:, 0, 1], Omega[:, 1, 0], Omega[:, 1, 1] = vals[:, 2], vals[:, 3], vals[:, 3], vals[:, 4]
+    _check_information(path, Omega, np.array([s[:2] for s in sightings], dtype=np.int64).reshape(S, 2),
+                       [s[3] for s in sightings], [s[4] for s in sightings])
+    L = np.full((ids.size, 2), np.nan)
+    if points:
+        L[np.searchsorted(ids, [p[0] for p in points])] = [p[1] for p in points]
+    else:
+        # no VERTEX_XY: each landmark starts where its first sighting puts it, t_i + R_i z
+        rows, k = np.unique(obs[:, 1], return_index=True)
+        x = X[obs[k, 0]]
+        c, s = np.cos(x[:, 2]), np.sin(x[:, 2])
+        L[rows, 0] = x[:, 0] + c * Z[k, 0] - s * Z[k, 1]
+        L[rows, 1] = x[:, 1] + s * Z[k, 0] + c * Z[k, 1]
+    return dict(landmarks=L, landmark_ids=ids, obs_edges=obs, obs_Z=Z, obs_Omega=Omega)
 
 
 def load_g2o3d(path):
@@ -366,7 +473,7 @@ def load_g2o3d(path):
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"g2o file {path} not found")
-    vid, vval, vline, vtag, eij, evals, eline, etag, _ = _parse(path, 3)
+    vid, vval, vline, vtag, eij, evals, eline, etag, *_ = _parse(path, 3)
 
     def poses(vals, tags, lines):
         out = np.zeros((len(vals), 4, 4))
