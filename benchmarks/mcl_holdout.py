@@ -49,6 +49,7 @@ cached under its configuration and a hash of the ``slamlib`` source that ran it,
 evaluation resumes and two library versions never share a cached run.
 
     nice -n 10 python benchmarks/mcl_holdout.py                          # defaults and plain MCL
+    nice -n 10 python benchmarks/mcl_holdout.py --sets sim logs control --tracking-check --json chapters/data/mcl_holdout.json   # chapter 5's data
     nice -n 10 python benchmarks/mcl_holdout.py --slamlib ../other-tree  # another tree's defaults
     nice -n 10 python benchmarks/mcl_holdout.py --configs overrides --set likelihood_exponent=0.1
     python benchmarks/mcl_holdout.py --compare a.json b.json               # their tables side by side
