@@ -59,6 +59,12 @@ import slamlib as sl  # noqa: E402
 from slamlib import graph_slam3d as g3  # noqa: E402
 from slamlib.datasets import load_g2o, load_g2o3d, load_intel, load_m3500  # noqa: E402
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+# the 2-D GTSAM conversions and the timing helper have one home, the 2-D benchmark
+from bench_graph_slam import _gtsam_poses as gtsam_poses2d  # noqa: E402
+from bench_graph_slam import _gtsam_values as gtsam_values2d  # noqa: E402
+from bench_graph_slam import _median_time  # noqa: E402
+
 try:
     import gtsam
 except ImportError:  # benchmark-only dependency
@@ -67,15 +73,6 @@ except ImportError:  # benchmark-only dependency
 CHI2_RTOL = 1e-6
 RATIO_3D = 2.0
 MAX_ITER = 100
-
-
-def _median_time(fn, repeats):
-    out, times = None, []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times), out
 
 
 def _lm_params():
@@ -119,17 +116,6 @@ def gtsam_graph2d(edges, Z, Omega, x_first):
         graph.add(gtsam.BetweenFactorPose2(int(i), int(j), gtsam.Pose2(*z), gtsam.noiseModel.Gaussian.Information(W)))
     graph.add(gtsam.NonlinearEqualityPose2(0, gtsam.Pose2(*x_first)))
     return graph
-
-
-def gtsam_values2d(X):
-    values = gtsam.Values()
-    for k, x in enumerate(X):
-        values.insert(k, gtsam.Pose2(*x))
-    return values
-
-
-def gtsam_poses2d(values, n):
-    return np.array([[values.atPose2(k).x(), values.atPose2(k).y(), values.atPose2(k).theta()] for k in range(n)])
 
 
 def _run_gtsam(graph, init, repeats):

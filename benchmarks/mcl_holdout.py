@@ -383,6 +383,17 @@ class _Ref:
         self.scan_index, self.mean = d["scan_index"], d["mean"]
 
 
+def _row(t):
+    """One summary row's columns (strict success, share, confidently-wrong updates and trials, CPU), as both
+    tables print them."""
+    lo, hi = wilson(t["confidently_wrong_trials"], t["trials"])
+    return (f"{t['strict']:4d}/{t['trials']:<3d} = {t['strict_rate']:4.0%} "
+            f"[{t['strict_ci'][0]:4.0%}, {t['strict_ci'][1]:4.0%}] {t['share_within']:12.0%} "
+            f"{t['confidently_wrong_updates']:9d}/{t['updates']:<9d} "
+            f"{t['confidently_wrong_trials']:9d}/{t['trials']:<3d} [{lo:4.0%}, {hi:4.0%}]     "
+            f"{t['cpu_s']:8.0f}")
+
+
 def configs_from(args):
     out = {}
     for c in args.configs:
@@ -491,12 +502,8 @@ def compare(paths):
             d = json.load(f)
         for c, row in d["table"].items():
             for s, t in row.items():
-                lo, hi = wilson(t["confidently_wrong_trials"], t["trials"])
-                print(f"{d['slamlib']['hash']:10s} {c:14s} {s:5s} {t['strict']:4d}/{t['trials']:<3d} = {t['strict_rate']:4.0%} "
-                      f"[{t['strict_ci'][0]:4.0%}, {t['strict_ci'][1]:4.0%}] {t['share_within']:12.0%} "
-                      f"{t['confidently_wrong_updates']:9d}/{t['updates']:<9d} "
-                      f"{t['confidently_wrong_trials']:9d}/{t['trials']:<3d} [{lo:4.0%}, {hi:4.0%}]     "
-                      f"{t['cpu_s']:8.0f} {d['settings'].get('digests', {}).get(s, s):>13s}")
+                print(f"{d['slamlib']['hash']:10s} {c:14s} {s:5s} {_row(t)} "
+                      f"{d['settings'].get('digests', {}).get(s, s):>13s}")
         print(f"{'':10s} ({d['slamlib']['path']}; {d['slamlib']['commit']})")
 
 
@@ -630,13 +637,8 @@ def main(argv=None):
           f"{'conf. wrong updates':>19s} {'conf. wrong trials (95 % CI)':>30s} {'CPU [s]':>8s} {'x real time':>11s}")
     for c, row in table.items():
         for s, t in row.items():
-            lo, hi = wilson(t["confidently_wrong_trials"], t["trials"])
-            print(f"{c:14s} {s:5s} {t['strict']:4d}/{t['trials']:<3d} = {t['strict_rate']:4.0%} "
-                  f"[{t['strict_ci'][0]:4.0%}, {t['strict_ci'][1]:4.0%}] {t['share_within']:12.0%} "
-                  f"{t['confidently_wrong_updates']:9d}/{t['updates']:<9d} "
-                  f"{t['confidently_wrong_trials']:9d}/{t['trials']:<3d} [{lo:4.0%}, {hi:4.0%}]     "
-                  f"{t['cpu_s']:8.0f} {t['real_time_factor']:10.1f}x")
-            t["confidently_wrong_trials_ci"] = [lo, hi]
+            print(f"{c:14s} {s:5s} {_row(t)} {t['real_time_factor']:10.1f}x")
+            t["confidently_wrong_trials_ci"] = list(wilson(t["confidently_wrong_trials"], t["trials"]))
             mine = [r for r in runs if r["config"] == c and r["set"] == s]
             if s in tracking:  # the trials that plain MCL tracks from the truth: what global localization can reach
                 sub = [r for r in mine if tracking[s]["ok"][r["trial"]]]
