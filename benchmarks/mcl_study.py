@@ -189,6 +189,35 @@ def truth_at(ref, odom, scans):
     return sl.odometry_motion(ref.mean[k], sl.odometry_from_poses(odom[i], odom[scans]))
 
 
+
+# --------------------------------------------------------------------------- model checks
+SHIFTS = np.round(np.arange(-0.5, 0.501, 0.05), 2)  # [m] along the heading
+
+
+def field_offset(model, trial, angles):
+    """The shift along the heading at which the filter's scan likelihood of a simulated drive peaks.
+
+    The drive's true poses are moved by each of ``SHIFTS`` along their headings and the scan
+    log-likelihoods of all its scans are summed; 0 when the filter's model agrees with the simulator.
+    """
+    truth = trial["truth"]
+    c, s = np.cos(truth[:, 2]), np.sin(truth[:, 2])
+    total = []
+    for d in SHIFTS:
+        moved = truth + np.column_stack([d * c, d * s, np.zeros(len(truth))])
+        total.append(sum(float(sl.scan_log_likelihood(model, moved[k:k + 1], trial["ranges"][k], angles)[0])
+                         for k in range(len(truth))))
+    return float(SHIFTS[int(np.argmax(total))])
+
+
+def range_excess(grid, log, ref, threshold):
+    """Median of measured minus ray-cast range over the log's beams within 1 m of the map's, at the reference track."""
+    z = log.ranges[ref.scan_index]
+    z_star = sl.ray_cast(grid, ref.mean, log.angles, log.max_range, sensor_offset=log.sensor_offset,
+                         threshold=threshold)
+    e = (z - z_star)[(z < log.max_range) & (z_star < log.max_range)]
+    return float(np.median(e[np.abs(e) < 1.0]))
+
 # --------------------------------------------------------------------------- running
 def judge(res, truth):
     err = np.hypot(*(res.estimate[:, :2] - truth[:, :2]).T)
@@ -368,12 +397,21 @@ def main(argv=None):
     print(f"\nthe defaults: {make_params({})}")
     print(f"wall time {wall:.0f} s with {args.jobs} process(es), {len(todo)} new runs, "
           f"CPU in the filters (all {len(runs)} runs) {sum(r['runtime'] for r in runs):.0f} s")
+    model = sl.prepare_mcl(grid, base)
+    offsets = [field_offset(model, t, angles) for t in sims[:20]]
+    checks = dict(sim_field_offset=float(np.median(offsets)), sim_field_offsets=offsets,
+                  log_range_excess={n: range_excess(grid, logs[n], refs[n], base.occupied_threshold) for n in logs})
+    print(f"model checks: the filter's scan likelihood of the first {len(offsets)} simulated drives peaks "
+          f"{checks['sim_field_offset']:+.2f} m along the heading from the truth (median); measured ranges exceed "
+          f"the map's at the logs' reference tracks by a median of "
+          + ", ".join(f"{v:.2f} m (log {n})" for n, v in checks["log_range_excess"].items()))
     if args.json:
         with open(args.json, "w") as f:
             json.dump(dict(settings=dict(updates=args.updates, sim_trials=len(sims), offsets_per_log=args.offsets,
                                          screen_sim=args.screen_sim, screen_offsets=args.screen_offsets,
                                          radius=RADIUS, confident=CONFIDENT, sim_step=SIM_STEP, sim_speed=SIM_SPEED,
-                                         seed=args.seed, log_updates={n: len(r) for n, r in refs.items()}),
+                                         seed=args.seed, log_updates={n: len(r) for n, r in refs.items()},
+                                         model_checks=checks),
                            configs={c: dict(variant=CONFIGS[c][0], overrides=CONFIGS[c][1])
                                     for c in list(args.configs) + list(screen)},
                            table=table, screen=screen_table, cross_validation=cv,

@@ -750,7 +750,9 @@ def mcl_initialize(model, n=None, *, rng, poses=None, scan=None):
             tll = p.likelihood_exponent * _scan_loglik(model, cand, z, a)
             if np.any(np.isfinite(tll)):
                 q = _safe_normalize(tll)
-                idx = _low_variance_n(np.exp(q), n, rng)
+                w = np.exp(q)
+                # n of the candidates by low-variance resampling (Table 4.4 with n draws)
+                idx = particle._low_variance_indices(w / w.sum(), rng.uniform(0.0, 1.0 / n), n)
                 return MCLState(poses=cand[idx], log_weights=_safe_normalize(-tll[idx]))
         poses = maps.sample_free_poses(model.grid, n, rng=rng, threshold=p.free_threshold)
     else:
@@ -760,13 +762,6 @@ def mcl_initialize(model, n=None, *, rng, poses=None, scan=None):
         poses[:, 2] = wrap_angle(poses[:, 2])
     m = poses.shape[0]
     return MCLState(poses=poses, log_weights=np.full(m, -np.log(m)))
-
-
-def _low_variance_n(w, n, rng):
-    """`n` indices drawn from normalised weights `w` (any length) by low-variance resampling (Table 4.4)."""
-    c = np.cumsum(w)
-    ptr = rng.uniform(0.0, 1.0 / n) + np.arange(n) / n  # r + (m - 1) / n
-    return np.minimum(np.searchsorted(c, ptr * c[-1], side="left"), w.size - 1)
 
 
 # --------------------------------------------------------------------------- measurement
@@ -926,7 +921,7 @@ def _mode_preserving_resample(poses, w, rng, n_keep, floor, cell=_CLUSTER_CELL):
     n_modes = max(1, int(_MODE_BUDGET * M) // max(n_keep, 1))  # at most half of the set on minimum shares
     kept = kept[np.argsort(-W[kept], kind="stable")][:n_modes]  # the heaviest modes first
     if kept.size <= 1:
-        return particle._low_variance_indices(w / w.sum(), rng.uniform(0.0, 1.0 / M)), np.full(M, -np.log(M))
+        return particle._low_variance_indices(w / w.sum(), rng.uniform(0.0, 1.0 / M), M), np.full(M, -np.log(M))
     Wk = W[kept] / W[kept].sum()  # lighter modes are dropped; the kept ones are renormalised
     share = (M - n_keep * kept.size) * Wk
     n = n_keep + np.floor(share).astype(np.intp)

@@ -191,7 +191,7 @@ def effective_sample_size(w):
 
 
 # --------------------------------------------------------------------------- resamplers
-def _indices_from_counts(c, positions, k, x):
+def _indices_from_counts(c, positions, k, x, n):
     """Resampled indices ``searchsorted(c, pos, "left")`` (clipped), in O(M).
 
     For sorted positions ``pos`` the index of ``pos[m]`` is the first ``i``
@@ -200,15 +200,15 @@ def _indices_from_counts(c, positions, k, x):
     closed form from ``x``, a real number for which the count is exact unless
     ``x`` lies within round-off of an integer; those few entries are recounted
     against the positions themselves (``positions()`` builds them only then),
-    so the result is exact in floating point.
+    so the result is exact in floating point. There are `n` positions.
     """
     M = c.size
     frac = x - np.floor(x)
     near = (frac < 1e-7) | (frac > 1.0 - 1e-7)
     if near.any():
         k[near] = np.searchsorted(positions(), c[near], side="right")  # exact count of pos <= c
-    np.clip(k, 0, M, out=k)
-    k[-1] = M  # positions beyond cumsum(w)[-1] (round-off) go to the last particle
+    np.clip(k, 0, n, out=k)
+    k[-1] = n  # positions beyond cumsum(w)[-1] (round-off) go to the last particle
     return np.repeat(np.arange(M), np.diff(k, prepend=0))
 
 
@@ -245,21 +245,20 @@ def low_variance_resample(w, *, rng):
     w = as_weights(w, "w")
     check_rng(rng)
     r = rng.uniform(0.0, 1.0 / w.size)  # r = rand(0; M^-1)  (Table 4.4 line 3)
-    return _low_variance_indices(w, r)
+    return _low_variance_indices(w, r, w.size)
 
 
-def _low_variance_indices(w, r):
-    """Table 4.4 for normalised weights `w` and the offset ``r`` in ``[0, 1/M)``."""
-    M = w.size
+def _low_variance_indices(w, r, n):
+    """Table 4.4 for normalised weights `w` and the offset ``r`` in ``[0, 1/n)``: `n` indices (``n = M`` in Table 4.4)."""
     c = np.cumsum(w)  # c = w^[1] + ... + w^[i]  (Table 4.4 lines 4, 10)
 
     def positions():
-        return r + np.arange(M) / M  # U = r + (m - 1) M^-1  (Table 4.4 line 7)
+        return r + np.arange(n) / n  # U = r + (m - 1) n^-1  (Table 4.4 line 7, n draws)
 
-    # i = first index with c_i >= U  (Table 4.4 lines 8-11): the pointers r + m/M <= c_i
-    # number floor((c_i - r) M) + 1; particle i receives the difference of successive counts
-    x = (c - r) * M
-    return _indices_from_counts(c, positions, np.floor(x).astype(np.intp) + 1, x)
+    # i = first index with c_i >= U  (Table 4.4 lines 8-11): the pointers r + m/n <= c_i
+    # number floor((c_i - r) n) + 1; particle i receives the difference of successive counts
+    x = (c - r) * n
+    return _indices_from_counts(c, positions, np.floor(x).astype(np.intp) + 1, x, n)
 
 
 def systematic_resample(w, *, rng):
@@ -314,7 +313,7 @@ def stratified_resample(w, *, rng):
     x = c * M
     f = np.floor(x).astype(np.intp)
     k = f + ((f < M) & (pos[np.minimum(f, M - 1)] <= c))
-    return _indices_from_counts(c, lambda: pos, k, x)
+    return _indices_from_counts(c, lambda: pos, k, x, M)
 
 
 def multinomial_resample(w, *, rng):

@@ -218,10 +218,10 @@ EQUIVALENT = {
         "frac >= 1.0 - 1e-07": LVR_MORE_EXACT,
         "_indices_from_counts: [near = (frac < 1e-07) | (frac > 1.0 - 1e-07)] 1.0 - 1e-07 -> 1e-07 - 1.0":
             LVR_MORE_EXACT,
-        "_indices_from_counts: [np.clip(k, 0, M, out=k)] *": LVR_CLIP,
-        "_indices_from_counts: k[-1] = M -> pass": LVR_LAST,
-        "_indices_from_counts: [k[-1] = M] k -> c": LVR_LAST,
-        "_indices_from_counts: [k[-1] = M] k -> x": LVR_LAST,
+        "_indices_from_counts: [np.clip(k, 0, n, out=k)] *": LVR_CLIP,
+        "_indices_from_counts: k[-1] = n -> pass": LVR_LAST,
+        "_indices_from_counts: [k[-1] = n] k -> c": LVR_LAST,
+        "_indices_from_counts: [k[-1] = n] k -> x": LVR_LAST,
     },
     "landmark_likelihood": {},
     "ekf_slam_predict": {
@@ -355,7 +355,7 @@ NOT_KILLED = {
             "the grader's controls have dt > 0",
     },
     "low_variance_resample": {
-        "_low_variance_indices: [return r + np.arange(M) / M] r -> w":
+        "_low_variance_indices: [return r + np.arange(n) / n] r -> w":
             "the pointers of the exact recount built from w instead of r: reached only for entries within 1e-7 "
             "of a pointer; in the grader's tie case the wrong pointers happen to give the same count",
         "_indices_from_counts: [near = (frac < 1e-07) | (frac > 1.0 - 1e-07)] frac < 1e-07 -> frac > 1e-07":

@@ -7,6 +7,8 @@ with the map (scan end points on walls, the estimate in free space).
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy.special import logsumexp
@@ -422,11 +424,14 @@ def test_cmu_log_global_localization_converges_in_most_runs(wean):
 
 @pytest.mark.slow
 def test_cmu_run_settled_in_the_wrong_corridor_recovers(wean):
-    """A global run of plain MCL that has settled far from the robot is abandoned by the default filter.
+    """A global run of plain MCL that has settled far from the robot is abandoned by sensor resetting.
 
     Seed 1 of plain MCL (Table 8.2) from a uniform cloud sits 18.8 m from the reference after 40
     updates with a spread of 0.24 m: sure and wrong. Continued from that particle set, plain MCL stays
-    wrong; the default filter (sensor resetting) leaves the wrong place and ends near the reference.
+    wrong. Sensor resetting with the kidnap prior ``p_min = 0.01`` leaves the wrong place and ends near
+    the reference; the default prior (``1e-4``, a hundred times rarer failures) also leaves it, but more
+    slowly, and is not yet near the reference when this short log ends. That is the trade the prior
+    makes: the study (``benchmarks/mcl_study.py``) measures it over many trials.
     """
     grid, log, params, model, ref = wean
     s0 = 39
@@ -437,18 +442,22 @@ def test_cmu_run_settled_in_the_wrong_corridor_recovers(wean):
     err0 = np.hypot(*(lost.estimate[s0, :2] - ref.mean[s0, :2]))
     assert err0 > 10.0 and lost.spread[s0] < 0.5, (err0, lost.spread[s0])
     start = ref.scan_index[s0]
+    frequent = mcl.prepare_mcl(grid, dataclasses.replace(params, augmented=mcl.AugmentedParams(p_min=0.01)))
     err = {}
-    for variant in ("mcl", "augmented"):
-        res = mcl.run_mcl(model, log.laser_pose[start:], log.ranges[start:], log.angles, rng=np.random.default_rng(2),
+    for name, variant, m in (("mcl", "mcl", model), ("default", "augmented", model), ("p 0.01", "augmented", frequent)):
+        res = mcl.run_mcl(m, log.laser_pose[start:], log.ranges[start:], log.angles, rng=np.random.default_rng(2),
                           init=lost.snapshots[0], times=log.laser_t[start:], variant=variant)
         j = np.searchsorted(ref.scan_index, res.scan_index + start)
         np.testing.assert_array_equal(ref.scan_index[j], res.scan_index + start)
-        err[variant] = np.hypot(*(res.estimate[:, :2] - ref.mean[j, :2]).T)
+        err[name] = np.hypot(*(res.estimate[:, :2] - ref.mean[j, :2]).T)
     last = slice(-30, None)  # the last 30 updates (about 20 s)
     assert np.median(err["mcl"][last]) > 2.0 and err["mcl"][-1] > 2.0, err["mcl"][last]
-    # the default leaves the wrong place; on this short log it is back near the track at the end
+    # with p = 0.01 the filter is back near the track at the end of this short log
     # (1.0 m here, not yet within 0.5 m: on the 240 s log 2 every one of 20 global runs ends within 0.5 m)
-    assert err["augmented"][-1] < 1.5 and err["augmented"][-1] < 0.1 * err0, err["augmented"][last]
+    assert err["p 0.01"][-1] < 1.5 and err["p 0.01"][-1] < 0.1 * err0, err["p 0.01"][last]
+    # the default leaves the wrong place too, in the last updates of the log, and is still on its way
+    assert np.all(err["default"][-5:] < 0.5 * err0), err["default"][last]
+    assert err["default"][-1] > err["p 0.01"][-1]
 
 
 # --------------------------------------------------------------------------- recovery: the injected component
@@ -610,7 +619,7 @@ def test_mode_preserving_resampling_with_one_mode_is_low_variance_resampling():
     w /= w.sum()
     idx, log_w = mcl._mode_preserving_resample(poses, w, np.random.default_rng(7), 100, 1e-6)
     r = np.random.default_rng(7).uniform(0.0, 1.0 / 500)
-    np.testing.assert_array_equal(idx, sl.particle._low_variance_indices(w, r))
+    np.testing.assert_array_equal(idx, sl.particle._low_variance_indices(w, r, w.size))
     np.testing.assert_allclose(log_w, -np.log(500))
 
 

@@ -109,6 +109,18 @@ def test_low_variance_matches_table_4_4_loop():
         np.testing.assert_array_equal(sl.systematic_resample(w, rng=np.random.default_rng(seed)), b)
 
 
+def test_low_variance_indices_draw_n_of_m():
+    """Table 4.4 with n pointers r + m/n over M weights (MCL's start draws n particles from many candidates)."""
+    for seed in range(300):
+        g = np.random.default_rng(seed)
+        M, n = int(g.integers(1, 400)), int(g.integers(1, 400))
+        w = _weights(seed, M)
+        w = w / w.sum()
+        r = g.uniform(0.0, 1.0 / n)
+        expected = np.minimum(np.searchsorted(np.cumsum(w), r + np.arange(n) / n, side="left"), M - 1)
+        np.testing.assert_array_equal(sl.particle._low_variance_indices(w, r, n), expected, err_msg=f"seed {seed}")
+
+
 def test_low_variance_draws_exactly_one_uniform():
     rng = np.random.default_rng(5)
     sl.low_variance_resample(np.ones(10), rng=rng)
