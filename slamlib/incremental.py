@@ -38,12 +38,11 @@ import time
 from typing import NamedTuple
 
 import numpy as np
-import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
 from ._checks import as_array, as_count, as_edges, as_information, as_scalar
 from .angles import wrap_angle
-from .graph_slam import compose, pose_graph_chi2, pose_graph_errors
+from .graph_slam import compose, pose_graph_chi2, pose_graph_system
 
 __all__ = ["IncrementalResult", "arrival_order", "incremental_pose_graph"]
 
@@ -96,38 +95,20 @@ def arrival_order(edges):
     return np.lexsort((~odometry, edges.max(axis=1)))
 
 
-def _gauss_newton_part(X, edges, Z, Omega, row, n_free):
-    """One Gauss-Newton step of the poses with ``row >= 0`` (their row in the system), the others held.
+def _gauss_newton_part(X, edges, Z, Omega, row):
+    """One Gauss-Newton step of the poses with ``row >= 0``, the others held.
 
-    ``H dx = -b`` with ``H = sum J^T Omega J`` and ``b = sum J^T Omega e`` over the given edges, the
-    columns of held poses dropped; the errors and Jacobians are :func:`pose_graph_errors`'.
-    Returns the new poses of all rows of `X`.
+    ``H dx = -b`` is :func:`~slamlib.graph_slam.pose_graph_system`'s, with the held poses
+    fixed: the same errors, Jacobians and assembly as the batch solver's. Returns the new poses
+    of all rows of `X`.
     """
-    e, A, B = pose_graph_errors(X, edges, Z)
-    WA, WB = Omega @ A, Omega @ B
-    At, Bt = np.swapaxes(A, 1, 2), np.swapaxes(B, 1, 2)
-    Hab = At @ WB
-    ri, rj = row[edges[:, 0]], row[edges[:, 1]]
-    rows, cols, vals = [], [], []
-    k3 = np.arange(3)
-    # H += J^T Omega J, block by block  (Grisetti et al. 2010, Eqs. 26-28)
-    for r, c, h in ((ri, ri, At @ WA), (ri, rj, Hab), (rj, ri, np.swapaxes(Hab, 1, 2)), (rj, rj, Bt @ WB)):
-        keep = (r >= 0) & (c >= 0)
-        rows.append(np.broadcast_to((3 * r[keep])[:, None, None] + k3[:, None], (keep.sum(), 3, 3)).ravel())
-        cols.append(np.broadcast_to((3 * c[keep])[:, None, None] + k3[None, :], (keep.sum(), 3, 3)).ravel())
-        vals.append(h[keep].ravel())
-    N = 3 * n_free
-    H = sp.csc_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(N, N))
-    We = np.einsum("kij,kj->ki", Omega, e)
-    b = np.zeros((n_free + 1, 3))  # the last row collects the held poses' terms
-    np.add.at(b, np.where(ri >= 0, ri, n_free), np.einsum("kji,kj->ki", A, We))
-    np.add.at(b, np.where(rj >= 0, rj, n_free), np.einsum("kji,kj->ki", B, We))
+    free = np.flatnonzero(row >= 0)
+    H, b, _ = pose_graph_system(X, edges, Z, Omega, fixed=np.flatnonzero(row < 0))
     # H dx = -b  (Grisetti et al. 2010, Algorithm 1 line 13); H is symmetric positive definite: no pivoting
     dx = splu(H, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-              options={"SymmetricMode": True}).solve(-b[:-1].ravel()).reshape(-1, 3)
-    free = np.flatnonzero(row >= 0)
+              options={"SymmetricMode": True}).solve(-b).reshape(-1, 3)
     out = X.copy()
-    out[free] += dx[row[free]]
+    out[free] += dx  # pose_graph_system keeps the free poses in their order
     out[free, 2] = wrap_angle(out[free, 2])
     return out
 
@@ -222,7 +203,7 @@ def incremental_pose_graph(edges, Z, Omega, *, window=60, threshold=0.01, snapsh
                 row[ids] = -1
                 row[ids[free]] = np.arange(int(free.sum()))
                 local = np.searchsorted(ids, sub)
-                new = _gauss_newton_part(X[ids], local, Z[sel], Omega[sel], row[ids], int(free.sum()))
+                new = _gauss_newton_part(X[ids], local, Z[sel], Omega[sel], row[ids])
                 change = np.abs(new - X[ids])
                 change[:, 2] = np.abs(wrap_angle(new[:, 2] - X[ids, 2]))
                 X[ids] = new
