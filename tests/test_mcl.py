@@ -682,10 +682,11 @@ def test_wean_log_2_the_right_mode_survives_scans_that_favour_a_look_alike():
 
     The filter starts in the right place (a small cloud around the reference track of
     ``benchmarks/mcl_success.py`` at update 290, scan 1475). Over updates 300-311 the scans fit the
-    map worse there than at a look-alike place that sensor resetting brings in. Plain resampling then
-    leaves the right place with a handful of particles or none; mode-preserving resampling (the
-    default) keeps its 100, and the filter is back on the reference track at update 350 (scan 1766).
-    The poses are the reference track's.
+    map worse there than at a look-alike place that sensor resetting brings in with the kidnap prior
+    ``p_min = 0.01``. Plain resampling then leaves the right place with a handful of particles or none;
+    mode-preserving resampling (the default) keeps its 100, and the filter is back on the reference
+    track at update 350 (scan 1766). With the default prior (``1e-4``) the look-alike is not brought in
+    and the filter keeps the right place throughout. The poses are the reference track's.
     """
     from slamlib.datasets import cmu
 
@@ -695,9 +696,10 @@ def test_wean_log_2_the_right_mode_survives_scans_that_favour_a_look_alike():
     checks = {18: (52.105, 38.580), 20: (52.509, 38.511), 22: (52.902, 38.582)}  # update - 290: reference position
     end = np.array([55.322, 38.971])
     near = {}
-    for mp in (0, 100):
+    frequent = mcl.AugmentedParams(p_min=0.01)
+    for mp, aug in ((0, frequent), (100, frequent), ("default", mcl.AugmentedParams())):
         model = mcl.prepare_mcl(grid, mcl.MCLParams(sensor_offset=log.sensor_offset, z_max=log.max_range,
-                                                    mode_particles=mp))
+                                                    mode_particles=100 if mp == "default" else mp, augmented=aug))
         rng = np.random.default_rng(0)
         init = start + rng.normal(size=(10_000, 3)) * [0.1, 0.1, 0.03]
         res = mcl.run_mcl(model, log.laser_pose[a:b + 1], log.ranges[a:b + 1], log.angles, rng=rng, init=init,
@@ -709,6 +711,7 @@ def test_wean_log_2_the_right_mode_survives_scans_that_favour_a_look_alike():
             assert np.hypot(*(res.estimate[-1, :2] - end)) < 0.5, res.estimate[-1]
     assert min(near[100]) >= 100, near
     assert min(near[0]) < 20, near
+    assert min(near["default"]) > 0.5 * 10_000, near  # nearly all particles stay in the right place
 
 
 # --------------------------------------------------------------------------- the study harness (benchmarks/mcl_study.py)
