@@ -75,8 +75,7 @@ CONFIGS = {
     "no sensor resetting (p_min 0)": ("augmented", {"augmented.p_min": 0.0}),
     "tempering tau 0.3": ("augmented", {"likelihood_exponent": 0.3}),
     "KLD-sampling": ("kld", {}),
-    "kidnap prior p_min 0.01": ("augmented", {"augmented.p_min": 0.01}),
-    "kidnap prior p_min 1e-6": ("augmented", {"augmented.p_min": 1e-6}),
+    "kidnap prior p_min 1e-4": ("augmented", {"augmented.p_min": 1e-4}),
 }
 
 _WORK = {}
