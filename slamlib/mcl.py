@@ -132,10 +132,10 @@ class AugmentedParams:
     (people in the way, a door left open), and wins on windows of 150 updates;
     but a filter that has settled on a look-alike then leaves it only rarely,
     and over the whole of Wean Hall log 2, whose first part is ambiguous, the
-    rarer rate ends near the robot far less often. Table 8.3's adaptive term is off (``alpha_slow = alpha_fast = 0``):
-    on the Wean Hall logs the average likelihood of a filter in the right
-    place varies from scan to scan by a factor of about 1.7 (standard deviation
-    0.55 of its log), so ``1 - w_fast / w_slow`` averages 0.11 during normal
+    rarer rate ends near the robot far less often. Table 8.3's adaptive term
+    is off (``alpha_slow = alpha_fast = 0``): on the Wean Hall logs the
+    average likelihood of a filter in the right place varies from scan to scan
+    by a factor of about 1.7 (standard deviation 0.55 of its log), so ``1 - w_fast / w_slow`` averages 0.11 during normal
     tracking for any of the usual decay rates, which keeps look-alike places
     populated and made the estimate hop between them. Choose
     ``alpha_slow < alpha_fast`` to switch it on (the Wean Hall chapter does so
