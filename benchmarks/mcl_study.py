@@ -188,7 +188,6 @@ def truth_at(ref, odom, scans):
     return sl.odometry_motion(ref.mean[k], sl.odometry_from_poses(odom[i], odom[scans]))
 
 
-
 # --------------------------------------------------------------------------- model checks
 SHIFTS = np.round(np.arange(-0.5, 0.501, 0.05), 2)  # [m] along the heading
 

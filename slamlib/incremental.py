@@ -95,15 +95,14 @@ def arrival_order(edges):
     return np.lexsort((~odometry, edges.max(axis=1)))
 
 
-def _gauss_newton_part(X, edges, Z, Omega, row):
-    """One Gauss-Newton step of the poses with ``row >= 0``, the others held.
+def _gauss_newton_part(X, edges, Z, Omega, free):
+    """One Gauss-Newton step of the poses where the boolean mask `free` is true, the others held.
 
     ``H dx = -b`` is :func:`~slamlib.graph_slam.pose_graph_system`'s, with the held poses
     fixed: the same errors, Jacobians and assembly as the batch solver's. Returns the new poses
     of all rows of `X`.
     """
-    free = np.flatnonzero(row >= 0)
-    H, b, _ = pose_graph_system(X, edges, Z, Omega, fixed=np.flatnonzero(row < 0))
+    H, b, _ = pose_graph_system(X, edges, Z, Omega, fixed=np.flatnonzero(~free))
     # H dx = -b  (Grisetti et al. 2010, Algorithm 1 line 13); H is symmetric positive definite: no pivoting
     dx = splu(H, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
               options={"SymmetricMode": True}).solve(-b).reshape(-1, 3)
@@ -184,7 +183,6 @@ def incremental_pose_graph(edges, Z, Omega, *, window=60, threshold=0.01, snapsh
     snapshots = {}
     n = 1
     lo_end, hi_end = edges.min(axis=1), edges.max(axis=1)
-    row = np.full(n_total, -1, dtype=np.int64)
     for k in range(E):
         t0 = time.perf_counter()
         i = int(edges[k, 0])
@@ -200,14 +198,11 @@ def incremental_pose_graph(edges, Z, Omega, *, window=60, threshold=0.01, snapsh
                 sub = edges[sel]
                 ids = np.unique(sub)
                 free = ids >= lo
-                row[ids] = -1
-                row[ids[free]] = np.arange(int(free.sum()))
                 local = np.searchsorted(ids, sub)
-                new = _gauss_newton_part(X[ids], local, Z[sel], Omega[sel], row[ids])
+                new = _gauss_newton_part(X[ids], local, Z[sel], Omega[sel], free)
                 change = np.abs(new - X[ids])
                 change[:, 2] = np.abs(wrap_angle(new[:, 2] - X[ids, 2]))
                 X[ids] = new
-                row[ids] = -1
                 if lo == 1:
                     batch_steps.append(k)
                     break
