@@ -26,7 +26,7 @@ import numpy as np
 from scipy import ndimage
 from scipy.special import ndtr
 
-from ._checks import as_array, as_poses, as_scalar, as_vector, check_batch, check_type
+from ._checks import as_array, as_index, as_poses, as_scalar, as_vector, check_batch, check_type
 from .angles import _wrap1, wrap_angle
 from .maps import OccupancyGrid
 
@@ -36,6 +36,8 @@ __all__ = [
     "beam_range_finder_model",
     "beam_range_finder_log_likelihood",
     "ray_cast",
+    "RangeTable",
+    "range_table",
     "LikelihoodField",
     "likelihood_field",
     "likelihood_field_log_likelihood",
@@ -388,6 +390,156 @@ def _dda(occ, res, origin, poses, angles, max_range, offset):
         row, col, t_x, t_y, d_x, d_y, step_r, step_c = (
             a[keep] for a in (row, col, t_x, t_y, d_x, d_y, step_r, step_c))
     return out.reshape(P, K)
+
+
+# --------------------------------------------------------------------------- pre-cached ray casting
+@dataclass(frozen=True, eq=False)
+class RangeTable:
+    """Ray casting pre-cached per grid cell and beam direction.
+
+    The expected range ``z^*`` of a beam depends on the sensor's position and
+    the beam's direction in the world only, so it can be kept in a table
+    indexed by the cell holding the sensor and the direction rounded to one of
+    ``n_angles`` bins (Thrun et al., Sec. 6.3.4). Entries are cast the first
+    time they are asked for (from the cell's centre at the bin's direction,
+    with :func:`ray_cast`'s exact traversal) and kept, so a filter pays for
+    each place and direction once; the values do not depend on the order in
+    which they were asked for. Build it with :func:`range_table`.
+
+    Attributes
+    ----------
+    grid : OccupancyGrid
+        The map.
+    threshold : float
+        Occupancy from which a cell blocks beams.
+    max_range : float
+        Range of a beam that hits nothing.
+    n_angles : int
+        Direction bins over the full circle.
+    index : ndarray of int, shape (H, W)
+        Row of `table` for each cell of the table's region, ``-1`` elsewhere
+        (beams from there are cast exactly, every time).
+    cells : ndarray of int, shape (cells, 2)
+        ``(row, col)`` of each row of `table`.
+    table : ndarray of float16, shape (cells, n_angles)
+        Cached ranges (half precision: within 0.03 m below 64 m, 0.06 m
+        beyond); NaN where not yet cast.
+    occ : ndarray of bool, shape (H, W)
+        The cells that block beams.
+    """
+
+    grid: OccupancyGrid
+    threshold: float
+    max_range: float
+    n_angles: int
+    index: np.ndarray
+    cells: np.ndarray
+    table: np.ndarray
+    occ: np.ndarray
+
+    def ranges(self, poses, angles, *, sensor_offset=0.0):
+        """Expected ranges of beams from poses, read from (and filling) the table.
+
+        Parameters
+        ----------
+        poses : ndarray, shape (P, 3)
+            Robot poses ``[x, y, theta]``.
+        angles : ndarray, shape (K,)
+            Beam angles relative to the heading.
+        sensor_offset : float, keyword-only
+            Distance of the sensor ahead of the robot centre [m].
+
+        Returns
+        -------
+        ndarray, shape (P, K)
+            The range cast from the centre of the cell holding each sensor
+            along the beam direction rounded to the table's bins; the exact
+            :func:`ray_cast` for sensors outside the table's region.
+
+        References
+        ----------
+        Thrun, Burgard & Fox (2005), Sec. 6.3.4 (pre-caching the ray
+        casting).
+        """
+        poses = np.atleast_2d(as_poses(poses, "poses", ndim=(1, 2)))
+        angles = as_array(angles, "angles", ndim=1)
+        sensor_offset = as_scalar(sensor_offset, "sensor_offset")
+        g = self.grid
+        th = poses[:, 2]
+        sxy = np.column_stack([poses[:, 0] + sensor_offset * np.cos(th), poses[:, 1] + sensor_offset * np.sin(th)])
+        rc = g.world_to_cell(sxy)
+        inb = g.in_bounds(rc)
+        row = np.full(poses.shape[0], -1, dtype=np.int64)
+        row[inb] = self.index[rc[inb, 0], rc[inb, 1]]
+        cached = row >= 0
+        out = np.empty((poses.shape[0], angles.shape[0]))
+        if np.any(~cached):
+            out[~cached] = _dda(self.occ, g.resolution, g.origin, poses[~cached], angles, self.max_range,
+                                sensor_offset)
+        if np.any(cached):
+            n = self.n_angles
+            b = np.rint((th[cached, None] + angles[None, :]) * (n / (2.0 * np.pi))).astype(np.int64) % n
+            flat = self.table.reshape(-1)
+            lin = row[cached, None] * n + b
+            vals = flat[lin]
+            miss = np.isnan(vals)
+            if miss.any():
+                todo = np.unique(lin[miss])
+                cells = self.cells[todo // n]
+                centre = g.origin + (cells[:, ::-1] + 0.5) * g.resolution
+                src = np.column_stack([centre, (todo % n) * (2.0 * np.pi / n)])
+                flat[todo] = _dda(self.occ, g.resolution, g.origin, src, np.zeros(1), self.max_range, 0.0)[:, 0]
+                vals = flat[lin]
+            out[cached] = np.where(vals >= self.table.dtype.type(self.max_range), self.max_range, vals)
+        return out
+
+
+def range_table(grid, *, max_range, threshold=0.5, n_angles=360, region=None):
+    """An empty :class:`RangeTable` for a grid (entries are cast on first use).
+
+    Parameters
+    ----------
+    grid : OccupancyGrid
+        The map.
+    max_range : float, keyword-only
+        Range of a beam that hits nothing.
+    threshold : float, keyword-only
+        Occupancy from which a cell blocks beams.
+    n_angles : int, keyword-only
+        Direction bins over the full circle (360: one degree; at 5 m a beam
+        is then at most 0.044 m to the side of the direction it stands for).
+    region : ndarray of bool, shape (H, W), optional
+        Cells whose beams are cached (default: the known cells that do not
+        block beams). Memory is ``2 n_angles`` bytes per cell of the region.
+
+    Returns
+    -------
+    RangeTable
+
+    References
+    ----------
+    Thrun, Burgard & Fox (2005), Sec. 6.3.4.
+    """
+    grid = check_type(grid, OccupancyGrid, "grid")
+    max_range = as_scalar(max_range, "max_range", positive=True)
+    threshold = as_scalar(threshold, "threshold")
+    n_angles = as_index(n_angles, "n_angles", lower=1)
+    occ = grid.occupied_mask(threshold)
+    if region is None:
+        region = ~occ & ~np.isnan(grid.occupancy)
+    else:
+        region = np.asarray(region)
+        if region.dtype != bool or region.shape != grid.shape:
+            raise ValueError(f"region must be a boolean array of shape {grid.shape}, got "
+                             f"{region.dtype} {region.shape}")
+    cells = np.argwhere(region)
+    index = np.full(grid.shape, -1, dtype=np.int64)
+    index[cells[:, 0], cells[:, 1]] = np.arange(cells.shape[0])
+    for a in (index, cells, occ):
+        a.setflags(write=False)
+    table = np.full((cells.shape[0], n_angles), np.nan, dtype=np.float16)
+    return RangeTable(grid=grid, threshold=threshold, max_range=max_range, n_angles=n_angles, index=index,
+                      cells=cells, table=table, occ=occ)
 
 
 # --------------------------------------------------------------------------- likelihood field

@@ -174,6 +174,10 @@ SPECS = {
                                    "angles": np.array([0.0, 1.0]), "max_range": 5.0},
                      bad={"grid": A("obj"), "poses": A("arr"), "angles": A("free"),
                           "max_range": A("scalar", neg=True)}),
+    "range_table": spec(sl.range_table, {"grid": GRID},
+                        {"max_range": 5.0, "n_angles": 36, "region": np.ones(GRID.shape, dtype=bool)},
+                        bad={"grid": A("obj"), "max_range": A("scalar", neg=True), "n_angles": A("count"),
+                             "region": A("mask", none_ok=True)}),
     "likelihood_field": spec(sl.likelihood_field, {"grid": GRID}, {"max_dist": 2.0},
                              bad={"grid": A("obj"), "max_dist": A("scalar", neg=True)}),
     "likelihood_field_log_likelihood": spec(

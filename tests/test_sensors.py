@@ -216,6 +216,69 @@ def test_ray_cast_bad_inputs():
         sl.ray_cast(g, np.zeros(3), np.zeros(1), -1.0)
 
 
+# ---------------------------------------------------------------- pre-cached ray casting
+def binned_source(grid, poses, angles, n, offset):
+    """Cell centre of each sensor and each beam's direction rounded to n bins: what the table casts."""
+    th = poses[:, 2]
+    sxy = np.c_[poses[:, 0] + offset * np.cos(th), poses[:, 1] + offset * np.sin(th)]
+    centre = grid.cell_to_world(grid.world_to_cell(sxy))
+    step = 2 * np.pi / n
+    return centre, np.rint((th[:, None] + angles[None, :]) / step) * step
+
+
+def test_range_table_casts_from_cell_centres_at_binned_directions():
+    g = box_grid()
+    rng = np.random.default_rng(11)
+    poses = np.c_[rng.uniform(-2.5, 2.5, 30), rng.uniform(-1.5, 1.5, 30), rng.uniform(-np.pi, np.pi, 30)]
+    angles = np.linspace(-np.pi / 2, np.pi / 2, 7)
+    table = sl.range_table(g, max_range=100.0, n_angles=72)
+    r = table.ranges(ro(poses), ro(angles), sensor_offset=0.2)
+    centre, direction = binned_source(g, poses, angles, 72, 0.2)
+    ref = np.array([[box_distance(c, d) for d in row] for c, row in zip(centre, direction)])
+    np.testing.assert_allclose(r, ref, atol=0.01)  # half precision: 0.002 m at these ranges
+    # and it is the exact ray cast up to the quantisation of the sensor (half a cell's diagonal, here
+    # stretched by the beam's slope) and of the direction (2.5 degrees at up to 7 m)
+    exact = sl.ray_cast(g, poses, angles, 100.0, sensor_offset=0.2)
+    assert np.median(np.abs(r - exact)) < 0.1
+    # a second ask reads what the first one cast: same values, nothing new cast
+    filled = np.count_nonzero(~np.isnan(table.table))
+    np.testing.assert_array_equal(table.ranges(poses, angles, sensor_offset=0.2), r)
+    assert np.count_nonzero(~np.isnan(table.table)) == filled == np.unique(
+        np.c_[g.world_to_cell(centre).repeat(7, 0), np.rint(direction.ravel() / (2 * np.pi / 72)) % 72],
+        axis=0).shape[0]
+
+
+def test_range_table_does_not_depend_on_the_order_of_asking():
+    g = load_cmu_map()
+    rng = np.random.default_rng(12)
+    poses = sl.sample_free_poses(g, 400, rng=rng, threshold=0.1)
+    angles = np.linspace(-np.pi / 2, np.pi / 2, 19)
+    a = sl.range_table(g, max_range=81.83, threshold=0.9)
+    b = sl.range_table(g, max_range=81.83, threshold=0.9)
+    ra = a.ranges(poses, angles, sensor_offset=0.25)
+    rb = np.vstack([b.ranges(poses[200:], angles, sensor_offset=0.25), b.ranges(poses[:200], angles, sensor_offset=0.25)])
+    np.testing.assert_array_equal(ra, np.vstack([rb[200:], rb[:200]]))
+    np.testing.assert_array_equal(np.isnan(a.table), np.isnan(b.table))
+    # max-range beams come back as max_range exactly (not its half-precision neighbour)
+    assert np.any(ra == 81.83) and np.all(ra <= 81.83)
+
+
+def test_range_table_outside_its_region_casts_exactly():
+    g = box_grid()
+    region = np.zeros(g.shape, dtype=bool)
+    region[:, :30] = True  # the left half of the room only
+    table = sl.range_table(g, max_range=100.0, n_angles=36, region=region)
+    poses = np.array([[1.03, 0.37, 0.3], [-1.0, 0.2, 2.0]])  # right half (exact), left half (cached)
+    angles = np.array([0.0, 0.5])
+    r = table.ranges(poses, angles)
+    np.testing.assert_allclose(r[0], sl.ray_cast(g, poses[0], angles, 100.0), atol=1e-12)
+    centre, direction = binned_source(g, poses[1:], angles, 36, 0.0)
+    np.testing.assert_allclose(r[1], [box_distance(centre[0], d) for d in direction[0]], atol=0.01)
+    assert np.count_nonzero(~np.isnan(table.table)) == 2
+    with pytest.raises(ValueError, match="region"):
+        sl.range_table(g, max_range=5.0, region=region[:, :10])
+
+
 # ---------------------------------------------------------------- likelihood field
 def test_likelihood_field_matches_brute_force_distance():
     rng = np.random.default_rng(6)
