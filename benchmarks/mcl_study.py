@@ -73,9 +73,11 @@ CONFIGS = {
     "estimate at the mode's mean": ("augmented", {"estimate_radius": 0.0}),
     "no mode-preserving resampling": ("augmented", {"mode_particles": 0}),
     "no sensor resetting (p_min 0)": ("augmented", {"augmented.p_min": 0.0}),
-    "tempering tau 0.3": ("augmented", {"likelihood_exponent": 0.3}),
+    "tempering tau 0.2": ("augmented", {"likelihood_exponent": 0.2}),
+    "tempering tau 0.05": ("augmented", {"likelihood_exponent": 0.05}),
     "KLD-sampling": ("kld", {}),
     "kidnap prior p_min 1e-4": ("augmented", {"augmented.p_min": 1e-4}),
+    "beam model (pre-cached ray casting)": ("augmented", {"model": "beam"}),
 }
 
 _WORK = {}

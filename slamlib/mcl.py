@@ -127,17 +127,17 @@ class AugmentedParams:
     at 0.2 m per update) the filter allows that it is somewhere else than the
     belief says. The rate trades recovery against stability, and
     ``benchmarks/mcl_study.py`` and ``benchmarks/mcl_success.py`` measure both
-    sides (chapter 5): a rarer rate (``1e-4``) keeps a filter that is right
-    from being handed to a look-alike place that explains a few scans better
-    (people in the way, a door left open), and wins on windows of 150 updates;
-    but a filter that has settled on a look-alike then leaves it only rarely,
-    and over the whole of Wean Hall log 2, whose first part is ambiguous, the
-    rarer rate ends near the robot far less often. Table 8.3's adaptive term
+    sides (chapter 5): a rarer rate (``1e-4``) is meant to keep a filter that
+    is right from being handed to a look-alike place that explains a few scans
+    better (people in the way, a door left open), but on windows of 150
+    updates it did no measurably better, while a filter that has settled on a
+    look-alike leaves it only rarely: over the whole of Wean Hall log 2, whose
+    first part is ambiguous, the rarer rate ends near the robot far less often. Table 8.3's adaptive term
     is off (``alpha_slow = alpha_fast = 0``): on the Wean Hall logs the
     average likelihood of a filter in the right place varies from scan to scan
-    by a factor of about 1.7 (standard deviation 0.55 of its log), so ``1 - w_fast / w_slow`` averages 0.11 during normal
-    tracking for any of the usual decay rates, which keeps look-alike places
-    populated and made the estimate hop between them. Choose
+    (chapter 5 measures it), so ``1 - w_fast / w_slow`` stays well above zero
+    during normal tracking for any of the usual decay rates, which keeps
+    look-alike places populated and made the estimate hop between them. Choose
     ``alpha_slow < alpha_fast`` to switch it on (the Wean Hall chapter does so
     for a kidnapping).
 
@@ -253,6 +253,13 @@ class MCLParams:
     model : {"likelihood_field", "beam"}
         Measurement model: the likelihood field (Table 6.3) or the beam model
         with ray casting (Table 6.1).
+    ray_cache_angles : int
+        Beam model only: the ray casting is pre-cached (Sec. 6.3.4,
+        :func:`~slamlib.sensors.range_table`) per cell of the free space and
+        direction, in this many direction bins over the circle; ``0`` casts
+        every beam of every particle exactly. Each place and direction is cast
+        once, the first time a particle asks for it, so a run pays for the
+        places its particles visit.
     beam_step : int
         Use every ``beam_step``-th beam of a scan (10 turns 180 beams into 18).
     z_max : float
@@ -270,7 +277,14 @@ class MCLParams:
     likelihood_exponent : float
         The scan likelihood is raised to this power (tempered) before it
         multiplies the weights: beams of a real scan are not independent, and
-        the product of their likelihoods is far too peaked (Sec. 6.3.4).
+        the product of their likelihoods is far too peaked (Sec. 6.3.4). The
+        default, 0.1, was chosen against 0.2 and 0.05 on the trials of
+        ``benchmarks/mcl_study.py`` and checked on sets the choice had not
+        seen (trials of 150 updates, the whole of both logs with
+        ``benchmarks/mcl_success.py``, ``benchmarks/mcl_holdout.py``);
+        chapter 5 shows the comparison. A flatter likelihood keeps a look-alike
+        place in the belief until the scans tell it apart instead of betting on
+        one; a much flatter one (0.05) converges too slowly.
     resample_threshold : float
         Resample when ``ESS < resample_threshold * M``; ``1.0`` resamples at
         every step as in Table 8.2.
@@ -340,6 +354,7 @@ class MCLParams:
     n_particles: int = 10_000
     alpha: tuple[float, float, float, float] = (0.05, 0.005, 0.05, 0.005)
     model: str = "likelihood_field"
+    ray_cache_angles: int = 360
     beam_step: int = 10
     z_max: float = 81.83
     sigma_hit: float = 0.3
@@ -349,7 +364,7 @@ class MCLParams:
     w_max: float = 0.05
     w_rand: float = 0.05
     max_dist: float = 2.0
-    likelihood_exponent: float = 0.2
+    likelihood_exponent: float = 0.1
     resample_threshold: float = 0.5
     min_translation: float = 0.2
     min_rotation: float = 0.2
@@ -373,6 +388,7 @@ class MCLParams:
         if self.model not in _MODELS:
             raise ValueError(f"model must be one of {_MODELS}, got {self.model!r}")
         as_index(self.beam_step, "beam_step", lower=1)
+        as_index(self.ray_cache_angles, "ray_cache_angles")
         for name in ("z_max", "sigma_hit", "lambda_short", "max_dist", "likelihood_exponent"):
             as_scalar(getattr(self, name), name, positive=True)
         for name in ("w_hit", "w_short", "w_max", "w_rand", "min_translation", "min_rotation", "sensor_offset"):
@@ -414,11 +430,15 @@ class MCLModel:
         field and by :func:`endpoint_distances`).
     params : MCLParams
         Filter parameters.
+    rays : RangeTable or None
+        The beam model's pre-cached ray casting (``None`` for the likelihood
+        field, or when ``params.ray_cache_angles == 0``).
     """
 
     grid: OccupancyGrid
     field: object
     params: MCLParams
+    rays: object = None
 
 
 @dataclass(frozen=True)
@@ -620,20 +640,32 @@ def prepare_mcl(grid, params=None):
     Returns
     -------
     MCLModel
-        ``(grid, field, params)``, with ``field = likelihood_field(grid,
-        max_dist=params.max_dist, threshold=params.occupied_threshold)``.
+        ``(grid, field, params, rays)``, with ``field = likelihood_field(grid,
+        max_dist=params.max_dist, threshold=params.occupied_threshold)``; for
+        the beam model, ``rays`` is an empty
+        :class:`~slamlib.sensors.RangeTable` over the free space widened by
+        the sensor offset (where the particles' sensors can be).
 
     References
     ----------
     Thrun, Burgard & Fox (2005), Table 6.3 (the likelihood field is
-    precomputed once per map).
+    precomputed once per map), Sec. 6.3.4 (pre-cached ray casting).
     """
     if not isinstance(grid, maps.OccupancyGrid):
         raise TypeError(f"grid must be an OccupancyGrid, got {type(grid).__name__}")
     params = MCLParams() if params is None else params
     if not isinstance(params, MCLParams):
         raise TypeError(f"params must be an MCLParams, got {type(params).__name__}")
-    return MCLModel(grid=grid, field=sensors.likelihood_field(grid, max_dist=params.max_dist, threshold=params.occupied_threshold), params=params)
+    lf = sensors.likelihood_field(grid, max_dist=params.max_dist, threshold=params.occupied_threshold)
+    rays = None
+    if params.model == "beam" and params.ray_cache_angles > 0:
+        reach = int(np.ceil(params.sensor_offset / grid.resolution)) + 1
+        disk = np.hypot(*np.mgrid[-reach:reach + 1, -reach:reach + 1]) <= reach
+        region = ndimage.binary_dilation(grid.free_mask(params.free_threshold), structure=disk)
+        region &= ~grid.occupied_mask(params.occupied_threshold)
+        rays = sensors.range_table(grid, max_range=params.z_max, threshold=params.occupied_threshold,
+                                   n_angles=params.ray_cache_angles, region=region)
+    return MCLModel(grid=grid, field=lf, params=params, rays=rays)
 
 
 def odometry_steps(odom_poses, *, min_translation=0.2, min_rotation=0.2, turn_in_place=0.01):
@@ -778,8 +810,11 @@ def _scan_loglik(model, poses, z, a):
         ll = sensors.likelihood_field_log_likelihood(model.field, poses, z, a, z_max=p.z_max, sigma_hit=p.sigma_hit,
                                              w_hit=p.w_hit, w_rand=p.w_rand, sensor_offset=p.sensor_offset)
     else:
-        z_star = sensors.ray_cast(model.grid, poses, a, p.z_max, sensor_offset=p.sensor_offset,
-                                threshold=p.occupied_threshold)
+        if model.rays is not None:
+            z_star = model.rays.ranges(poses, a, sensor_offset=p.sensor_offset)
+        else:
+            z_star = sensors.ray_cast(model.grid, poses, a, p.z_max, sensor_offset=p.sensor_offset,
+                                      threshold=p.occupied_threshold)
         ll = sensors.beam_range_finder_log_likelihood(z, z_star, z_max=p.z_max, sigma_hit=p.sigma_hit,
                                               lambda_short=p.lambda_short, w_hit=p.w_hit, w_short=p.w_short,
                                               w_max=p.w_max, w_rand=p.w_rand)

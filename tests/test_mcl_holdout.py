@@ -124,3 +124,15 @@ def test_log_starts_avoid_the_study_and_fit_the_logs():
 def test_the_study_seed_is_refused():
     with pytest.raises(SystemExit, match="study"):
         H.main(["--seed", str(H.STUDY_SEED), "--trials", "1"])
+
+
+def test_the_reference_tracks_models_do_not_follow_the_library_defaults():
+    """The truth the defaults are judged against is fixed in mcl_success.REF_MODELS, not read from MCLParams()."""
+    import mcl_success
+
+    fields = set(sl.MCLParams.__dataclass_fields__)
+    assert set(mcl_success.REF_MODELS) <= fields
+    # the models of the measurement and the motion are pinned; the update spacing is deliberately not
+    assert {"model", "likelihood_exponent", "sigma_hit", "beam_step", "alpha"} <= set(mcl_success.REF_MODELS)
+    assert not {"min_translation", "min_rotation"} & set(mcl_success.REF_MODELS)
+    sl.MCLParams(**mcl_success.REF_MODELS)  # a valid parameter set
