@@ -54,7 +54,7 @@ from ._checks import as_array, as_index, as_scalar, check_rng
 from .angles import wrap_angle
 from .graph_slam import _compose, _relative, optimize_pose_graph
 from .mapping import OccupancyParams, map_agreement, occupancy_grid_mapping
-from .mcl import MCLParams, odometry_steps, prepare_mcl, run_mcl
+from .mcl import AugmentedParams, MCLParams, odometry_steps, prepare_mcl, run_mcl
 from .scan_matching import _icp_result, _prepare_target, _scan_points
 from .scoring import score_trajectory
 
@@ -442,6 +442,12 @@ def poses_at_scans(key_index, key_poses, odom_poses, scans):
     return _compose(key_poses[k], _relative(odom[key_index[k]], odom[scans]))
 
 
+#: The reference track's filter, fixed (see :func:`cmu_reference_track`).
+_REFERENCE_MODELS = dict(mode_particles=0, likelihood_exponent=0.2, model="likelihood_field", sigma_hit=0.3,
+                         beam_step=10, alpha=(0.05, 0.005, 0.05, 0.005), init_candidates=200_000,
+                         augmented=AugmentedParams(p_min=0.01, proposal="sensor", candidates=10_000))
+
+
 def cmu_reference_track(grid=None, log=None, *, rng, n_particles=2000, spread=(0.1, 0.1, np.deg2rad(2.0))):
     """The MCL reference track of the Wean Hall log.
 
@@ -450,10 +456,13 @@ def cmu_reference_track(grid=None, log=None, *, rng, n_particles=2000, spread=(0
     start pose ``CMU_LOG_START``, as in chapter 5 and ``tests/test_mcl.py``
     (whose tests check such a track against the map). It is filtered over the
     whole log with :func:`~slamlib.mcl.run_mcl`'s default variant (Augmented
-    MCL) and the default :class:`~slamlib.mcl.MCLParams`, except plain
-    low-variance resampling (``mode_particles=0``): a tracking run has one mode,
-    and keeping the modes of the few particles sensor resetting adds would only
-    spend particles on them.
+    MCL) and plain low-variance resampling (``mode_particles=0``): a tracking
+    run has one mode, and keeping the modes of the few particles sensor
+    resetting adds would only spend particles on them. Its models are fixed
+    here (tempering ``likelihood_exponent = 0.2``, the kidnap prior
+    ``p_min = 0.01``), the values at which the track was checked against the
+    map and against lidar SLAM, so that a change of the filter's defaults does
+    not move the reference that other methods are judged against.
 
     Parameters
     ----------
@@ -484,7 +493,7 @@ def cmu_reference_track(grid=None, log=None, *, rng, n_particles=2000, spread=(0
     grid = cmu.load_cmu_map() if grid is None else grid
     log = cmu.load_cmu_log() if log is None else log
     n_particles = as_index(n_particles, "n_particles", lower=1)
-    model = prepare_mcl(grid, MCLParams(sensor_offset=log.sensor_offset, z_max=log.max_range, mode_particles=0))
+    model = prepare_mcl(grid, MCLParams(sensor_offset=log.sensor_offset, z_max=log.max_range, **_REFERENCE_MODELS))
     init = np.asarray(cmu.CMU_LOG_START) + rng.normal(size=(n_particles, 3)) * np.asarray(spread, dtype=float)
     return run_mcl(model, log.laser_pose, log.ranges, log.angles, rng=rng, init=init, times=log.laser_t)
 

@@ -316,8 +316,8 @@ class MCLParams:
         (92 and 114 particles), the size of a converged cloud. At most half of
         the particles go to these minimum shares (the heaviest modes first:
         fifty modes with the defaults), because a corridor whose doors repeat
-        every few metres has dozens of look-alike places; on Wean Hall log 2,
-        keeping ten modes found the robot in 14 of 20 seeds, 25 modes in 19,
+        every few metres has dozens of look-alike places; on Wean Hall log 2
+        (with ``likelihood_exponent = 0.2``), keeping ten modes found the robot in 14 of 20 seeds, 25 modes in 19,
         50 in 20 (``benchmarks/mcl_success.py``). That budget was chosen on
         log 2; over the broader study of ``benchmarks/mcl_study.py``
         (simulated drives and many start offsets on both logs) turning

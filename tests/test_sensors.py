@@ -277,6 +277,12 @@ def test_range_table_outside_its_region_casts_exactly():
     assert np.count_nonzero(~np.isnan(table.table)) == 2
     with pytest.raises(ValueError, match="region"):
         sl.range_table(g, max_range=5.0, region=region[:, :10])
+    with pytest.raises(ValueError, match="poses"):
+        table.ranges(np.zeros((2, 2)), angles)
+    with pytest.raises(ValueError, match="angles"):
+        table.ranges(poses, np.zeros((1, 1)))
+    with pytest.raises(ValueError, match="sensor_offset"):
+        table.ranges(poses, angles, sensor_offset=np.nan)
 
 
 # ---------------------------------------------------------------- likelihood field
