@@ -132,8 +132,8 @@ class AugmentedParams:
     better (people in the way, a door left open), but on windows of 150
     updates it did no measurably better, while a filter that has settled on a
     look-alike leaves it only rarely: over the whole of Wean Hall log 2, whose
-    first part is ambiguous, the rarer rate ends near the robot far less often. Table 8.3's adaptive term
-    is off (``alpha_slow = alpha_fast = 0``): on the Wean Hall logs the
+    first part is ambiguous, the rarer rate ends near the robot far less
+    often. Table 8.3's adaptive term is off (``alpha_slow = alpha_fast = 0``): on the Wean Hall logs the
     average likelihood of a filter in the right place varies from scan to scan
     (chapter 5 measures it), so ``1 - w_fast / w_slow`` stays well above zero
     during normal tracking for any of the usual decay rates, which keeps
@@ -317,8 +317,9 @@ class MCLParams:
         the particles go to these minimum shares (the heaviest modes first:
         fifty modes with the defaults), because a corridor whose doors repeat
         every few metres has dozens of look-alike places; on Wean Hall log 2
-        (with ``likelihood_exponent = 0.2``), keeping ten modes found the robot in 14 of 20 seeds, 25 modes in 19,
-        50 in 20 (``benchmarks/mcl_success.py``). That budget was chosen on
+        (with ``likelihood_exponent = 0.2``), keeping ten modes found the
+        robot in 14 of 20 seeds, 25 modes in 19, 50 in 20
+        (``benchmarks/mcl_success.py``). That budget was chosen on
         log 2; over the broader study of ``benchmarks/mcl_study.py``
         (simulated drives and many start offsets on both logs) turning
         mode-preserving resampling off made no measurable difference.
