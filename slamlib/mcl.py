@@ -133,8 +133,8 @@ class AugmentedParams:
     updates it did no measurably better, while a filter that has settled on a
     look-alike leaves it only rarely: over the whole of Wean Hall log 2, whose
     first part is ambiguous, the rarer rate ends near the robot far less
-    often. Table 8.3's adaptive term is off (``alpha_slow = alpha_fast = 0``): on the Wean Hall logs the
-    average likelihood of a filter in the right place varies from scan to scan
+    often. Table 8.3's adaptive term is off
+    (``alpha_slow = alpha_fast = 0``): on the Wean Hall logs the average likelihood of a filter in the right place varies from scan to scan
     (chapter 5 measures it), so ``1 - w_fast / w_slow`` stays well above zero
     during normal tracking for any of the usual decay rates, which keeps
     look-alike places populated and made the estimate hop between them. Choose

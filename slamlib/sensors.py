@@ -486,7 +486,7 @@ class RangeTable:
             if miss.any():
                 todo = np.unique(lin[miss])
                 cells = self.cells[todo // n]
-                centre = g.origin + (cells[:, ::-1] + 0.5) * g.resolution
+                centre = g.cell_to_world(cells)
                 src = np.column_stack([centre, (todo % n) * (2.0 * np.pi / n)])
                 flat[todo] = _dda(self.occ, g.resolution, g.origin, src, np.zeros(1), self.max_range, 0.0)[:, 0]
                 vals = flat[lin]
