@@ -69,7 +69,6 @@ import subprocess
 import sys
 import tempfile
 import time
-from multiprocessing import get_context
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -97,7 +96,7 @@ import slamlib as sl  # noqa: E402
 from slamlib.datasets import cmu  # noqa: E402
 
 sys.path.insert(1, _HERE)  # the judging code of this tree's study (slamlib is already imported above)
-from mcl_study import CONFIDENT, RADIUS, judge, summarize, truth_at, wilson  # noqa: E402,F401
+from mcl_study import CONFIDENT, RADIUS, judge, resumable_runs, summarize, truth_at, wilson  # noqa: E402,F401
 from mcl_success import make_params as _success_params  # noqa: E402
 from mcl_success import reference_track  # noqa: E402
 
@@ -597,7 +596,6 @@ def main(argv=None):
             print(f"{kind}: plain MCL started at the truth is strictly right in {sum(ok)}/{len(ok)} trials "
                   f"[{lo:.0%}, {hi:.0%}] (how many are solvable at all)", flush=True)
 
-
     def label(c):
         variant, overrides = configs[c]
         return json.dumps([c, variant, sorted(overrides), tag])
@@ -606,28 +604,10 @@ def main(argv=None):
         return json.dumps([label(c), kind, key if kind != "logs" else list(key), seed])
 
     jobs = [(c, kind, key, seed) for c in configs for kind, key, seed in trials]
-    cache_path = args.cache + f"_runs_s{args.seed}_u{args.updates}_n{args.trials}.jsonl"
-    done = {}
-    if os.path.exists(cache_path):
-        with open(cache_path) as f:
-            for line in f:
-                r = json.loads(line)
-                done[r["cache_key"]] = r
-    todo = [j for j in jobs if ckey(*j) not in done]
-    print(f"{len(jobs)} runs, {len(jobs) - len(todo)} of them cached in {cache_path}", flush=True)
     data = dict(sims=all_sims, logs=logs, refs=refs, angles=angles, updates=args.updates, configs=configs)
-    t1 = time.perf_counter()
-    if todo:
-        with open(cache_path, "a") as f, get_context("fork").Pool(args.jobs, initializer=_init, initargs=(data,)) as pool:
-            for i, r in enumerate(pool.imap_unordered(_run, todo, chunksize=1)):
-                r["cache_key"] = ckey(r["config"], r["set"], r["trial"] if r["set"] != "logs" else tuple(r["trial"]), r["seed"])
-                r["label"] = label(r["config"])
-                f.write(json.dumps(r) + "\n")
-                f.flush()
-                done[r["cache_key"]] = r
-                if (i + 1) % 10 == 0:
-                    print(f"  {i + 1}/{len(todo)} runs, {time.perf_counter() - t1:.0f} s", flush=True)
-    wall = time.perf_counter() - t1
+    done, n_new, wall = resumable_runs(jobs, lambda j: ckey(*j), _run,
+                                   args.cache + f"_runs_s{args.seed}_u{args.updates}_n{args.trials}.jsonl",
+                                   processes=args.jobs, initializer=_init, initargs=(data,), every=10)
     runs = [done[ckey(*j)] for j in jobs]
 
     table = {c: {s: summarize([r for r in runs if r["config"] == c and r["set"] == s]) for s in args.sets}
@@ -665,7 +645,7 @@ def main(argv=None):
                 if r["config"] == c and r["set"] == "logs":
                     print(f"  {tuple(r['trial'])}: {'ok  ' if r['strict'] else 'FAIL'} {r['share']:4.0%} "
                           f"{r['confidently_wrong']:4d}  final error {r['final_error']:.2f} m")
-    print(f"\nwall time {wall:.0f} s with {args.jobs} process(es), {len(todo)} new runs; "
+    print(f"\nwall time {wall:.0f} s with {args.jobs} process(es), {n_new} new runs; "
           f"CPU in the filters (all {len(runs)} runs) {sum(r['runtime'] for r in runs):.0f} s")
     if args.json:
         with open(args.json, "w") as f:

@@ -36,6 +36,12 @@ def wrap_angle(a):
     arr = arr.astype(np.float64, copy=False)
     if not np.isfinite(arr).all():
         raise ValueError("a must be finite (no NaN or inf)")
+    out = _wrap(arr)
+    return float(out) if out.ndim == 0 else out
+
+
+def _wrap(arr):
+    """``wrap_angle`` of a float64 array, without the checks (the array hot path of the filters)."""
     # a - 2 pi floor((a + pi) / 2 pi): a new array, never a view of the input
     out = np.add(arr, np.pi, out=np.empty_like(arr))
     out *= 1.0 / _TWO_PI
@@ -45,7 +51,7 @@ def wrap_angle(a):
     # rounding near odd multiples of pi can land a hair outside [-pi, pi): fold it back
     np.subtract(out, _TWO_PI, out=out, where=out >= np.pi)
     np.add(out, _TWO_PI, out=out, where=out < -np.pi)
-    return float(out) if out.ndim == 0 else out
+    return out
 
 
 def _wrap1(a):

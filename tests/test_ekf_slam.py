@@ -929,3 +929,28 @@ def test_association_blocks_follow_the_updates_of_a_scan():
         f.update(np.array([3.0 + k, -1.5 + 0.4 * k]) + rng.normal(scale=0.05, size=2), k, Q)
         fresh = sl.EKFSLAM.from_state(f.mu, f.Sigma)
         np.testing.assert_allclose(f.mahalanobis(z, Q), fresh.mahalanobis(z, Q), rtol=1e-9)
+
+
+def test_association_blocks_gain_each_new_landmark_of_a_scan():
+    # a landmark added within a scan extends the blocks association reads (no correlation, prior_var I)
+    # instead of dropping them: they equal the blocks of the filter's covariance, before and after the
+    # new landmark's first update, and the distances equal those of a rebuilt filter
+    f = sl.EKFSLAM(np.zeros(3), 0.01 * np.eye(3), capacity=8, prior_var=50.0)
+    Q = np.diag([0.05, 0.01])
+    for k in range(3):
+        zk = np.array([3.0 + k, -1.0 + 0.5 * k])
+        f.update(zk, f.add_landmark(zk), Q)
+    f.predict(np.array([1.0, 0.1]), 0.5, np.diag([0.01, 0.001]))
+    z = np.array([4.0, 0.2])
+    f.mahalanobis(z, Q)  # computes the blocks for this scan
+    for zk in (np.array([2.5, 1.2]), np.array([6.0, -0.7])):
+        j = f.add_landmark(zk)
+        for when in ("added", "updated"):
+            assert f._bc is not None  # kept through the scan, not computed again
+            for cached, exact in zip(f._bc, f._blocks()):
+                np.testing.assert_allclose(cached, exact, rtol=1e-12, atol=1e-12)
+            fresh = sl.EKFSLAM.from_state(f.mu, f.Sigma, prior_var=50.0)
+            np.testing.assert_allclose(f.mahalanobis(z, Q), fresh.mahalanobis(z, Q), rtol=1e-9)
+            if when == "added":
+                f.update(zk, j, Q)
+    assert f.n_landmarks == 5
