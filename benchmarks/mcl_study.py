@@ -28,7 +28,8 @@ then fewer CPU seconds) is chosen on one set and reported on the other, both way
 
     python benchmarks/mcl_study.py                        # defaults and plain MCL on the full study
     python benchmarks/mcl_study.py --screen all           # ... and every mechanism on a development subset
-    python benchmarks/mcl_study.py --screen all --json chapters/data/mcl_study.json   # the chapter's data
+    # the chapter's data (the README's command):
+    python benchmarks/mcl_study.py --screen all --configs defaults "plain MCL" "tempering tau 0.2" "defaults started at the truth" --json chapters/data/mcl_study.json
 
 Finished runs are appended to a cache file (``--cache``), so an interrupted study resumes.
 
@@ -445,11 +446,13 @@ def main(argv=None):
                                          screen_sim=args.screen_sim, screen_offsets=args.screen_offsets,
                                          radius=RADIUS, confident=CONFIDENT, sim_step=SIM_STEP, sim_speed=SIM_SPEED,
                                          seed=args.seed, log_updates={n: len(r) for n, r in refs.items()},
+                                         truth_spread=[float(v) for v in TRUTH_SPREAD],
                                          model_checks=checks),
                            configs={c: dict(variant=CONFIGS[c][0], overrides=CONFIGS[c][1])
                                     for c in list(args.configs) + list(screen)},
                            table=table, screen=screen_table, cross_validation=cv,
-                           runs=[{k: round(v, 4) if isinstance(v, float) else v for k, v in r.items()} for r in runs]),
+                           runs=[{k: round(v, 4) if isinstance(v, float) else v for k, v in r.items() if k != "cache_key"}
+                                 for r in runs]),
                       f, indent=None)
     return table, runs
 

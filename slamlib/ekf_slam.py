@@ -62,7 +62,7 @@ from ._checks import (as_array, as_covariance, as_index, as_indices, as_returned
                       as_slam_state, as_threshold, check_callable)
 from .angles import _wrap, _wrap1, wrap_angle
 from .motion import STRAIGHT_LINE_OMEGA, _arc1, velocity_motion
-from .sensors import MIN_RANGE, _range_bearing1, landmark_from_measurement, landmark_measurement
+from .sensors import _landmark_measurement, _range_bearing1, landmark_from_measurement, landmark_measurement
 
 __all__ = [
     "ekf_slam_predict",
@@ -114,15 +114,7 @@ def _predicted(mu, Sxx, Sxm, Smm, Q):
     """
     N = Smm.shape[0]
     lm = mu[3:3 + 2 * N].reshape(N, 2)
-    dx, dy = lm[:, 0] - mu[0], lm[:, 1] - mu[1]
-    q = dx * dx + dy * dy  # q = delta^T delta  (Algorithm 1 line 13)
-    r = np.sqrt(q)
-    if N and r.min() < MIN_RANGE:
-        raise ValueError("m coincides with the pose x (range 0): bearing and Jacobians are undefined")
-    z_hat = np.empty((N, 2))
-    # z_hat = [sqrt(q), atan2(dy, dx) - theta]  (Eq. 17.2), for every landmark
-    z_hat[:, 0] = r
-    z_hat[:, 1] = _wrap(np.arctan2(dy, dx) - mu[2])
+    z_hat, _, Hm = _landmark_measurement(mu[:3], lm)  # (Eq. 17.2, 17.3) for every landmark (unchecked core)
     # S_k = H_k Sigma H_k^T + Q on the 5 non-zero columns  (Table 10.2 line 16: Psi_k). The range-bearing
     # model has H_x = [-H_m | c], c = (0, -1)^T, so H_k [x; m] = H_m (m - p) + c theta and
     # S_k = H_m D H_m^T + H_m e c^T + c e^T H_m^T + Sigma_thth c c^T + Q with D = Cov(m - p), e = Cov(m - p, theta):
@@ -133,8 +125,7 @@ def _predicted(mu, Sxx, Sxm, Smm, Q):
     d11 = Smm[:, 1, 1] - 2.0 * P[:, 1, 1] + Sxx[1, 1]
     e0 = Sxm[:, 2, 0] - Sxx[0, 2]
     e1 = Sxm[:, 2, 1] - Sxx[1, 2]
-    # H_m = [[dx / r, dy / r], [-dy / q, dx / q]]  (Eq. 17.3, the landmark columns)
-    h00, h01, h10, h11 = dx / r, dy / r, -dy / q, dx / q
+    h00, h01, h10, h11 = Hm[:, 0, 0], Hm[:, 0, 1], Hm[:, 1, 0], Hm[:, 1, 1]
     a00, a01 = h00 * d00 + h01 * d01, h00 * d01 + h01 * d11  # A = H_m D
     a10, a11 = h10 * d00 + h11 * d01, h10 * d01 + h11 * d11
     g0, g1 = h00 * e0 + h01 * e1, h10 * e0 + h11 * e1  # g = H_m e

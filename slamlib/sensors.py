@@ -27,7 +27,7 @@ from scipy import ndimage
 from scipy.special import ndtr
 
 from ._checks import as_array, as_index, as_poses, as_scalar, as_vector, check_batch, check_type
-from .angles import _wrap1, wrap_angle
+from .angles import _wrap, _wrap1
 from .maps import OccupancyGrid
 
 __all__ = [
@@ -97,7 +97,7 @@ def _landmark_measurement(x, m):
     z_hat = np.empty(shape + (2,))
     # z_hat = [sqrt(q), atan2(dy, dx) - theta]  (Eq. 6.40, Table 7.2 lines 11-12)
     z_hat[..., 0] = r
-    z_hat[..., 1] = wrap_angle(np.arctan2(dy, dx) - x[..., 2])
+    z_hat[..., 1] = _wrap(np.arctan2(dy, dx) - x[..., 2])
     # H = d h / d x  (Table 7.2 line 13)
     Hx = np.zeros(shape + (2, 3))
     Hx[..., 0, 0] = -dx / r

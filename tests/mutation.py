@@ -17,7 +17,7 @@ For every contract function of exercises 1-5 this module
    inside a mutated function, door checks (an ``if`` that only raises, ``raise``,
    ``assert``, ``try``, a statement calling a checking helper) are left alone as well.
    The mutation operators: swapped and
-   negated arithmetic and comparison operators, dropped ``wrap_angle`` / ``sqrt`` /
+   negated arithmetic and comparison operators, dropped ``wrap_angle`` (and its unchecked core ``_wrap``) / ``sqrt`` /
    transposes, square vs square root, added transposes, swapped call arguments,
    confusable variables swapped (``Q`` for ``S``, ``dx`` for ``dy`` ...), another
    parameter used in place of one, off-by-one index constants, changed constants,
@@ -121,7 +121,7 @@ _NAME_SWAP = {"cos": "sin", "sin": "cos", "argmin": "argmax", "argmax": "argmin"
               "minimum": "maximum", "max": "min", "min": "max", "any": "all", "all": "any", "floor": "ceil",
               "ceil": "floor", "arctan2": "arctan2", "expm1": "exp", "hypot": "add"}
 #: One-argument calls that may be dropped (``f(a)`` -> ``a``).
-_DROPPABLE = {"wrap_angle", "sqrt", "abs", "exp", "log", "_T", "_sym", "inv", "expm1", "copy", "_sinc"}
+_DROPPABLE = {"wrap_angle", "_wrap", "sqrt", "abs", "exp", "log", "_T", "_sym", "inv", "expm1", "copy", "_sinc"}
 
 
 # =========================================================================== building a submission

@@ -117,8 +117,8 @@ _DEAD_HM = {"_landmark_measurement: [Hm*": DEAD_HM, "_landmark_measurement: Hm[*
             "_landmark_measurement: [return (z_hat, Hx, Hm)] Hm -> Hx": DEAD_HM}
 _DEAD_HX = {"_landmark_measurement: [Hx*": DEAD_HX, "_landmark_measurement: Hx[*": DEAD_HX,
             "_landmark_measurement: [return (z_hat, Hx, Hm)] Hx -> Hm": DEAD_HX}
-_INNOV_WRAP = {"_landmark_measurement: [z_hat[..., 1] = wrap_angle(np.arctan2(dy, dx) - x[..., 2])] "
-               "wrap_angle(np.arctan2(dy, dx) - x[..., 2]) -> np.arctan2(dy, dx) - x[..., 2]": INNOV_WRAP}
+_INNOV_WRAP = {"_landmark_measurement: [z_hat[..., 1] = _wrap(np.arctan2(dy, dx) - x[..., 2])] "
+               "_wrap(np.arctan2(dy, dx) - x[..., 2]) -> np.arctan2(dy, dx) - x[..., 2]": INNOV_WRAP}
 _STRAIGHT = {"_arc: [straight = np.abs(w) < STRAIGHT_LINE_OMEGA] np.abs(w) < STRAIGHT_LINE_OMEGA -> "
              "np.abs(w) <= STRAIGHT_LINE_OMEGA": STRAIGHT}
 _DSINC = {"_dsinc: [series = *": DSINC, "_dsinc: [small = np.abs(a) < 0.001] *": DSINC,
