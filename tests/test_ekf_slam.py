@@ -912,19 +912,27 @@ def test_predicted_measurements_are_H_Sigma_Ht_plus_Q_with_the_full_jacobian():
         np.testing.assert_allclose(Sk[k], H @ Sigma @ H.T + Q, rtol=1e-12, atol=1e-12)
 
 
+_Q_BLOCKS = np.diag([0.05, 0.01])
+_Z_BLOCKS = np.array([4.0, 0.2])
+
+
+def _filter_in_a_scan(n_landmarks, **options):
+    """A filter with `n_landmarks` mapped, after a prediction and the first association of a scan."""
+    f = sl.EKFSLAM(np.zeros(3), 0.01 * np.eye(3), **options)
+    for k in range(n_landmarks):
+        zk = np.array([3.0 + k, -1.5 + 0.4 * k])
+        f.update(zk, f.add_landmark(zk), _Q_BLOCKS)
+    f.predict(np.array([1.0, 0.1]), 0.5, np.diag([0.01, 0.001]))
+    f.mahalanobis(_Z_BLOCKS, _Q_BLOCKS)  # computes the blocks for this scan
+    assert f._bc is not None
+    return f
+
+
 def test_association_blocks_follow_the_updates_of_a_scan():
     # the blocks association reads are computed once per scan and downdated with each update: the
     # distances after some updates equal those of a filter rebuilt from the same state
     rng = np.random.default_rng(4)
-    f = sl.EKFSLAM(np.zeros(3), 0.01 * np.eye(3))
-    Q = np.diag([0.05, 0.01])
-    for k in range(8):
-        zk = np.array([3.0 + k, -1.5 + 0.4 * k])
-        f.update(zk, f.add_landmark(zk), Q)
-    f.predict(np.array([1.0, 0.1]), 0.5, np.diag([0.01, 0.001]))
-    z = np.array([4.0, 0.2])
-    f.mahalanobis(z, Q)  # computes the blocks for this scan
-    assert f._bc is not None
+    f, Q, z = _filter_in_a_scan(8), _Q_BLOCKS, _Z_BLOCKS
     for k in (2, 5, 5):
         f.update(np.array([3.0 + k, -1.5 + 0.4 * k]) + rng.normal(scale=0.05, size=2), k, Q)
         fresh = sl.EKFSLAM.from_state(f.mu, f.Sigma)
@@ -935,14 +943,7 @@ def test_association_blocks_gain_each_new_landmark_of_a_scan():
     # a landmark added within a scan extends the blocks association reads (no correlation, prior_var I)
     # instead of dropping them: they equal the blocks of the filter's covariance, before and after the
     # new landmark's first update, and the distances equal those of a rebuilt filter
-    f = sl.EKFSLAM(np.zeros(3), 0.01 * np.eye(3), capacity=8, prior_var=50.0)
-    Q = np.diag([0.05, 0.01])
-    for k in range(3):
-        zk = np.array([3.0 + k, -1.0 + 0.5 * k])
-        f.update(zk, f.add_landmark(zk), Q)
-    f.predict(np.array([1.0, 0.1]), 0.5, np.diag([0.01, 0.001]))
-    z = np.array([4.0, 0.2])
-    f.mahalanobis(z, Q)  # computes the blocks for this scan
+    f, Q, z = _filter_in_a_scan(3, capacity=8, prior_var=50.0), _Q_BLOCKS, _Z_BLOCKS
     for zk in (np.array([2.5, 1.2]), np.array([6.0, -0.7])):
         j = f.add_landmark(zk)
         for when in ("added", "updated"):
