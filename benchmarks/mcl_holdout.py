@@ -96,7 +96,8 @@ import slamlib as sl  # noqa: E402
 from slamlib.datasets import cmu  # noqa: E402
 
 sys.path.insert(1, _HERE)  # the judging code of this tree's study (slamlib is already imported above)
-from mcl_study import CONFIDENT, RADIUS, judge, resumable_runs, summarize, truth_at, wilson  # noqa: E402,F401
+from mcl_study import (CONFIDENT, RADIUS, TRUTH_SPREAD, judge, resumable_runs, summarize,  # noqa: E402,F401
+                       truth_at, wilson)
 from mcl_success import make_params as _success_params  # noqa: E402
 from mcl_success import reference_track  # noqa: E402
 
@@ -484,7 +485,7 @@ def tracking_check(sims, angles, updates, seed):
     ok = []
     for i, t in enumerate(sims):
         rng = np.random.default_rng([seed, 3, i])
-        init = t["truth"][0] + rng.normal(size=(2000, 3)) * [0.1, 0.1, np.deg2rad(2.0)]
+        init = t["truth"][0] + rng.normal(size=(2000, 3)) * TRUTH_SPREAD  # the study's ceiling's spread
         res = sl.run_mcl(model, t["odom"], t["ranges"], angles, rng=rng, variant="mcl", init=init,
                          times=t["times"], max_steps=updates)
         err = np.hypot(*(res.estimate[:, :2] - t["truth"][res.scan_index, :2]).T)
