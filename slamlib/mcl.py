@@ -345,6 +345,34 @@ class MCLParams:
         from them, so the particles start where the scan fits the map instead
         of one per 0.04 m^2 everywhere. ``0`` starts from ``n_particles``
         uniform poses (Table 8.2).
+    beam_skip_distance, beam_skip_share, beam_skip_limit : float
+        Beam skipping (likelihood field only; ``beam_skip_share = 0`` turns it
+        off). A beam whose endpoint lies within `beam_skip_distance` [m] of an
+        obstacle for less than `beam_skip_share` of the predicted belief's
+        mass is left out of this scan's likelihood for every particle (and for
+        sensor resetting's candidates): no part of the belief explains it, so
+        it is most likely a change of the world the map does not show (a door
+        left open, a person, a box), and the likelihood field would charge the
+        right pose ``log(w_rand / z_max)`` for it at every scan until the
+        robot has passed. Unless more than `beam_skip_limit` of the scan's
+        used beams would be left out: then the scan contradicts the belief,
+        not the map (a kidnapping, a wrong convergence), and every beam counts.
+        This is the outlier rejection of Sec. 8.4 (a measurement that the
+        belief, averaged over its particles, attributes to something unmapped
+        is not used) in the form of ROS amcl's beam skipping, with the
+        particles weighted by the belief. It keeps a filter that is right from
+        being handed to a look-alike place that explains the unmapped
+        readings (on Wean Hall log 2, a place 12 m away explains openings the
+        map shows closed); it also keeps a filter that converged to a wrong
+        place from hearing the beams only the right place explains, until
+        more than `beam_skip_limit` of them disagree. It is off by default:
+        with ``beam_skip_share = 0.05`` the filter started at the truth kept
+        the right place on every log window of ``benchmarks/mcl_study.py``,
+        but from a global start it was confidently wrong more often (on the
+        150-update log windows, on the whole of log 2 and on the simulated
+        sets of ``benchmarks/mcl_holdout.py``) and its strict success did not
+        rise; chapter 5 shows both effects. Use it to track from a known
+        start in a building whose map is out of date.
     augmented : AugmentedParams
         Used by :func:`augmented_mcl_step` (the default variant of
         :func:`run_mcl`).
@@ -378,6 +406,9 @@ class MCLParams:
     estimate_hysteresis: float = 1.0
     estimate_radius: float = 0.5
     init_candidates: int = 200_000
+    beam_skip_distance: float = 0.5
+    beam_skip_share: float = 0.0
+    beam_skip_limit: float = 0.5
     augmented: AugmentedParams = field(default_factory=AugmentedParams)
     kld: KLDParams = field(default_factory=KLDParams)
 
@@ -403,6 +434,11 @@ class MCLParams:
             raise ValueError(f"resample_threshold must be in [0, 1], got {thr}")
         as_index(self.mode_particles, "mode_particles")
         as_index(self.init_candidates, "init_candidates")
+        as_scalar(self.beam_skip_distance, "beam_skip_distance", positive=True)
+        for name in ("beam_skip_share", "beam_skip_limit"):
+            v = as_scalar(getattr(self, name), name, nonnegative=True)
+            if v > 1.0:
+                raise ValueError(f"{name} must be in [0, 1], got {v}")
         as_scalar(self.estimate_radius, "estimate_radius", nonnegative=True)
         h = as_scalar(self.estimate_hysteresis, "estimate_hysteresis", positive=True)
         if h < 1.0:
@@ -804,12 +840,19 @@ def _subsample(ranges, angles, params):
     return z, angles[:: params.beam_step]
 
 
+def _field_terms(model, poses, z, a, per_beam=False):
+    """The likelihood field's log-likelihood of every particle: summed, shape (M,), or per beam, (M, K)."""
+    p = model.params
+    return sensors.likelihood_field_log_likelihood(model.field, poses, z, a, z_max=p.z_max, sigma_hit=p.sigma_hit,
+                                                   w_hit=p.w_hit, w_rand=p.w_rand, sensor_offset=p.sensor_offset,
+                                                   per_beam=per_beam)
+
+
 def _scan_loglik(model, poses, z, a):
     """Summed log-likelihood over the used beams, shape (M,)."""
     p = model.params
     if p.model == "likelihood_field":
-        ll = sensors.likelihood_field_log_likelihood(model.field, poses, z, a, z_max=p.z_max, sigma_hit=p.sigma_hit,
-                                             w_hit=p.w_hit, w_rand=p.w_rand, sensor_offset=p.sensor_offset)
+        ll = _field_terms(model, poses, z, a)
     else:
         if model.rays is not None:
             z_star = model.rays.ranges(poses, a, sensor_offset=p.sensor_offset)
@@ -820,9 +863,51 @@ def _scan_loglik(model, poses, z, a):
                                               lambda_short=p.lambda_short, w_hit=p.w_hit, w_short=p.w_short,
                                               w_max=p.w_max, w_rand=p.w_rand)
         ll = np.sum(ll, axis=-1) if np.ndim(ll) == 2 else ll
+    return _unknown_rejected(model, poses, ll)
+
+
+def _unknown_rejected(model, poses, ll):
+    """``ll`` with ``-inf`` for the particles outside free space (``params.reject_unknown``)."""
+    p = model.params
     if p.reject_unknown:
         ll = np.where(model.grid.is_free(poses[:, :2], p.free_threshold), ll, -np.inf)
     return ll
+
+
+def _kept_beams(params, log_w, terms, z):
+    """The beams of a scan that the predicted belief explains, shape (K,) bool (beam skipping).
+
+    ``terms`` are the likelihood field's per-beam log-likelihoods ``(M, K)`` of the predicted particles,
+    ``log_w`` their weights. A beam whose endpoint lies within ``params.beam_skip_distance`` of an
+    obstacle for less than ``params.beam_skip_share`` of the belief's mass is left out for every particle,
+    unless more than ``params.beam_skip_limit`` of the used beams would be (then the scan contradicts the
+    belief, not the map, and every beam is kept).
+    """
+    keep = np.ones(z.size, dtype=bool)
+    used = z < params.z_max
+    if params.beam_skip_share <= 0.0 or not np.any(used):
+        return keep
+    sigma = params.sigma_hit
+    # endpoint closer than d to an obstacle  <=>  its term exceeds log(w_hit prob(d, sigma^2) + w_rand / z_max)
+    t_d = np.log(params.w_hit * np.exp(-0.5 * (params.beam_skip_distance / sigma) ** 2) / (np.sqrt(2 * np.pi) * sigma)
+                 + params.w_rand / params.z_max)
+    w = np.exp(log_w - logsumexp(log_w))
+    explained = w @ (terms[:, used] > t_d)  # the belief's mass whose endpoint of beam k is near an obstacle
+    out = explained < params.beam_skip_share
+    if np.count_nonzero(out) > params.beam_skip_limit * np.count_nonzero(used):
+        return keep
+    keep[np.flatnonzero(used)[out]] = False
+    return keep
+
+
+def _weigh(model, poses, log_w, z, a):
+    """Scan log-likelihood of the predicted particles ``(M,)`` after beam skipping, and the beams kept."""
+    p = model.params
+    if p.model != "likelihood_field" or p.beam_skip_share <= 0.0:
+        return _scan_loglik(model, poses, z, a), z, a
+    terms = _field_terms(model, poses, z, a, per_beam=True)
+    keep = _kept_beams(p, log_w, terms, z)
+    return _unknown_rejected(model, poses, terms[:, keep].sum(axis=1)), z[keep], a[keep]
 
 
 def scan_log_likelihood(model, poses, ranges, angles):
@@ -873,7 +958,8 @@ def _predict_and_weight(state, u, ranges, angles, model, rng):
     # x_t^[m] ~ p(x_t | u_t, x_{t-1}^[m])  (Table 8.2 line 4)
     poses = sample_motion_model_odometry(state.poses, u, p.alpha, rng=rng)
     z, a = _subsample(ranges, angles, p)
-    return poses, _scan_loglik(model, poses, z, a)
+    ll, z, a = _weigh(model, poses, state.log_weights, z, a)
+    return poses, ll, z, a
 
 
 def _update(state, poses, ll, model):
@@ -1066,7 +1152,7 @@ def mcl_step(state, u, ranges, angles, model, *, rng):
     Thrun, Burgard & Fox (2005), Table 8.2; low-variance resampling Table 4.4.
     """
     state, u, ranges, angles, model = _check_step_args(state, u, ranges, angles, model, rng)
-    poses, ll = _predict_and_weight(state, u, ranges, angles, model, rng)
+    poses, ll, _, _ = _predict_and_weight(state, u, ranges, angles, model, rng)
     log_w, log_w_avg = _update(state, poses, ll, model)
     summary = _summary(poses, log_w, state.estimate, model.params.estimate_hysteresis, model.params.estimate_radius)
     w, ess, do = _resample_mask(log_w, model.params.resample_threshold)
@@ -1156,7 +1242,7 @@ def augmented_mcl_step(state, u, ranges, angles, model, *, rng):
     state, u, ranges, angles, model = _check_step_args(state, u, ranges, angles, model, rng)
     p = model.params
     aug = p.augmented
-    poses, ll = _predict_and_weight(state, u, ranges, angles, model, rng)
+    poses, ll, z, a = _predict_and_weight(state, u, ranges, angles, model, rng)  # z, a: the beams kept
     log_w, log_w_avg = _update(state, poses, ll, model)
     summary = _summary(poses, log_w, state.estimate, p.estimate_hysteresis, p.estimate_radius)
     log_slow, log_fast = _averages(state, log_w_avg, aug)
@@ -1168,7 +1254,6 @@ def augmented_mcl_step(state, u, ranges, angles, model, *, rng):
     if p_inject > 0 and aug.proposal == "uniform":
         n_inj, frac = int(rng.binomial(m, p_inject)), p_inject  # each particle a random pose with probability p_inject
     elif p_inject > 0:
-        z, a = _subsample(ranges, angles, p)
         cand, log_q, log_z_u = _sensor_component(model, z, a, rng)
         frac = _injected_fraction(p_inject, log_w_avg, log_z_u)
         n_inj = int(rng.binomial(m, frac))
@@ -1326,7 +1411,7 @@ def kld_mcl_step(state, u, ranges, angles, model, *, rng):
             break
     poses = np.concatenate(chunks)
     z, a = _subsample(ranges, angles, p)
-    ll = _scan_loglik(model, poses, z, a)
+    ll = _weigh(model, poses, np.zeros(poses.shape[0]), z, a)[0]  # drawn from the predicted belief: equal weights
     tll = p.likelihood_exponent * ll
     log_w = _safe_normalize(tll)  # w = p(z_t | x_t)^tau  (Table 8.4 line 10, tempered)
     finite = np.isfinite(tll)

@@ -634,7 +634,8 @@ def likelihood_field(grid, *, max_dist=2.0, threshold=0.5):
     return LikelihoodField(grid=grid, dist=dist, max_dist=max_dist)
 
 
-def likelihood_field_log_likelihood(field, poses, ranges, angles, *, z_max, sigma_hit, w_hit, w_rand, sensor_offset=0.0):
+def likelihood_field_log_likelihood(field, poses, ranges, angles, *, z_max, sigma_hit, w_hit, w_rand, sensor_offset=0.0,
+                                    per_beam=False):
     """Log-likelihood of a scan under the likelihood-field model, per pose.
 
     Parameters
@@ -654,6 +655,9 @@ def likelihood_field_log_likelihood(field, poses, ranges, angles, *, z_max, sigm
         Non-negative mixture weights.
     sensor_offset : float, keyword-only
         Sensor position ahead of the robot centre (metres).
+    per_beam : bool, keyword-only
+        Return every beam's term instead of their sum: shape ``(P, K)`` (or
+        ``(K,)`` for one pose), 0 for the max-range beams.
 
     Returns
     -------
@@ -678,6 +682,8 @@ def likelihood_field_log_likelihood(field, poses, ranges, angles, *, z_max, sigm
     w_hit = as_scalar(w_hit, "w_hit", nonnegative=True)
     w_rand = as_scalar(w_rand, "w_rand", nonnegative=True)
     sensor_offset = as_scalar(sensor_offset, "sensor_offset")
+    if not isinstance(per_beam, (bool, np.bool_)):
+        raise TypeError(f"per_beam must be a bool, got {type(per_beam).__name__}")
     use = ranges < z_max  # (Table 6.3 line 4: skip max-range readings)
     r, a = ranges[use], angles[use]
     th = poses[:, 2:3]
@@ -688,5 +694,10 @@ def likelihood_field_log_likelihood(field, poses, ranges, angles, *, z_max, sigm
     # q = q * (z_hit prob(dist, sigma_hit) + z_random / z_max)  (Table 6.3 line 8)
     p = w_hit * np.exp(-0.5 * (dist / sigma) ** 2) / (np.sqrt(2 * np.pi) * sigma) + w_rand / z_max
     with np.errstate(divide="ignore"):
-        out = np.sum(np.log(p), axis=-1)
+        terms = np.log(p)
+    if per_beam:
+        out = np.zeros((poses.shape[0], ranges.size))
+        out[:, use] = terms
+    else:
+        out = np.sum(terms, axis=-1)
     return out[0] if single else out

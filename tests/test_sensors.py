@@ -321,6 +321,14 @@ def test_likelihood_field_log_likelihood_table_6_3():
         ref.append(s)
     np.testing.assert_allclose(ll, ref, rtol=1e-12)
     assert sl.likelihood_field_log_likelihood(f, poses[1], ranges, angles, **kw, sensor_offset=0.1) == pytest.approx(ref[1])
+    # per beam: the terms of the sum, 0 for the max-range beam
+    terms = sl.likelihood_field_log_likelihood(f, poses, ranges, angles, **kw, sensor_offset=0.1, per_beam=True)
+    assert terms.shape == (2, 3) and np.all(terms[:, 2] == 0.0)
+    np.testing.assert_allclose(terms.sum(axis=1), ref, rtol=1e-12)
+    one = sl.likelihood_field_log_likelihood(f, poses[1], ranges, angles, **kw, sensor_offset=0.1, per_beam=True)
+    np.testing.assert_array_equal(one, terms[1])
+    with pytest.raises(TypeError, match="per_beam"):
+        sl.likelihood_field_log_likelihood(f, poses, ranges, angles, **kw, per_beam="yes")
     # the true pose scores better than a shifted one
     true = np.array([0.0, 0.0, 0.0])
     angles = np.linspace(-np.pi, np.pi, 19)
