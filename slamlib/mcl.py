@@ -368,11 +368,11 @@ class MCLParams:
         more than `beam_skip_limit` of them disagree. It is off by default:
         with ``beam_skip_share = 0.05`` the filter started at the truth kept
         the right place on every log window of ``benchmarks/mcl_study.py``,
-        but from a global start it was confidently wrong more often (on the
-        150-update log windows, on the whole of log 2 and on the simulated
-        sets of ``benchmarks/mcl_holdout.py``) and its strict success did not
-        rise; chapter 5 shows both effects. Use it to track from a known
-        start in a building whose map is out of date.
+        but from a global start it was confidently wrong at more updates on
+        most sets (the 150-update log windows, the whole of log 2, the
+        simulated sets of ``benchmarks/mcl_holdout.py``), for a few more
+        strict successes; chapter 5 shows both effects. Use it to track from
+        a known start in a building whose map is out of date.
     augmented : AugmentedParams
         Used by :func:`augmented_mcl_step` (the default variant of
         :func:`run_mcl`).

@@ -940,14 +940,15 @@ def test_a_step_with_a_skipped_beam_is_the_step_without_that_beam(sim):
 def test_beam_skipping_keeps_every_beam_when_the_scan_contradicts_the_belief(sim):
     """Most beams unexplained: the belief is wrong (a kidnapping), not the map; nothing is skipped."""
     model = _door_scene(sim, 0.05)[0]
-    grid, truth, _, z = sim
+    _, truth, _, z = sim
+    assert np.hypot(*(truth[60, :2] - truth[10, :2])) > 5.0
     rng = np.random.default_rng(4)
-    wrong = truth[60] + rng.normal(0.0, [0.05, 0.05, 0.02], (400, 3))  # the belief 6 m from the scan's pose
+    wrong = truth[60] + rng.normal(0.0, [0.05, 0.05, 0.02], (400, 3))  # the belief 5 m or more from the scan's pose
     zz, aa = mcl._subsample(z[10], ANGLES, model.params)
     terms = mcl._field_terms(model, wrong, zz, aa, per_beam=True)
     lw = np.full(len(wrong), -np.log(len(wrong)))
     p = model.params
-    strict = mcl.prepare_mcl(grid, mcl.MCLParams(**{**SIM_PARAMS, "beam_skip_limit": 1.0})).params
+    strict = mcl.MCLParams(**{**SIM_PARAMS, "beam_skip_share": 0.05, "beam_skip_limit": 1.0})
     n_out = np.count_nonzero(~mcl._kept_beams(strict, lw, terms, zz))
     assert n_out > p.beam_skip_limit * np.count_nonzero(zz < p.z_max)  # more than half would go ...
     assert mcl._kept_beams(p, lw, terms, zz).all()  # ... so none does
