@@ -439,6 +439,9 @@ class MCLParams:
             v = as_scalar(getattr(self, name), name, nonnegative=True)
             if v > 1.0:
                 raise ValueError(f"{name} must be in [0, 1], got {v}")
+        if self.beam_skip_share > 0 and self.model != "likelihood_field":
+            raise ValueError(f"beam_skip_share must be 0 with model={self.model!r}: beam skipping works with the "
+                             "likelihood field (the beam model explains unmapped objects by its short readings, w_short)")
         as_scalar(self.estimate_radius, "estimate_radius", nonnegative=True)
         h = as_scalar(self.estimate_hysteresis, "estimate_hysteresis", positive=True)
         if h < 1.0:
@@ -887,10 +890,9 @@ def _kept_beams(params, log_w, terms, z):
     used = z < params.z_max
     if params.beam_skip_share <= 0.0 or not np.any(used):
         return keep
-    sigma = params.sigma_hit
-    # endpoint closer than d to an obstacle  <=>  its term exceeds log(w_hit prob(d, sigma^2) + w_rand / z_max)
-    t_d = np.log(params.w_hit * np.exp(-0.5 * (params.beam_skip_distance / sigma) ** 2) / (np.sqrt(2 * np.pi) * sigma)
-                 + params.w_rand / params.z_max)
+    # endpoint closer than d to an obstacle  <=>  its term exceeds the term at distance d (decreasing in the distance)
+    t_d = sensors._field_beam_log_likelihood(params.beam_skip_distance, params.sigma_hit, params.w_hit, params.w_rand,
+                                             params.z_max)
     w = np.exp(log_w - logsumexp(log_w))
     explained = w @ (terms[:, used] > t_d)  # the belief's mass whose endpoint of beam k is near an obstacle
     out = explained < params.beam_skip_share

@@ -634,6 +634,14 @@ def likelihood_field(grid, *, max_dist=2.0, threshold=0.5):
     return LikelihoodField(grid=grid, dist=dist, max_dist=max_dist)
 
 
+def _field_beam_log_likelihood(dist, sigma, w_hit, w_rand, z_max):
+    """One beam's term of the likelihood field at obstacle distance ``dist`` (unchecked)."""
+    # q = q * (z_hit prob(dist, sigma_hit) + z_random / z_max)  (Table 6.3 line 8)
+    p = w_hit * np.exp(-0.5 * (dist / sigma) ** 2) / (np.sqrt(2 * np.pi) * sigma) + w_rand / z_max
+    with np.errstate(divide="ignore"):
+        return np.log(p)
+
+
 def likelihood_field_log_likelihood(field, poses, ranges, angles, *, z_max, sigma_hit, w_hit, w_rand, sensor_offset=0.0,
                                     per_beam=False):
     """Log-likelihood of a scan under the likelihood-field model, per pose.
@@ -691,10 +699,7 @@ def likelihood_field_log_likelihood(field, poses, ranges, angles, *, z_max, sigm
     ex = poses[:, 0:1] + sensor_offset * np.cos(th) + r * np.cos(th + a)
     ey = poses[:, 1:2] + sensor_offset * np.sin(th) + r * np.sin(th + a)
     dist = field._lookup(np.stack([ex, ey], axis=-1))
-    # q = q * (z_hit prob(dist, sigma_hit) + z_random / z_max)  (Table 6.3 line 8)
-    p = w_hit * np.exp(-0.5 * (dist / sigma) ** 2) / (np.sqrt(2 * np.pi) * sigma) + w_rand / z_max
-    with np.errstate(divide="ignore"):
-        terms = np.log(p)
+    terms = _field_beam_log_likelihood(dist, sigma, w_hit, w_rand, z_max)
     if per_beam:
         out = np.zeros((poses.shape[0], ranges.size))
         out[:, use] = terms

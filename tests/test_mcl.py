@@ -956,9 +956,11 @@ def test_beam_skipping_keeps_every_beam_when_the_scan_contradicts_the_belief(sim
 
 def test_beam_skipping_parameters_are_checked():
     for kw, match in (({"beam_skip_share": 1.5}, "beam_skip_share"), ({"beam_skip_share": -0.1}, "beam_skip_share"),
-                      ({"beam_skip_limit": 2.0}, "beam_skip_limit"), ({"beam_skip_distance": 0.0}, "beam_skip_distance")):
+                      ({"beam_skip_limit": 2.0}, "beam_skip_limit"), ({"beam_skip_distance": 0.0}, "beam_skip_distance"),
+                      ({"beam_skip_share": 0.05, "model": "beam"}, "likelihood field")):
         with pytest.raises(ValueError, match=match):
             mcl.MCLParams(**kw)
+    mcl.MCLParams(model="beam")  # the default, off, goes with either model
 
 
 def test_wean_log_2_beam_skipping_keeps_the_right_place_where_the_map_disagrees():
