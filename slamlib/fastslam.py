@@ -1691,6 +1691,28 @@ def _associate2(x_hat, B, mu, Sigma, seen, log_w, z, Q, log_p0, cols, near):
     return P, b, match, log_w
 
 
+def _columns_in_reach(x_hat, B, mu, Sigma, seen, z, Q):
+    """Columns ``(W,)`` bool of the dense window whose landmark some particle may predict within reach.
+
+    A conservative, column-wise version of the per-particle test of :func:`_update2_unknown_core` (distance
+    within ``[min range - margin, max range + margin]``, margin = ten standard deviations): the distances
+    between the box of the particles' predicted positions and the box of each column's landmark estimates
+    bound every particle's distance, and the largest spread of the column and of the motion bound every
+    particle's margin, so every column the exact test keeps is kept.
+    """
+    m = np.where(seen[..., None], mu, np.nan)  # NaN is ignored by fmin and fmax: only the particles that hold it
+    lo = np.fmin.reduce(m, axis=0)  # (W, 2): the box of each column's estimates over the particles
+    hi = np.fmax.reduce(m, axis=0)
+    p_lo, p_hi = x_hat[:, :2].min(axis=0), x_hat[:, :2].max(axis=0)
+    gap = np.maximum(np.maximum(lo - p_hi, p_lo - hi), 0.0)
+    far = np.maximum(np.abs(hi - p_lo), np.abs(p_hi - lo))
+    d_min, d_max = np.hypot(gap[:, 0], gap[:, 1]), np.hypot(far[:, 0], far[:, 1])
+    spread = np.sqrt(np.fmax.reduce(Sigma[..., 0, 0] + Sigma[..., 1, 1], axis=0))
+    margin = 10.0 * (math.sqrt(Q[0, 0]) + spread + float(np.sqrt((B * B).sum(axis=(1, 2))).max()))
+    slack = 1e-9 * (1.0 + d_max)  # rounding of the bounds
+    return (d_min - slack <= z[:, 0].max() + margin) & (d_max + slack >= z[:, 0].min() - margin)
+
+
 def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rng, copy=True, motion=None):
     """FastSLAM 2.0 step with unknown correspondences; ``copy=False`` may write into `state`'s arrays."""
     z = z[z[:, 0] > 0]
@@ -1704,6 +1726,9 @@ def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rn
     x_hat, B = _motion_terms(x_prev, u, dt, L, motion)
     maps, win, (mu, Sigma, seen, counts) = _unknown_window(state, K, "the landmarks of a particle")
     cols = np.flatnonzero(seen.any(axis=0))
+    if cols.size and K:
+        with np.errstate(invalid="ignore"):  # columns no particle holds: NaN bounds, and not in cols
+            cols = cols[_columns_in_reach(x_hat, B, mu, Sigma, seen, z, Q)[cols]]  # a superset of the test below, cheaper
     if cols.size and K:
         # candidates: landmarks some particle predicts within reach of the step's ranges, with a margin of
         # ten standard deviations of sensor, landmark and motion noise; any other has a likelihood below

@@ -432,6 +432,57 @@ def test_per_measurement_candidates_give_the_run_of_scoring_every_candidate(worl
     np.testing.assert_array_equal(res.path_best, every.path_best)
 
 
+@pytest.mark.parametrize("max_range", [None, 8.0])
+def test_fastslam2_column_bound_gives_the_run_of_the_exact_test(world, max_range, monkeypatch):
+    # FastSLAM 2.0 first drops whole columns (landmark slots) that no particle can reach, from boxes over the
+    # particles; the bound must never drop a column the per-particle test keeps: the run is bit for bit
+    # the run without it
+    from slamlib import fastslam as fs
+
+    run = sl.add_clutter(dataclasses.replace(world, u=world.u[:80], z=world.z[:80], ids=world.ids[:80],
+                                             x_true=world.x_true[:81]), 1.0, rng=np.random.default_rng(2))
+    kw = dict(n_particles=25, known=False, max_range=max_range, resample_threshold=0.5, version=2)
+    kept = []
+    bound = fs._columns_in_reach
+    monkeypatch.setattr(fs, "_columns_in_reach", lambda *a: kept.append(bound(*a).mean()) or bound(*a))
+    res = sl.run_fastslam(run, rng=np.random.default_rng(1), **kw)
+    assert min(kept) < 0.9  # columns out of reach are dropped
+    monkeypatch.setattr(fs, "_columns_in_reach", lambda x_hat, B, mu, Sigma, seen, z, Q: np.ones(mu.shape[1], bool))
+    every = sl.run_fastslam(run, rng=np.random.default_rng(1), **kw)
+    for a, b in zip(res.state, every.state):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(res.x_est, every.x_est)
+
+
+def test_fastslam2_column_bound_keeps_every_column_some_particle_reaches():
+    # random states, empty slots holding stale values: every column with a (particle, slot) pair within
+    # [min range - margin, max range + margin] of the particle (margin = ten standard deviations) is kept
+    from slamlib import fastslam as fs
+
+    rng = np.random.default_rng(8)
+    dropped = 0
+    for _ in range(50):
+        M, W, K = 30, 120, 3
+        x_hat = rng.normal(0.0, 2.0, (M, 3))
+        B = rng.normal(0.0, 0.05, (M, 3, 2))
+        mu = rng.uniform(-150.0, 150.0, (1, W, 2)) + rng.normal(0.0, 1.0, (M, W, 2))  # one landmark per column
+        A = rng.normal(0.0, 0.3, (M, W, 2, 2))
+        Sigma = A @ np.swapaxes(A, -1, -2)
+        seen = rng.random((M, W)) < 0.7
+        z = np.column_stack([rng.uniform(1.0, 30.0, K), rng.uniform(-1.5, 1.5, K)])
+        Q = np.diag([0.25, 0.01])
+        d = np.hypot(mu[..., 0] - x_hat[:, None, 0], mu[..., 1] - x_hat[:, None, 1])
+        margin = 10.0 * (np.sqrt(Q[0, 0]) + np.sqrt(Sigma[..., 0, 0] + Sigma[..., 1, 1])
+                         + np.sqrt((B * B).sum(axis=(1, 2)))[:, None])
+        exact = (seen & (d >= z[:, 0].min() - margin) & (d <= z[:, 0].max() + margin)).any(axis=0)
+        with np.errstate(invalid="ignore"):
+            kept = fs._columns_in_reach(x_hat, B, mu, Sigma, seen, z, Q)
+        assert np.all(kept[exact])
+        assert not kept[~seen.any(axis=0)].any()  # a column no particle holds is never kept
+        dropped += np.count_nonzero(~kept & seen.any(axis=0))
+    assert dropped > 1000  # and columns out of reach are dropped
+
+
 def test_fastslam2_candidates_fall_back_to_every_landmark_when_the_proposal_moves_far(world, monkeypatch):
     # the per-measurement candidates of FastSLAM 2.0 hold while the proposal's mean of the control noise
     # stays within _ETA_REACH standard deviations; beyond it the step scores every candidate again
