@@ -362,10 +362,11 @@ class MCLParams:
         is not used) in the form of ROS amcl's beam skipping, with the
         particles weighted by the belief. It keeps a filter that is right from
         being handed to a look-alike place that explains the unmapped
-        readings (on Wean Hall log 2, a place 12 m away explains openings the
-        map shows closed); it also keeps a filter that converged to a wrong
-        place from hearing the beams only the right place explains, until
-        more than `beam_skip_limit` of them disagree. It is off by default:
+        readings (on Wean Hall log 2, a place some 10 m away, heading the
+        other way, explains openings the map shows closed); it also keeps a
+        filter that converged to a wrong place from hearing the beams only the
+        right place explains, until more than `beam_skip_limit` of them
+        disagree. It is off by default:
         with ``beam_skip_share = 0.05`` the filter started at the truth kept
         the right place on every log window of ``benchmarks/mcl_study.py``,
         but from a global start it was confidently wrong at more updates on

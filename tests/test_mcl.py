@@ -966,8 +966,8 @@ def test_beam_skipping_parameters_are_checked():
 def test_wean_log_2_beam_skipping_keeps_the_right_place_where_the_map_disagrees():
     """From the truth at the start of Wean Hall log 2, beam skipping stays on the reference track for 95 updates.
 
-    Around update 47 the robot passes openings that the map shows closed: two or three of the 18 beams
-    end 1-2 m past the mapped wall for several scans, and a place 12 m away with the opposite heading
+    From about update 43 the robot passes openings that the map shows closed: one or two of the 18 beams the
+    filter uses end more than a metre past the mapped wall for several scans, and a place some 10 m away with the opposite heading
     explains them. Without beam skipping, sensor resetting brings that place in and it takes about half
     of the mass (the estimate is then a coin toss between the two); with it, those beams are left out
     while no part of the belief explains them, and the right place keeps all the mass.
