@@ -385,6 +385,13 @@ def test_held_states_never_change_and_the_run_equals_the_pure_steps(world, versi
         np.testing.assert_array_equal(a, b)
 
 
+def _same_state_and_estimate(a, b):
+    """Two runs ended in the same particle state and estimated the same path, bit for bit."""
+    for x, y in zip(a.state, b.state):
+        np.testing.assert_array_equal(x, y)
+    np.testing.assert_array_equal(a.x_est, b.x_est)
+
+
 @pytest.mark.parametrize("max_range", [None, 8.0])
 def test_unknown_association_scores_only_what_could_win_and_gives_the_same_run(world, max_range, monkeypatch):
     # FastSLAM 1.0 scores the landmarks within reach of the step's ranges (and the free slots); the
@@ -402,9 +409,7 @@ def test_unknown_association_scores_only_what_could_win_and_gives_the_same_run(w
     assert min(scored) < 0.9  # landmarks out of reach are left out
     monkeypatch.setattr(fs, "_candidates", lambda x, mu, Sigma, seen, z, Q, log_p0: np.arange(seen.shape[1]))
     every = sl.run_fastslam(run, rng=np.random.default_rng(1), **kw)
-    for a, b in zip(res.state, every.state):
-        np.testing.assert_array_equal(a, b)
-    np.testing.assert_array_equal(res.x_est, every.x_est)
+    _same_state_and_estimate(res, every)
 
 
 
@@ -426,9 +431,7 @@ def test_per_measurement_candidates_give_the_run_of_scoring_every_candidate(worl
     assert near < 0.75 * pairs  # a good share of the (measurement, landmark) pairs is left out
     monkeypatch.setattr(fs, "_PREFILTER", False)
     every = sl.run_fastslam(run, rng=np.random.default_rng(1), **kw)
-    for a, b in zip(res.state, every.state):
-        np.testing.assert_array_equal(a, b)
-    np.testing.assert_array_equal(res.x_est, every.x_est)
+    _same_state_and_estimate(res, every)
     np.testing.assert_array_equal(res.path_best, every.path_best)
 
 
@@ -449,9 +452,7 @@ def test_fastslam2_column_bound_gives_the_run_of_the_exact_test(world, max_range
     assert min(kept) < 0.9  # columns out of reach are dropped
     monkeypatch.setattr(fs, "_columns_in_reach", lambda x_hat, B, mu, Sigma, seen, z, Q: np.ones(mu.shape[1], bool))
     every = sl.run_fastslam(run, rng=np.random.default_rng(1), **kw)
-    for a, b in zip(res.state, every.state):
-        np.testing.assert_array_equal(a, b)
-    np.testing.assert_array_equal(res.x_est, every.x_est)
+    _same_state_and_estimate(res, every)
 
 
 def test_fastslam2_column_bound_keeps_every_column_some_particle_reaches():
@@ -498,9 +499,7 @@ def test_fastslam2_candidates_fall_back_to_every_landmark_when_the_proposal_move
     assert sum(calls) > 0 and not all(calls)  # some steps fell back to every candidate, some did not
     monkeypatch.setattr(fs, "_PREFILTER", False)
     every = sl.run_fastslam(run, rng=np.random.default_rng(4), **kw)
-    for a, b in zip(res.state, every.state):
-        np.testing.assert_array_equal(a, b)
-    np.testing.assert_array_equal(res.x_est, every.x_est)
+    _same_state_and_estimate(res, every)
 
 def test_state_from_arrays_behaves_as_the_named_tuple():
     rng = np.random.default_rng(12)
