@@ -336,16 +336,28 @@ def fastslam_update_landmark(x, mu, Sigma, z, Q, *, weight_cov="S", log=False, g
 _BLOCK = 8  # landmark slots per block
 _MU, _SIG, _SEEN, _COUNT = slice(0, 2), slice(2, 6), 6, 7  # the float64 fields of a slot: mu, Sigma, seen, count
 _NF = 8
+# every block's summary, kept with it in the pool: the box of its landmark means (lo x, lo y, hi x, hi y), its
+# largest variances in x and in y, and its number of landmarks; a step with unknown correspondences on a large
+# map reads the summaries to gather only the blocks it can touch (see _unknown_window). A write marks the
+# block's summary stale; it is computed again when next read (steps with known correspondences never read it).
+_S_LO, _S_HI, _S_XX, _S_YY, _S_N = slice(0, 2), slice(2, 4), 4, 5, 6
+_NS = 7
+_EMPTY_SUMMARY = (np.inf, np.inf, -np.inf, -np.inf, -np.inf, -np.inf, 0.0)
 
 
 class _Pool:
     """Append-only block storage ``(capacity, _BLOCK, _NF)``; block 0 is the empty block and never written."""
 
-    __slots__ = ("data", "top")
+    __slots__ = ("data", "summary", "fresh", "top")
 
     def __init__(self, capacity):
-        self.data = np.empty((max(int(capacity), 2), _BLOCK, _NF))  # only written blocks are ever read
+        n = max(int(capacity), 2)
+        self.data = np.empty((n, _BLOCK, _NF))  # only written blocks are ever read
+        self.summary = np.empty((n, _NS))  # each block's summary (_summaries)
+        self.fresh = np.zeros(n, dtype=bool)  # whether it is up to date
         self.data[0] = 0.0
+        self.summary[0] = _EMPTY_SUMMARY
+        self.fresh[0] = True
         self.top = 1
 
     def alloc(self, n):
@@ -367,6 +379,37 @@ class _Maps(NamedTuple):
 
 def _n_blocks(N):
     return -(-N // _BLOCK)
+
+
+def _over_block(a, f):
+    """``f``-reduction of ``a (n, _BLOCK)`` over its slots, pairwise (several times faster than ``axis=1``)."""
+    while a.shape[1] > 1:
+        a = f(a[:, :a.shape[1] // 2], a[:, a.shape[1] // 2:])
+    return a[:, 0]
+
+
+def _summarize(pool, ids):
+    """Compute the summaries of the pool's blocks `ids` (see :data:`_NS`)."""
+    b = np.take(pool.data, ids, axis=0)
+    held = b[..., _SEEN] > 0
+    out = np.empty((b.shape[0], _NS))
+    for c in range(2):  # the box of the means
+        out[:, _S_LO.start + c] = _over_block(np.where(held, b[..., _MU.start + c], np.inf), np.minimum)
+        out[:, _S_HI.start + c] = _over_block(np.where(held, b[..., _MU.start + c], -np.inf), np.maximum)
+    out[:, _S_XX] = _over_block(np.where(held, b[..., _SIG.start], -np.inf), np.maximum)  # the largest Sigma_xx
+    out[:, _S_YY] = _over_block(np.where(held, b[..., _SIG.start + 3], -np.inf), np.maximum)  # Sigma_yy
+    out[:, _S_N] = np.count_nonzero(held, axis=1)
+    pool.summary[ids] = out
+    pool.fresh[ids] = True
+
+
+def _summaries(maps, nb):
+    """The summaries ``(M, nb, _NS)`` of the maps' first `nb` block columns, the stale ones computed first."""
+    ids = maps.table[:, :nb]
+    stale = ~maps.pool.fresh[ids]
+    if stale.any():
+        _summarize(maps.pool, np.unique(ids[stale]))
+    return maps.pool.summary[ids]
 
 
 def _empty_maps(M, N):
@@ -440,9 +483,13 @@ def _compact(maps, extra, inplace=False):
     if inplace and size <= pool.data.shape[0]:
         new = pool
         new.data[:keep.size] = np.take(pool.data, keep, axis=0)
+        new.summary[:keep.size] = np.take(pool.summary, keep, axis=0)
+        new.fresh[:keep.size] = np.take(pool.fresh, keep)
     else:
         new = _Pool(size)
         np.take(pool.data, keep, axis=0, out=new.data[:keep.size])
+        np.take(pool.summary, keep, axis=0, out=new.summary[:keep.size])
+        np.take(pool.fresh, keep, out=new.fresh[:keep.size])
     new.top = keep.size
     remap = np.cumsum(live) - 1
     return _Maps(new, remap[maps.table], maps.N)
@@ -498,9 +545,12 @@ def _put(maps, cols, mu, Sigma, seen, counts, changed=None, inplace=False):
     d[..., _SEEN] = seen
     d[..., _COUNT] = counts
     if changed is None:
-        data[table[:, cb], cols % _BLOCK] = d
+        written = table[:, cb]
+        data[written, cols % _BLOCK] = d
     else:
-        data[table[kk, cb[cc]], cols[cc] % _BLOCK] = d
+        written = table[kk, cb[cc]]
+        data[written, cols[cc] % _BLOCK] = d
+    maps.pool.fresh[written] = False
     return _Maps(maps.pool, table, maps.N)
 
 
@@ -536,7 +586,11 @@ class FastSLAMState:
     particles: blocks of landmark slots in a pool, each particle a table of
     block indices. Resampling copies the tables, an update copies only the
     blocks it writes (copy-on-write), so a step costs the landmarks it
-    touches, not the capacity ``N``. The dense arrays ``mu``, ``Sigma``,
+    touches, not the capacity ``N``. Each block also keeps a summary (the box
+    of its landmark means, its largest variances, its number of landmarks),
+    so a step with unknown correspondences on a large map gathers only the
+    blocks that some particle may reach, and those holding the first free
+    slots, instead of every landmark. The dense arrays ``mu``, ``Sigma``,
     ``seen`` and ``counts`` are assembled (read-only) when first read.
 
     References
@@ -1081,7 +1135,11 @@ def _update_unknown_core(state, z, Q, log_p0, weight_cov, max_range, half_fov, c
     M = state.n_particles
     if z.shape[0] == 0 and max_range is None:  # nothing to associate or prune: the maps stay as they are
         return FastSLAMState._from_maps(state.poses, state._blocks(), _normalized(state.log_weights.copy()))
-    maps, win, (mu, Sigma, seen, counts) = _unknown_window(state, z.shape[0], "ids")
+    # the blocks some particle may reach (a superset of _candidates' landmarks), or every block when pruning
+    # reads every landmark in view
+    reach = None if max_range is not None or z.shape[0] == 0 else (
+        lambda s: _summaries_in_reach(s, state.poses, z, lambda var: _reach1(var, Q, log_p0)))
+    maps, win, (mu, Sigma, seen, counts) = _unknown_window(state, z.shape[0], "ids", reach)
     log_w = state.log_weights.copy()
     matched = np.zeros_like(seen)
     x = state.poses
@@ -1154,6 +1212,12 @@ def _update_unknown_core(state, z, Q, log_p0, weight_cov, max_range, half_fov, c
     return FastSLAMState._from_maps(x, maps, _normalized(log_w))
 
 
+def _reach1(var, Q, log_p0):
+    """FastSLAM 1.0's margin of :func:`_candidates` for landmarks with ``tr Sigma = var``."""
+    c0 = max(-log_p0 - _LOG_2PI - 0.5 * math.log(Q[0, 0] * Q[1, 1] - Q[0, 1] * Q[1, 0]), 0.0) + 1.0
+    return np.sqrt(2.0 * c0 * (var + Q[0, 0]))
+
+
 def _candidates(x, mu, Sigma, seen, z, Q, log_p0):
     """The slots a step's maximum-likelihood association must score (FastSLAM 1.0), in increasing order.
 
@@ -1166,9 +1230,8 @@ def _candidates(x, mu, Sigma, seen, z, Q, log_p0):
     free = ~seen.all(axis=0)
     if z.shape[0] == 0 or seen.shape[1] == 0:
         return np.flatnonzero(free)
-    c0 = max(-log_p0 - _LOG_2PI - 0.5 * math.log(Q[0, 0] * Q[1, 1] - Q[0, 1] * Q[1, 0]), 0.0) + 1.0
     r = np.hypot(mu[..., 0] - x[:, None, 0], mu[..., 1] - x[:, None, 1])
-    reach = np.sqrt(2.0 * c0 * (Sigma[..., 0, 0] + Sigma[..., 1, 1] + Q[0, 0]))
+    reach = _reach1(Sigma[..., 0, 0] + Sigma[..., 1, 1], Q, log_p0)
     near = seen & (r >= z[:, 0].min() - reach) & (r <= z[:, 0].max() + reach)
     return np.flatnonzero(free | near.any(axis=0))
 
@@ -1208,22 +1271,47 @@ def _within_reach(z, zb0, zb1, seen, s0, s1, f):
     return (seen & (y0 <= f * s0) & ((y1 <= t1) | (y1 >= 2.0 * np.pi - t1))).any(axis=1)
 
 
-def _unknown_window(state, K, name):
+#: Maps of at most this many blocks are gathered whole by :func:`_unknown_window`: below it, reading the
+#: blocks' summaries costs more than it saves.
+_WINDOW_BLOCKS = 32
+
+
+def _unknown_window(state, K, name, reach=None):
     """The maps grown for `K` new landmarks per particle and, as dense copies, the slots a step with unknown
     correspondences can touch: those some particle uses and the next `K` (a new landmark takes the first
-    free slot). Returns ``(maps, cols, (mu, Sigma, seen, counts))``."""
+    free slot). Returns ``(maps, cols, (mu, Sigma, seen, counts))``, `cols` the slots gathered.
+
+    With `reach`, a function of the blocks' summaries ``(M, nb, _NS)`` that returns the blocks some particle
+    may reach ``(nb,)``, and a map of more than :data:`_WINDOW_BLOCKS` blocks, only those blocks are
+    gathered, and for every particle the blocks holding its first `K` free slots, so the window's first free
+    slot of a particle is its map's. The summaries are read instead of every slot.
+    """
     maps = state._blocks()
     M = state.n_particles
-    used = _used_slots(maps)
-    # whole blocks, up to the window's end unless the maps must grow (slots beyond `used` are empty)
-    d = np.take(maps.pool.data, maps.table[:, :_n_blocks(min(maps.N, used + K))], axis=0).reshape(M, -1, _NF)
-    need = int(np.count_nonzero(d[..., _SEEN], axis=1).max(initial=0)) + K
+    nb = _n_blocks(min(maps.N, _used_slots(maps) + K))  # whole blocks; slots beyond `used` are empty
+    if reach is not None and nb > _WINDOW_BLOCKS:
+        summary, d = _summaries(maps, nb), None
+        need = int(summary[..., _S_N].sum(axis=1).max(initial=0)) + K
+    else:
+        summary, d = None, np.take(maps.pool.data, maps.table[:, :nb], axis=0).reshape(M, -1, _NF)
+        need = int(np.count_nonzero(d[..., _SEEN], axis=1).max(initial=0)) + K
     if need > maps.N:
         maps = _grow(state, need, name)._maps
-    W = min(maps.N, used + K)
-    if W > d.shape[1]:
-        d = np.take(maps.pool.data, maps.table[:, :_n_blocks(W)], axis=0).reshape(M, -1, _NF)
-    return maps, np.arange(W), _split(d[:, :W])
+    W = min(maps.N, _used_slots(maps) + K)
+    nbW = _n_blocks(W)
+    if summary is None:
+        if nbW > nb:
+            d = np.take(maps.pool.data, maps.table[:, :nbW], axis=0).reshape(M, -1, _NF)
+        return maps, np.arange(W), _split(d[:, :W])
+    summary = _summaries(maps, nbW) if nbW > nb else summary[:, :nbW]
+    free = _BLOCK - summary[..., _S_N]
+    free[:, -1] -= nbW * _BLOCK - W  # the last block's slots beyond the window (all empty)
+    before = np.cumsum(free, axis=1) - free  # free slots in the earlier blocks
+    blocks = np.flatnonzero(((free > 0) & (before < K)).any(axis=0) | reach(summary))  # and the first K free slots
+    d = np.take(maps.pool.data, maps.table[:, blocks], axis=0).reshape(M, -1, _NF)
+    win = (blocks[:, None] * _BLOCK + np.arange(_BLOCK)).ravel()
+    cut = int(np.searchsorted(win, W))  # only the last block can reach beyond the window
+    return maps, win[:cut], _split(d[:, :cut])
 
 
 def _prune(x, mu, seen, counts, matched, max_range, half_fov):
@@ -1641,7 +1729,9 @@ def _associate2(x_hat, B, mu, Sigma, seen, log_w, z, Q, log_p0, cols, near):
         return P, b, match, log_w
     if cols.size:
         sn = seen[:, cols]
-        mu_s = np.where(sn[..., None], mu[:, cols], x_hat[:, None, :2] + 1.0)  # keep h defined on empty slots
+        mu_s = mu[:, cols]  # a copy; empty slots moved next to the particle to keep h defined there
+        if not sn.all():
+            mu_s[~sn] = np.broadcast_to(x_hat[:, None, :2] + 1.0, mu_s.shape)[~sn]
         z_bar, G, Qj = _predict_terms(x_hat, B, mu_s, Sigma[:, cols], Q)  # Table 13.3every candidate
         g00, g01, g10, g11 = G[..., 0, 0], G[..., 0, 1], G[..., 1, 0], G[..., 1, 1]
         zb0, zb1 = z_bar[..., 0], z_bar[..., 1]
@@ -1691,26 +1781,48 @@ def _associate2(x_hat, B, mu, Sigma, seen, log_w, z, Q, log_p0, cols, near):
     return P, b, match, log_w
 
 
-def _columns_in_reach(x_hat, B, mu, Sigma, seen, z, Q):
-    """Columns ``(W,)`` bool of the dense window whose landmark some particle may predict within reach.
+def _boxes_in_reach(lo, hi, margin, x, z):
+    """``(W,)`` bool: may some particle predict a landmark within ``[min range - margin, max range + margin]``
+    of the step's ranges, for landmarks whose estimates lie in the boxes ``[lo, hi] (W, 2)``?
 
-    A conservative, column-wise version of the per-particle test of :func:`_update2_unknown_core` (distance
-    within ``[min range - margin, max range + margin]``, margin = ten standard deviations): the distances
-    between the box of the particles' predicted positions and the box of each column's landmark estimates
-    bound every particle's distance, and the largest spread of the column and of the motion bound every
-    particle's margin, so every column the exact test keeps is kept.
+    The distances between the box of the particles' positions ``x (M, >=2)`` and each box bound every
+    particle's distance to every landmark in it, so with `margin` ``(W,)`` at least each landmark's own
+    margin, every landmark that a per-particle test keeps is in a box kept here. An empty box
+    (``lo = +inf``) is never kept.
     """
-    m = np.where(seen[..., None], mu, np.nan)  # NaN is ignored by fmin and fmax: only the particles that hold it
-    lo = np.fmin.reduce(m, axis=0)  # (W, 2): the box of each column's estimates over the particles
-    hi = np.fmax.reduce(m, axis=0)
-    p_lo, p_hi = x_hat[:, :2].min(axis=0), x_hat[:, :2].max(axis=0)
-    gap = np.maximum(np.maximum(lo - p_hi, p_lo - hi), 0.0)
-    far = np.maximum(np.abs(hi - p_lo), np.abs(p_hi - lo))
-    d_min, d_max = np.hypot(gap[:, 0], gap[:, 1]), np.hypot(far[:, 0], far[:, 1])
-    spread = np.sqrt(np.fmax.reduce(Sigma[..., 0, 0] + Sigma[..., 1, 1], axis=0))
-    margin = 10.0 * (math.sqrt(Q[0, 0]) + spread + float(np.sqrt((B * B).sum(axis=(1, 2))).max()))
-    slack = 1e-9 * (1.0 + d_max)  # rounding of the bounds
-    return (d_min - slack <= z[:, 0].max() + margin) & (d_max + slack >= z[:, 0].min() - margin)
+    p_lo, p_hi = x[:, :2].min(axis=0), x[:, :2].max(axis=0)
+    with np.errstate(invalid="ignore"):  # empty boxes: inf - inf
+        gap = np.maximum(np.maximum(lo - p_hi, p_lo - hi), 0.0)
+        far = np.maximum(np.abs(hi - p_lo), np.abs(p_hi - lo))
+        d_min, d_max = np.hypot(gap[:, 0], gap[:, 1]), np.hypot(far[:, 0], far[:, 1])
+        slack = 1e-9 * (1.0 + d_max)  # rounding of the bounds
+        return np.isfinite(d_min) & (d_min - slack <= z[:, 0].max() + margin) & (d_max + slack >= z[:, 0].min() - margin)
+
+
+def _margin2(var, B, Q):
+    """FastSLAM 2.0's margin of the per-particle test of :func:`_update2_unknown_core` for landmarks with
+    ``tr Sigma <= var``: ten standard deviations of sensor, landmark and (the largest) motion noise."""
+    return 10.0 * (math.sqrt(Q[0, 0]) + np.sqrt(var) + float(np.sqrt((B * B).sum(axis=(1, 2))).max()))
+
+
+def _summaries_in_reach(summary, x, z, margin):
+    """The blocks ``(nb,)`` that some particle may reach: :func:`_boxes_in_reach` on each block column's box
+    over the particles, from the summaries ``(M, nb, _NS)``; ``margin(var)`` gives the margin for the
+    column's largest ``tr Sigma``."""
+    var = np.maximum(summary[..., _S_XX].max(axis=0) + summary[..., _S_YY].max(axis=0), 0.0)  # -inf: no landmark
+    return _boxes_in_reach(summary[..., _S_LO].min(axis=0), summary[..., _S_HI].max(axis=0), margin(var), x, z)
+
+
+def _columns_in_reach(x_hat, B, mu, Sigma, seen, z, Q):
+    """Columns ``(W,)`` bool of the dense window whose landmark some particle may predict within reach
+    (:func:`_boxes_in_reach` with the box of each column's estimates over the particles that hold it)."""
+    lo, hi = np.empty((mu.shape[1], 2)), np.empty((mu.shape[1], 2))
+    for c in range(2):  # one coordinate at a time: a where broadcast over the last axis is several times slower
+        m = np.where(seen, mu[..., c], np.nan)  # NaN is ignored by fmin and fmax: only the particles that hold it
+        lo[:, c], hi[:, c] = np.fmin.reduce(m, axis=0), np.fmax.reduce(m, axis=0)
+    with np.errstate(invalid="ignore"):
+        var = np.fmax.reduce(Sigma[..., 0, 0], axis=0) + np.fmax.reduce(Sigma[..., 1, 1], axis=0)
+    return _boxes_in_reach(np.nan_to_num(lo, nan=np.inf), np.nan_to_num(hi, nan=-np.inf), _margin2(var, B, Q), x_hat, z)
 
 
 def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rng, copy=True, motion=None):
@@ -1724,11 +1836,14 @@ def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rn
         return FastSLAMState._from_maps(_move(x_prev, u, dt, L, eta, motion), state._blocks(),
                                         _normalized(state.log_weights.copy()))
     x_hat, B = _motion_terms(x_prev, u, dt, L, motion)
-    maps, win, (mu, Sigma, seen, counts) = _unknown_window(state, K, "the landmarks of a particle")
+    # the blocks some particle may reach (the union of the particles' block boxes, a superset of
+    # _columns_in_reach), or every block when pruning reads every landmark in view
+    reach = None if max_range is not None else (
+        lambda s: _summaries_in_reach(s, x_hat, z, lambda var: _margin2(var, B, Q)))
+    maps, win, (mu, Sigma, seen, counts) = _unknown_window(state, K, "the landmarks of a particle", reach)
     cols = np.flatnonzero(seen.any(axis=0))
     if cols.size and K:
-        with np.errstate(invalid="ignore"):  # columns no particle holds: NaN bounds, and not in cols
-            cols = cols[_columns_in_reach(x_hat, B, mu, Sigma, seen, z, Q)[cols]]  # a superset of the test below, cheaper
+        cols = cols[_columns_in_reach(x_hat, B, mu, Sigma, seen, z, Q)[cols]]  # a superset of the test below, cheaper
     if cols.size and K:
         # candidates: landmarks some particle predicts within reach of the step's ranges, with a margin of
         # ten standard deviations of sensor, landmark and motion noise; any other has a likelihood below

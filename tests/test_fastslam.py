@@ -484,6 +484,159 @@ def test_fastslam2_column_bound_keeps_every_column_some_particle_reaches():
     assert dropped > 1000  # and columns out of reach are dropped
 
 
+@pytest.fixture(scope="module")
+def corridor():
+    # a long drive past landmarks on both sides: the early landmarks fall far behind the robot
+    rng = np.random.default_rng(11)
+    landmarks = np.column_stack([rng.uniform(-5.0, 125.0, 60), rng.choice([-4.0, 4.0], 60) + rng.normal(0.0, 0.5, 60)])
+    u = np.tile([1.0, 0.0], (500, 1))
+    return sl.simulate_landmark_run(landmarks, u, 0.2, x0=np.zeros(3), M=np.diag([0.1, 0.02]) ** 2,
+                                    Q=np.diag([0.2, 0.03]) ** 2, max_range=8.0, fov=np.pi, rng=rng)
+
+
+@pytest.mark.parametrize("version,clutter", [(1, 0.0), (1, 1.0), (2, 0.0), (2, 1.0)])
+def test_block_window_gives_the_run_of_the_whole_window(corridor, version, clutter, monkeypatch):
+    # a step with unknown correspondences gathers only the blocks of landmark slots that some particle may
+    # reach (read off the blocks' summaries) and those holding each particle's first free slots; the run is
+    # bit for bit the run that gathers every block
+    from slamlib import fastslam as fs
+
+    run = sl.add_clutter(corridor, clutter, rng=np.random.default_rng(3)) if clutter else corridor
+    kw = dict(n_particles=20, known=False, version=version, resample_threshold=0.5)
+    monkeypatch.setattr(fs, "_WINDOW_BLOCKS", 0)  # read the summaries at every size
+    share = []
+    window = fs._unknown_window
+
+    def spy(state, K, name, reach=None):
+        out = window(state, K, name, reach)
+        share.append(out[1].size / min(out[0].N, fs._used_slots(out[0]) + K))
+        return out
+
+    monkeypatch.setattr(fs, "_unknown_window", spy)
+    res = sl.run_fastslam(run, rng=np.random.default_rng(1), **kw)
+    assert min(share) < 0.5  # most of the map is left out by the end
+    monkeypatch.setattr(fs, "_unknown_window", lambda state, K, name, reach=None: window(state, K, name))
+    every = sl.run_fastslam(run, rng=np.random.default_rng(1), **kw)
+    _same_state_and_estimate(res, every)
+
+
+def test_block_bound_keeps_every_block_the_per_particle_tests_reach():
+    # random maps: every block holding a (particle, slot) pair that FastSLAM 2.0's per-particle test or
+    # FastSLAM 1.0's candidate test keeps is kept by the bound read off the blocks' summaries
+    from slamlib import fastslam as fs
+
+    rng = np.random.default_rng(9)
+    Q, log_p0 = np.diag([0.25, 0.01]), np.log(1e-3)
+    dropped = 0
+    for _ in range(40):
+        M, N, K = 20, 160, 3
+        # a converged set (the bound is tightest there, and a weaker bound shows)
+        x = np.column_stack([rng.normal(0.0, 0.05, (M, 2)), rng.uniform(-np.pi, np.pi, M)])
+        B = rng.normal(0.0, 0.05, (M, 3, 2))
+        # landmarks met along a path: neighbouring slots lie close together, as they do in a run
+        path = np.cumsum(rng.normal(0.0, 3.0, (N, 2)), axis=0)
+        mu = path[None] + rng.normal(0.0, 0.05, (M, N, 2))
+        A = rng.normal(0.0, 0.3, (M, N, 2, 2))
+        Sigma = A @ np.swapaxes(A, -1, -2)
+        seen = rng.random((M, N)) < 0.7
+        maps = sl.FastSLAMState(x, mu, Sigma, seen, seen.astype(np.int64), np.zeros(M))._blocks()
+        summary = fs._summaries(maps, maps.table.shape[1])
+        z = np.column_stack([rng.uniform(1.0, 30.0, K), rng.uniform(-1.5, 1.5, K)])
+        d = np.hypot(mu[..., 0] - x[:, None, 0], mu[..., 1] - x[:, None, 1])
+        var = Sigma[..., 0, 0] + Sigma[..., 1, 1]
+        # FastSLAM 2.0: ten standard deviations; FastSLAM 1.0: w_j < p0 / e beyond sqrt(2 c0 S_rr) (_candidates)
+        c0 = -log_p0 - np.log(2.0 * np.pi) - 0.5 * np.log(np.linalg.det(Q)) + 1.0
+        for margin, m_of in ((10.0 * (np.sqrt(Q[0, 0]) + np.sqrt(var) + np.sqrt((B * B).sum(axis=(1, 2)))[:, None]),
+                              lambda v: fs._margin2(v, B, Q)),
+                             (np.sqrt(2.0 * c0 * (var + Q[0, 0])), lambda v: fs._reach1(v, Q, log_p0))):
+            exact = (seen & (d >= z[:, 0].min() - margin) & (d <= z[:, 0].max() + margin)).any(axis=0)
+            kept = fs._summaries_in_reach(summary, x, z, m_of)
+            assert np.all(kept[np.flatnonzero(exact) // fs._BLOCK])
+            dropped += np.count_nonzero(~kept)
+    assert dropped > 200  # and blocks out of reach are dropped (about a fifth of them)
+
+
+def test_block_window_gives_new_landmarks_the_first_free_slot(monkeypatch):
+    # maps with holes (slots freed anywhere): a new landmark takes the particle's first free slot, which the
+    # window must hold even when the block is out of reach; every step equals the step over every block
+    from slamlib import fastslam as fs
+
+    rng = np.random.default_rng(21)
+    monkeypatch.setattr(fs, "_WINDOW_BLOCKS", 0)  # read the summaries at every size
+    window = fs._unknown_window
+    Q, Mc = np.diag([0.2, 0.03]) ** 2, np.diag([0.1, 0.05]) ** 2
+    placed = 0
+    for trial in range(30):
+        M, N = 12, int(rng.integers(8, 70))
+        mu = rng.uniform(-100.0, 100.0, (1, N, 2)) + rng.normal(0.0, 0.2, (M, N, 2))
+        Sigma = np.broadcast_to(np.eye(2) * 0.05, (M, N, 2, 2)).copy()
+        seen = rng.random((M, N)) < rng.uniform(0.3, 1.0)
+        counts = seen.astype(np.int64)
+        poses = np.column_stack([rng.normal(0.0, 0.1, (M, 2)), rng.normal(0.0, 0.02, M)])
+        state = sl.FastSLAMState(poses, mu, Sigma, seen, counts, np.full(M, -np.log(M)))
+        K = int(rng.integers(1, 6))
+        z = np.column_stack([rng.uniform(1.0, 10.0, K), rng.uniform(-1.5, 1.5, K)])
+        step = dict(u=np.array([1.0, 0.1]), dt=0.2, z=z, Q=Q, M=Mc)
+        monkeypatch.setattr(fs, "_unknown_window", window)
+        a = sl.fastslam2_update_unknown(state, **step, rng=np.random.default_rng(trial))
+        a1 = sl.fastslam_update_unknown(state, z, Q)  # FastSLAM 1.0
+        monkeypatch.setattr(fs, "_unknown_window", lambda st, K, name, reach=None: window(st, K, name))
+        b = sl.fastslam2_update_unknown(state, **step, rng=np.random.default_rng(trial))
+        b1 = sl.fastslam_update_unknown(state, z, Q)
+        for x, y in zip(tuple(a) + tuple(a1), tuple(b) + tuple(b1)):
+            np.testing.assert_array_equal(x, y)
+        placed += a.seen.sum() > seen.sum()
+    assert placed > 20  # most steps place new landmarks (in holes or beyond the map's end)
+
+
+@pytest.mark.parametrize("version,known,max_range", [(1, True, None), (1, False, 8.0), (2, False, None), (2, True, None)])
+def test_block_summaries_match_the_blocks_they_summarise(world, version, known, max_range, monkeypatch):
+    # every write to the shared map storage (copy-on-write, in place, compaction, growth) marks the summary
+    # of the blocks it writes stale: at the end, every live block's summary that is marked up to date is
+    # the one computed afresh
+    from slamlib import fastslam as fs
+
+    monkeypatch.setattr(fs, "_WINDOW_BLOCKS", 0)  # read the summaries at every size
+
+    run = sl.add_clutter(world, 0.5, rng=np.random.default_rng(6)) if not known else world
+    res = sl.run_fastslam(run, n_particles=15, rng=np.random.default_rng(2), known=known, version=version,
+                          max_range=max_range, capacity=4)
+    maps = res.state._blocks()
+    live = np.unique(maps.table)
+    fresh = maps.pool.fresh[live]
+    stored = maps.pool.summary[live].copy()
+    read = fs._summaries(maps, maps.table.shape[1])  # what the next window reads: the stale ones computed
+    fs._summarize(maps.pool, live)  # every one afresh
+    np.testing.assert_array_equal(stored[fresh], maps.pool.summary[live][fresh])
+    np.testing.assert_array_equal(read, maps.pool.summary[maps.table])
+    assert read[..., fs._S_N].sum() > 0
+    if not known and max_range is None:
+        assert fresh.mean() > 0.5  # the steps read (most) summaries
+
+
+def test_block_summaries_survive_the_pure_steps_compactions(corridor, monkeypatch):
+    # the pure step functions never write in place: compaction moves the live blocks to a new pool, with
+    # their summaries and whether they are up to date; the windows equal the whole map's, step after step
+    from slamlib import fastslam as fs
+
+    monkeypatch.setattr(fs, "_WINDOW_BLOCKS", 0)
+    window = fs._unknown_window
+    Q, Mc = np.diag([0.2, 0.03]) ** 2, np.diag([0.1, 0.02]) ** 2
+    state = sl.fastslam_initial_state(corridor.x0, 10, 4)
+    pools = set()
+    for t in range(300):
+        step = dict(u=corridor.u[t], dt=corridor.dt, z=corridor.z[t], Q=Q, M=Mc)
+        monkeypatch.setattr(fs, "_unknown_window", window)
+        a = sl.fastslam2_update_unknown(state, **step, rng=np.random.default_rng(t))
+        monkeypatch.setattr(fs, "_unknown_window", lambda st, K, name, reach=None: window(st, K, name))
+        b = sl.fastslam2_update_unknown(state, **step, rng=np.random.default_rng(t))
+        for x, y in zip(a, b):
+            np.testing.assert_array_equal(x, y)
+        state = a
+        pools.add(id(state._blocks().pool))
+    assert len(pools) > 3  # several compactions into new pools
+
+
 def test_fastslam2_candidates_fall_back_to_every_landmark_when_the_proposal_moves_far(world, monkeypatch):
     # the per-measurement candidates of FastSLAM 2.0 hold while the proposal's mean of the control noise
     # stays within _ETA_REACH standard deviations; beyond it the step scores every candidate again
