@@ -58,9 +58,9 @@ from .particle import _normalized, effective_sample_size, low_variance_resample,
 from ._checks import (as_array, as_count, as_covariance, as_invertible_covariance, as_poses, as_range_bearing,
                       as_returned, as_rows, as_scalar, as_threshold, check_callable, check_choice, check_field_shapes,
                       check_log_weights, check_rng, check_type)
-from .angles import wrap_angle
+from .angles import _wrap, wrap_angle
 from .motion import _arc, _arc_pose, _control_sqrt, sample_motion_model_velocity, velocity_motion
-from .sensors import landmark_from_measurement, landmark_measurement
+from .sensors import _landmark_measurement, landmark_from_measurement, landmark_measurement
 
 __all__ = [
     "fastslam_init_landmark",
@@ -180,9 +180,9 @@ def _update_core(x, mu, Sigma, z, Q, weight_cov="S", gate=None):
     log weight is the density at the gate (``outlier`` is a boolean mask, else
     ``None``).
     """
-    z_hat, _, H = landmark_measurement(x, mu)  # z_hat = h(mu_j, x), H = h'(mu_j, x)  (Table 13.1 lines 12-13)
+    z_hat, _, H = _landmark_measurement(x, mu)  # z_hat = h(mu_j, x), H = h'(mu_j, x)  (Table 13.1 lines 12-13)
     nu0 = z[..., 0] - z_hat[..., 0]
-    nu1 = wrap_angle(z[..., 1] - z_hat[..., 1])
+    nu1 = _wrap(z[..., 1] - z_hat[..., 1])
     (a00, a01, a10, a11), (S00, S01, S11), (s00, s01, s11) = _innovation(H, Sigma, Q)
     det = S00 * S11 - S01 * S01
     i00, i01, i11 = S11 / det, -S01 / det, S00 / det  # S^-1
@@ -1154,7 +1154,7 @@ def _update_unknown_core(state, z, Q, log_p0, weight_cov, max_range, half_fov, c
     # the pose is fixed within the step: predict every candidate once, then refresh only what changes
     # z_hat_j = h(mu_j, x), H_j = h'(mu_j, x), S_j = H_j Sigma_j H_j^T + Q for every candidate j  (Table 13.2)
     mu_safe = np.where(seen[:, cols, None], mu[:, cols], x[:, None, :2] + 1.0)  # keep h defined on empty slots
-    z_hat, _, H = landmark_measurement(x[:, None, :], mu_safe)
+    z_hat, _, H = _landmark_measurement(x[:, None, :], mu_safe)
     _, S_parts, _ = _innovation(H, Sigma[:, cols], Q)
     S = np.stack(S_parts, axis=-1)  # (M, C, 3): S00, S01, S11
 
@@ -1164,7 +1164,7 @@ def _update_unknown_core(state, z, Q, log_p0, weight_cov, max_range, half_fov, c
                              _reach_factor(Q, log_p0))
 
     def refresh(k, jk):
-        zh, _, Hk = landmark_measurement(x[k], mu[k, jk])
+        zh, _, Hk = _landmark_measurement(x[k], mu[k, jk])
         z_hat[k, pos[jk]] = zh
         S[k, pos[jk]] = np.stack(_innovation(Hk, Sigma[k, jk], Q)[1], axis=-1)
         fresh[pos[jk]] = True
@@ -1176,7 +1176,7 @@ def _update_unknown_core(state, z, Q, log_p0, weight_cov, max_range, half_fov, c
         else:
             sn = seen[:, cols[ci]]
             zh, Sc = z_hat[:, ci], S[:, ci]
-            nu1 = wrap_angle(zk[1] - zh[..., 1])
+            nu1 = _wrap(zk[1] - zh[..., 1])
             # w_j = N(nu_j; 0, S_j)  (Table 13.2)
             ll = np.where(sn, _log_gauss_2(zk[0] - zh[..., 0], nu1, Sc[..., 0], Sc[..., 1], Sc[..., 2]), -np.inf)
             c = np.argmax(ll, axis=1)  # ties: smallest index (the candidates are in increasing order)
@@ -1267,7 +1267,7 @@ def _within_reach(z, zb0, zb1, seen, s0, s1, f):
     y0 = np.abs(z[:, 0, None, None] - zb0)
     # |wrap(phi_i - zb1)| <= f s1 with both bearings in [-pi, pi]: |phi_i - zb1| <= f s1 or >= 2 pi - f s1
     t1 = f * s1
-    y1 = np.abs(wrap_angle(z[:, 1])[:, None, None] - zb1)
+    y1 = np.abs(_wrap(z[:, 1])[:, None, None] - zb1)
     return (seen & (y0 <= f * s0) & ((y1 <= t1) | (y1 >= 2.0 * np.pi - t1))).any(axis=1)
 
 
@@ -1318,7 +1318,7 @@ def _prune(x, mu, seen, counts, matched, max_range, half_fov):
     """Landmark counters of Table 13.2: a landmark in the perceptual range that no measurement matched
     loses a count and is discarded below zero."""
     mu_safe = np.where(seen[..., None], mu, x[:, None, :2] + 1.0)
-    z_hat, _, _ = landmark_measurement(x[:, None, :], mu_safe)
+    z_hat, _, _ = _landmark_measurement(x[:, None, :], mu_safe)
     in_view = seen & (z_hat[..., 0] <= max_range) & (np.abs(z_hat[..., 1]) <= half_fov)
     miss = in_view & ~matched
     counts = counts - miss  # i_j = i_j - 1 for unmatched landmarks in range  (Table 13.2)
@@ -1364,7 +1364,7 @@ def _predict_terms(x_hat, B, mu, Sigma, Q):
 
     ``x_hat (M, 3)``, ``B = V L (M, 3, 2)``, ``mu (M, K, 2)``, ``Sigma (M, K, 2, 2)``.
     """
-    z_bar, Hx, Hm = landmark_measurement(x_hat[:, None, :], mu)  # z_bar = h(mu_j, x_hat), H_x, H_m
+    z_bar, Hx, Hm = _landmark_measurement(x_hat[:, None, :], mu)  # z_bar = h(mu_j, x_hat), H_x, H_m
     _, Qj, _ = _innovation(Hm, Sigma, Q)  # Q_j = Q_t + H_m Sigma_j H_m^T
     G = np.empty(Hm.shape)  # G = H_x V L: the measurement's Jacobian with respect to the control noise eta
     b = B[:, None]
@@ -1495,7 +1495,7 @@ def fastslam2_proposal(x, u, dt, M, mu, Sigma, z, Q):
         raise ValueError("mu coincides with a predicted pose: the measurement Jacobian is undefined")
     z_bar, G, Qj = _predict_terms(x_hat, B, mu[:, None], Sigma[:, None], Q)
     r0 = z[0] - z_bar[:, 0, 0]
-    r1 = wrap_angle(z[1] - z_bar[:, 0, 1])
+    r1 = _wrap(z[1] - z_bar[:, 0, 1])
     A, b, log_n = _gauss_terms(G[:, 0], tuple(q[:, 0] for q in Qj), r0, r1)
     P = (1.0 + A[0], A[1], 1.0 + A[2])
     _, (c00, c01, c11) = _inv_sym(*P)
@@ -1606,7 +1606,7 @@ def _update2_known_core(state, u, dt, L, z, ids, Q, rng, gate=None, copy=True, m
     Sigma_j = np.where(known[..., None, None], Sigma[:, j], np.eye(2))
     z_bar, G, Qj = _predict_terms(x_hat, B, mu_j, Sigma_j, Q)
     r0 = zk[:, 0] - z_bar[..., 0]  # z_t - z_bar_j  (Table 13.3)
-    r1 = wrap_angle(zk[:, 1] - z_bar[..., 1])
+    r1 = _wrap(zk[:, 1] - z_bar[..., 1])
     A, b, log_n = _gauss_terms(G, Qj, r0, r1)
     use = known
     if gate is not None:
@@ -1750,9 +1750,9 @@ def _associate2(x_hat, B, mu, Sigma, seen, log_w, z, Q, log_p0, cols, near):
         h00, h01, h10, h11 = g00[:, ci], g01[:, ci], g10[:, ci], g11[:, ci]
         q00, q01, q11 = Qj[0][:, ci], Qj[1][:, ci], Qj[2][:, ci]
         y0 = zi[0] - zb0[:, ci]
-        y1 = wrap_angle(zi[1] - zb1[:, ci])
+        y1 = _wrap(zi[1] - zb1[:, ci])
         r0 = y0 - (h00 * m0[:, None] + h01 * m1[:, None])  # innovation against the proposal mean
-        r1 = wrap_angle(y1 - (h10 * m0[:, None] + h11 * m1[:, None]))
+        r1 = _wrap(y1 - (h10 * m0[:, None] + h11 * m1[:, None]))
         # L_j = G_j C G_j^T + Q_j  (Table 13.3with the proposal's covariance C so far)
         a00 = h00 * c00[:, None] + h01 * c01[:, None]
         a01 = h00 * c01[:, None] + h01 * c11[:, None]
@@ -1862,7 +1862,7 @@ def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rn
         # sqrt(Q_j,phiphi) <= sqrt(Q_phiphi) + s / d (s^2 = tr Sigma_j), |G_r| <= |B_xy|,
         # |G_phi| <= |B_xy| / d + |B_theta|
         d, spread = d[:, keep], spread[:, keep]
-        phi = wrap_angle(np.arctan2(dy[:, keep], dx[:, keep]) - x_hat[:, None, 2])
+        phi = _wrap(np.arctan2(dy[:, keep], dx[:, keep]) - x_hat[:, None, 2])
         b_xy = np.sqrt((B[:, :2] ** 2).sum(axis=(1, 2)))[:, None]
         b_th = np.sqrt((B[:, 2] ** 2).sum(axis=1))[:, None]
         s1 = np.full(d.shape, np.inf)  # at d = 0 the bearing can be anything
