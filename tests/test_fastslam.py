@@ -567,8 +567,10 @@ def test_block_window_gives_new_landmarks_the_first_free_slot(monkeypatch):
     Q, Mc = np.diag([0.2, 0.03]) ** 2, np.diag([0.1, 0.05]) ** 2
     placed = 0
     for trial in range(30):
-        M, N = 12, int(rng.integers(8, 70))
-        mu = rng.uniform(-100.0, 100.0, (1, N, 2)) + rng.normal(0.0, 0.2, (M, N, 2))
+        M, N = 12, int(rng.integers(8, 300))
+        # landmarks met along a path from far away to the robot: most blocks are out of reach
+        path = np.linspace([-300.0, 40.0], [0.0, 4.0], N) + rng.normal(0.0, 1.0, (N, 2))
+        mu = path[None] + rng.normal(0.0, 0.2, (M, N, 2))
         Sigma = np.broadcast_to(np.eye(2) * 0.05, (M, N, 2, 2)).copy()
         seen = rng.random((M, N)) < rng.uniform(0.3, 1.0)
         counts = seen.astype(np.int64)
