@@ -1,0 +1,27 @@
+"""The benchmarks' verdicts: a goal is "met" only when every figure it covers was measured and meets it."""
+import importlib.util
+import math
+from pathlib import Path
+
+import pytest
+
+BENCH = Path(__file__).resolve().parents[1] / "benchmarks"
+
+
+@pytest.fixture(scope="module")
+def small_calls():
+    spec = importlib.util.spec_from_file_location("bench_small_calls_under_test", BENCH / "bench_small_calls.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_small_calls_goal_is_met_only_when_every_ratio_is_measured_and_meets_it(small_calls):
+    goal = small_calls.GOAL_FILTERPY
+    assert small_calls.goal_verdict([1.0, goal], True).endswith("(met)")
+    assert small_calls.goal_verdict([1.0, goal * 1.01], True).endswith("(MISSED)")
+    # a ratio against a contestant that was not timed is NaN: never a pass, whatever its position
+    assert small_calls.goal_verdict([math.nan, 1.0], True).endswith("(MISSED)")
+    assert small_calls.goal_verdict([1.0, math.nan], True).endswith("(MISSED)")
+    assert "met" not in small_calls.goal_verdict([math.nan] * 3, False)
+    assert small_calls.goal_verdict([math.nan] * 3, False).startswith("not measured")
