@@ -23,10 +23,11 @@ measured in this process on the same simulated run:
   with its ratio to FastSLAM 1.0 measured in the same process;
 * FastSLAM 1.0 and 2.0 with unknown correspondences at ``M = 100`` on worlds of 50 to 3200
   landmarks at one density, in milliseconds per step (Victoria Park: about 7000 steps,
-  hundreds of landmarks, a budget of 60 s for the whole run). The robot sees the same
-  number of landmarks in every world, so the goal is the step at 3200 landmarks within 2x
-  of the step at 50; the step that gathers the whole map instead (the filter before its
-  blocks kept summaries) is timed at 3200 for comparison.
+  hundreds of landmarks, a budget of 60 s for the whole run). The robot sees about the same
+  number of landmarks in every world (4 to 6 per step; the count is printed), so the goal is
+  the time per observation at 3200 landmarks within 2x of that at 50; the step that gathers
+  the whole map instead (the filter before its blocks kept summaries) is timed at 3200 for
+  comparison.
 
 For context (not measured here): the PythonRobotics FastSLAM 1.0 example is
 quoted at about 103 microseconds per particle x observation; the target is 20
@@ -155,6 +156,13 @@ UNKNOWN_SIZES = (50, 150, 300, 1200, 3200)
 UNKNOWN_GOAL = 2.0
 CAPACITIES = (50, 200, 800, 3200)
 CAPACITY_GOAL = 2.0  # the step at N = 3200 landmark slots within 2x the step at N = 50
+
+
+def unknown_ratio(large, version):
+    """Time per observation in the largest world over that in the smallest (``large[n, v] = (ms per step, largest
+    map, observations per step)``)."""
+    (t_big, _, k_big), (t_small, _, k_small) = large[UNKNOWN_SIZES[-1], version], large[UNKNOWN_SIZES[0], version]
+    return (t_big / k_big) / (t_small / k_small)
 
 
 def ms_per_step_capacity(run, capacity, n_particles=M_FAST, steps=60, pure=False):
@@ -348,9 +356,10 @@ def fastslam_figures() -> list[str]:
         *[f"  {n:4d} landmarks ({large[n, 2][1]:4d} in the largest map at the end, {large[n, 2][2]:.1f} "
           "observations per step): "
           f"FastSLAM 1.0 {large[n, 1][0]:5.2f}, FastSLAM 2.0 {large[n, 2][0]:5.2f}" for n in UNKNOWN_SIZES],
-        *[f"  FastSLAM {v}.0: {UNKNOWN_SIZES[-1]} landmarks within {UNKNOWN_GOAL:g}x of {UNKNOWN_SIZES[0]}: "
-          f"ratio {large[UNKNOWN_SIZES[-1], v][0] / large[UNKNOWN_SIZES[0], v][0]:4.2f}x "
-          f"({'met' if large[UNKNOWN_SIZES[-1], v][0] <= UNKNOWN_GOAL * large[UNKNOWN_SIZES[0], v][0] else 'MISSED'}); "
+        *[f"  FastSLAM {v}.0: {UNKNOWN_SIZES[-1]} landmarks within {UNKNOWN_GOAL:g}x of {UNKNOWN_SIZES[0]} per observation "
+          f"(the worlds' observations per step differ): ratio {unknown_ratio(large, v):4.2f}x "
+          f"({'met' if unknown_ratio(large, v) <= UNKNOWN_GOAL else 'MISSED'}; per step "
+          f"{large[UNKNOWN_SIZES[-1], v][0] / large[UNKNOWN_SIZES[0], v][0]:4.2f}x); "
           f"gathering the whole map at every step instead: {whole[v]:6.2f} ms "
           f"({whole[v] / large[UNKNOWN_SIZES[-1], v][0]:4.1f}x)" for v in (1, 2)],
     ]

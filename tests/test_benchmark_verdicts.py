@@ -25,3 +25,13 @@ def test_small_calls_goal_is_met_only_when_every_ratio_is_measured_and_meets_it(
     assert small_calls.goal_verdict([1.0, math.nan], True).endswith("(MISSED)")
     assert "met" not in small_calls.goal_verdict([math.nan] * 3, False)
     assert small_calls.goal_verdict([math.nan] * 3, False).startswith("not measured")
+
+
+def test_fastslam_size_goal_compares_the_time_per_observation():
+    spec = importlib.util.spec_from_file_location("bench_fastslam_under_test", BENCH / "bench_fastslam.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    small, big = mod.UNKNOWN_SIZES[0], mod.UNKNOWN_SIZES[-1]
+    # twice the time per step for twice the observations per step: the same time per observation
+    assert mod.unknown_ratio({(small, 2): (1.5, small, 4.0), (big, 2): (3.0, big, 8.0)}, 2) == pytest.approx(1.0)
+    assert mod.unknown_ratio({(small, 1): (1.0, small, 5.0), (big, 1): (3.0, big, 5.0)}, 1) == pytest.approx(3.0)
