@@ -426,7 +426,7 @@ def _maps_from_dense(mu, Sigma, seen, counts):
     d[:, :N, _SEEN] = seen
     d[:, :N, _COUNT] = counts
     pool = _Pool(1 + M * nb)
-    pool.data[1:] = d.reshape(M * nb, _BLOCK, _NF)
+    pool.data[1:1 + M * nb] = d.reshape(M * nb, _BLOCK, _NF)  # (the pool has room for two blocks at least)
     pool.top = 1 + M * nb
     return _Maps(pool, np.arange(1, 1 + M * nb, dtype=np.int64).reshape(M, nb), N)
 

@@ -1580,3 +1580,18 @@ def test_run_refuses_bad_plugged_in_functions_naming_them(world):
         sl.run_fastslam(run, **kw, fastslam_update_landmark=lambda x, mu, S, z, Q: (mu, S, -up(x, mu, S, z, Q)[2]))
     with pytest.raises(ValueError, match="fastslam_update_landmark must return a tuple of 3 arrays"):
         sl.run_fastslam(run, **kw, fastslam_update_landmark=lambda x, mu, S, z, Q: (mu, S))
+
+
+def test_a_set_built_with_no_landmark_slots_grows_on_its_first_step():
+    # FastSLAMState from dense arrays with N = 0 (no slot yet): every update places the new landmark
+    M = 3
+    st = sl.FastSLAMState(np.zeros((M, 3)), np.zeros((M, 0, 2)), np.zeros((M, 0, 2, 2)), np.zeros((M, 0), bool),
+                          np.zeros((M, 0), np.int64), np.full(M, -np.log(M)))
+    z, Q = np.array([[3.0, 0.2]]), np.diag([0.1, 0.01])
+    for new in (sl.fastslam_update_unknown(st, z, Q),
+                sl.fastslam2_update_unknown(st, np.array([1.0, 0.0]), 0.1, z, Q, M=np.diag([0.01, 0.01]),
+                                            rng=np.random.default_rng(0)),
+                sl.fastslam_update_known(st, z, np.array([0]), Q)):
+        assert new.capacity >= 1
+        np.testing.assert_array_equal(new.seen.sum(axis=1), 1)
+    assert st.capacity == 0  # the input is unchanged
