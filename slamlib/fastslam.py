@@ -333,7 +333,7 @@ def fastslam_update_landmark(x, mu, Sigma, z, Q, *, weight_cov="S", log=False, g
 # the states derived from one another): a particle's map is a row of block indices (its table). Resampling copies
 # tables, not maps; an update writes the slots it changes into fresh copies of their blocks (copy-on-write), so a
 # block, once written, never changes and states stay pure. A step costs the slots it touches, not the capacity.
-_BLOCK = 8  # landmark slots per block
+_BLOCK = 8  # landmark slots per block (a power of two: _over_block halves it)
 _MU, _SIG, _SEEN, _COUNT = slice(0, 2), slice(2, 6), 6, 7  # the float64 fields of a slot: mu, Sigma, seen, count
 _NF = 8
 # every block's summary, kept with it in the pool: the box of its landmark means (lo x, lo y, hi x, hi y), its
@@ -382,7 +382,8 @@ def _n_blocks(N):
 
 
 def _over_block(a, f):
-    """``f``-reduction of ``a (n, _BLOCK)`` over its slots, pairwise (several times faster than ``axis=1``)."""
+    """``f``-reduction of ``a (n, _BLOCK)`` over its slots, pairwise (several times faster than ``axis=1``;
+    ``_BLOCK`` is a power of two)."""
     while a.shape[1] > 1:
         a = f(a[:, :a.shape[1] // 2], a[:, a.shape[1] // 2:])
     return a[:, 0]
