@@ -311,7 +311,7 @@ def as_covariance(value, name, n=None, *, definite=False, batched=False, psd=Tru
     asym = np.abs(arr - np.swapaxes(arr, -1, -2)).max(axis=(-2, -1), initial=0.0)
     if np.any(asym > SYM_RTOL * scale):
         raise ValueError(f"{name} must be symmetric (largest |{name} - {name}^T| is {float(np.max(asym)):.3g})")
-    if psd and k > 0:
+    if psd and k > 0 and arr.size:  # (an empty batch has nothing to check)
         eig = np.linalg.eigvalsh(arr)
         low = float(eig.min())
         if definite and np.any(eig.min(axis=-1) <= 0.0):

@@ -692,6 +692,8 @@ def _check_state(state, name="state"):
     if np.ndim(seen) != 2:
         raise ValueError(f"{name}.seen must have shape (M, N), got {np.shape(seen)}")
     M, N = np.shape(seen)
+    if M == 0:
+        raise ValueError(f"{name} must hold at least one particle, got seen of shape {np.shape(seen)}")
     shapes = {"poses": (M, 3), "mu": (M, N, 2), "Sigma": (M, N, 2, 2), "counts": (M, N), "log_weights": (M,)}
     return check_field_shapes(state, name, shapes)
 

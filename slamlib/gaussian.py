@@ -138,7 +138,7 @@ def _mm(A, B):
 
 def _gain(PHt, S):
     """``K = PHt S^-1`` for a symmetric positive definite ``S`` (explicit inverse when ``S`` is 1x1 or 2x2)."""
-    if S.ndim == 2 and S.shape[0] <= 2:
+    if S.ndim == 2 and 1 <= S.shape[0] <= 2:
         if S.shape[0] == 1:
             return PHt / S[0, 0]
         (a, b), (_, d) = S.tolist()

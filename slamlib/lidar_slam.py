@@ -436,6 +436,8 @@ def poses_at_scans(key_index, key_poses, odom_poses, scans):
     key_poses = as_array(key_poses, "key_poses", (key_index.size, 3))
     odom = as_array(odom_poses, "odom_poses", (None, 3))
     scans = np.asarray(scans, dtype=np.intp)
+    if scans.size and key_index.size == 0:
+        raise ValueError("key_index must hold at least one keyframe (the poses are composed from the last one)")
     if scans.size and scans.min() < key_index[0]:
         raise ValueError(f"scans must not precede the first keyframe (scan {key_index[0]})")
     k = np.searchsorted(key_index, scans, side="right") - 1

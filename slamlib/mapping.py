@@ -208,6 +208,8 @@ def inverse_range_sensor_model(cells, pose, ranges, angles, *, z_max, params=Non
     ranges, angles = as_scan(ranges, angles)
     z_max = as_scalar(z_max, "z_max", positive=True, finite=False)
     off = as_scalar(sensor_offset, "sensor_offset")
+    if ranges.size == 0:  # no beam: every cell is outside the perceptual field
+        return np.full(cells.shape[0], params.l0)
     sx, sy = pose[0] + off * np.cos(pose[2]), pose[1] + off * np.sin(pose[2])
     r = np.hypot(cells[:, 0] - sx, cells[:, 1] - sy)  # (Table 9.2 line 2)
     phi = np.arctan2(cells[:, 1] - sy, cells[:, 0] - sx) - pose[2]  # (line 3)
@@ -467,6 +469,8 @@ def occupancy_grid_mapping(poses, ranges, angles, *, z_max, spec=None, resolutio
     z_max = as_scalar(z_max, "z_max", positive=True, finite=False)
     off = as_scalar(sensor_offset, "sensor_offset")
     if spec is None:
+        if T == 0:
+            raise ValueError("poses must hold at least one pose to size the map, or give spec")
         reach = min(z_max, params.range_limit)
         ends = poses[:, None, :2] + np.minimum(Z, reach)[..., None] * np.stack(
             [np.cos(poses[:, None, 2] + angles), np.sin(poses[:, None, 2] + angles)], axis=-1)

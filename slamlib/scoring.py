@@ -704,6 +704,9 @@ def calibrate_noise(run, *, windows=(10, 50, 100, 300), max_gap=10, outlier=(1.5
     # drop the outliers from the residuals and from the per-step id lists alike
     keep_ids = [np.asarray(i)[~bad[step_of == k]] for k, i in enumerate(run.ids)]
     good = res[~bad]
+    if good.shape[0] < 3:
+        raise ValueError(f"run must hold at least 3 landmark sightings within the outlier gate to calibrate Q, "
+                         f"got {good.shape[0]} (of {res.shape[0]})")
     rms = np.sqrt(np.mean(good**2, axis=0))
     rho = sighting_correlation(good, keep_ids, max_gap=max_gap)
     q = rms * np.sqrt((1 + rho) / (1 - rho))  # variance inflated by (1 + rho) / (1 - rho)

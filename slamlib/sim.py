@@ -168,8 +168,8 @@ def simulate_landmark_run(landmarks, u, dt, *, x0, M, Q, max_range=np.inf, fov=2
     z_all = z_all + rng.multivariate_normal(np.zeros(2), Q, size=z_all.shape[0], method="eigh")
     z_all[:, 1] = wrap_angle(z_all[:, 1])
     splits = np.searchsorted(t_idx, np.arange(1, T))
-    zs = [_readonly(z) for z in np.split(z_all, splits)]
-    ids = [_readonly(i) for i in np.split(j_idx.astype(np.int64), splits)]
+    zs = [_readonly(z) for z in np.split(z_all, splits)] if T else []  # (np.split gives one chunk for T = 0)
+    ids = [_readonly(i) for i in np.split(j_idx.astype(np.int64), splits)] if T else []
     return LandmarkRun(
         landmarks=_readonly(landmarks), dt=dt, x0=_readonly(x0), x_true=_readonly(x_true), u=_readonly(u),
         u_true=_readonly(u_true), z=tuple(zs), ids=tuple(ids), M=_readonly(M), Q=_readonly(Q),
