@@ -182,7 +182,7 @@ EQUIVALENT = {
         "_landmark_measurement: *": BATCHED,
         "_mm: [if A.ndim == 2 and B.ndim == 2:] *": DISPATCH, "_mm: return A @ B*": BATCHED,
         "_mm: [return A @ B]*": BATCHED,
-        "_gain: [if S.ndim == 2 and S.shape[0] <= 2:] *": DISPATCH, "_gain: return PHt / S[0, 0]*": GAIN_1X1,
+        "_gain: [if S.ndim == 2 and 1 <= S.shape[0] <= 2:] *": DISPATCH, "_gain: return PHt / S[0, 0]*": GAIN_1X1,
         "_gain: [return PHt / S[0, 0]]*": GAIN_1X1, "_gain: return _T(np.linalg.solve(*": BATCHED,
         "_gain: [return _T(np.linalg.solve(*": BATCHED,
     },
