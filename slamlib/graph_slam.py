@@ -359,8 +359,6 @@ def build_linear_system(X, edges, Z, Omega):
     Grisetti et al. (2010), Eqs. 21-28 and Algorithm 1 lines 4-11.
     """
     X, edges, Z, Omega = as_pose_graph(X, edges, Z, Omega)
-    if edges.shape[0] == 0:  # no constraint: H = 0, b = 0 (the layout needs at least one block)
-        return sp.csc_matrix((3 * X.shape[0], 3 * X.shape[0])), np.zeros(3 * X.shape[0])
     layout = _Layout(3 * X.shape[0], [(3 * edges[:, 0], 3, 3 * edges[:, 1], 3)], fixed_vars=())
     e, A, B = _se2_edges(X[edges[:, 0]], X[edges[:, 1]], Z)
     return layout.assemble([(A, B, e, Omega)])

@@ -39,13 +39,6 @@ def test_a_fastslam_set_of_no_particle_is_refused_naming_the_state():
             call()
 
 
-@pytest.mark.parametrize("n", [1, 3])
-def test_the_normal_equations_of_a_graph_with_no_edge_are_zero(n):
-    H, b = sl.build_linear_system(np.zeros((n, 3)), np.zeros((0, 2), int), np.zeros((0, 3)), np.zeros((0, 3, 3)))
-    assert H.shape == (3 * n, 3 * n) and H.nnz == 0
-    np.testing.assert_array_equal(b, np.zeros(3 * n))
-
-
 def test_an_empty_scan_leaves_every_cell_at_the_prior():
     out = sl.inverse_range_sensor_model(np.array([[20.0, 20.0], [2.5, 2.0]]), np.array([2.0, 2.0, 0.0]), np.zeros(0),
                                         np.zeros(0), z_max=5.0)
