@@ -1802,13 +1802,20 @@ def _boxes_in_reach(lo, hi, margin, x, z):
         far = np.maximum(np.abs(hi - p_lo), np.abs(p_hi - lo))
         d_min, d_max = np.hypot(gap[:, 0], gap[:, 1]), np.hypot(far[:, 0], far[:, 1])
         slack = 1e-9 * (1.0 + d_max)  # rounding of the bounds
-        return np.isfinite(d_min) & (d_min - slack <= z[:, 0].max() + margin) & (d_max + slack >= z[:, 0].min() - margin)
+        return (np.isfinite(d_min) & (d_min - slack <= z[:, 0].max() + margin)
+                & (d_max + slack >= z[:, 0].min() - margin))
 
 
-def _margin2(var, B, Q):
-    """FastSLAM 2.0's margin of the per-particle test of :func:`_update2_unknown_core` for landmarks with
-    ``tr Sigma <= var``: ten standard deviations of sensor, landmark and (the largest) motion noise."""
-    return 10.0 * (math.sqrt(Q[0, 0]) + np.sqrt(var) + float(np.sqrt((B * B).sum(axis=(1, 2))).max()))
+def _margin2(spread, b, Q):
+    """FastSLAM 2.0's margin of the per-particle test of :func:`_update2_unknown_core`: ten standard deviations
+    of sensor (``sqrt Q_rr``), landmark (``spread = sqrt tr Sigma``) and motion noise (``b``, the norm of the
+    motion's ``B = V L``, :func:`_motion_norm`); the bounds pass the largest spread and norm."""
+    return 10.0 * (math.sqrt(Q[0, 0]) + spread + b)
+
+
+def _motion_norm(B):
+    """``|B_k|`` (Frobenius) of every particle's ``B = V L``, shape (M,)."""
+    return np.sqrt((B * B).sum(axis=(1, 2)))
 
 
 def _summaries_in_reach(summary, x, z, margin):
@@ -1829,7 +1836,8 @@ def _columns_in_reach(x_hat, B, mu, Sigma, seen, z, Q):
         lo[:, c], hi[:, c] = np.fmin.reduce(m, axis=0), np.fmax.reduce(m, axis=0)
     with np.errstate(invalid="ignore"):
         var = np.fmax.reduce(Sigma[..., 0, 0], axis=0) + np.fmax.reduce(Sigma[..., 1, 1], axis=0)
-    return _boxes_in_reach(np.nan_to_num(lo, nan=np.inf), np.nan_to_num(hi, nan=-np.inf), _margin2(var, B, Q), x_hat, z)
+    margin = _margin2(np.sqrt(var), float(_motion_norm(B).max()), Q)
+    return _boxes_in_reach(np.nan_to_num(lo, nan=np.inf), np.nan_to_num(hi, nan=-np.inf), margin, x_hat, z)
 
 
 def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rng, copy=True, motion=None):
@@ -1846,7 +1854,7 @@ def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rn
     # the blocks some particle may reach (the union of the particles' block boxes, a superset of
     # _columns_in_reach), or every block when pruning reads every landmark in view
     reach = None if max_range is not None else (
-        lambda s: _summaries_in_reach(s, x_hat, z, lambda var: _margin2(var, B, Q)))
+        lambda s: _summaries_in_reach(s, x_hat, z, lambda var: _margin2(np.sqrt(var), float(_motion_norm(B).max()), Q)))
     maps, win, (mu, Sigma, seen, counts) = _unknown_window(state, K, "the landmarks of a particle", reach)
     cols = np.flatnonzero(seen.any(axis=0))
     if cols.size and K:
@@ -1858,7 +1866,7 @@ def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rn
         dx, dy = mu[:, cols, 0] - x_hat[:, None, 0], mu[:, cols, 1] - x_hat[:, None, 1]
         d = np.hypot(dx, dy)
         spread = np.sqrt(Sigma[:, cols, 0, 0] + Sigma[:, cols, 1, 1])
-        margin = 10.0 * (np.sqrt(Q[0, 0]) + spread + np.sqrt((B * B).sum(axis=(1, 2)))[:, None])
+        margin = _margin2(spread, _motion_norm(B)[:, None], Q)
         near = seen[:, cols] & (d >= z[:, 0].min() - margin) & (d <= z[:, 0].max() + margin)
         keep = near.any(axis=0)
         cols = cols[keep]

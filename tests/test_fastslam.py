@@ -547,7 +547,7 @@ def test_block_bound_keeps_every_block_the_per_particle_tests_reach():
         # FastSLAM 2.0: ten standard deviations; FastSLAM 1.0: w_j < p0 / e beyond sqrt(2 c0 S_rr) (_candidates)
         c0 = -log_p0 - np.log(2.0 * np.pi) - 0.5 * np.log(np.linalg.det(Q)) + 1.0
         for margin, m_of in ((10.0 * (np.sqrt(Q[0, 0]) + np.sqrt(var) + np.sqrt((B * B).sum(axis=(1, 2)))[:, None]),
-                              lambda v: fs._margin2(v, B, Q)),
+                              lambda v: fs._margin2(np.sqrt(v), float(fs._motion_norm(B).max()), Q)),
                              (np.sqrt(2.0 * c0 * (var + Q[0, 0])), lambda v: fs._reach1(v, Q, log_p0))):
             exact = (seen & (d >= z[:, 0].min() - margin) & (d <= z[:, 0].max() + margin)).any(axis=0)
             kept = fs._summaries_in_reach(summary, x, z, m_of)
