@@ -12,8 +12,8 @@ signal; SIGTERM and SIGINT stop them explicitly), and every sandbox dies with it
 worker, so killing ``batch`` by any means leaves no process behind. Each
 submission's results JSON is written atomically as soon as it is graded and
 records the submission's hash; a rerun skips every submission whose JSON matches
-its current content (``--restart`` grades everything again). The CSV is rewritten
-atomically after each submission.
+its current content, unless the grader itself failed on it (``--restart`` grades
+everything again). The CSV is rewritten atomically after each submission.
 """
 
 from __future__ import annotations
@@ -199,7 +199,8 @@ def run_batch(folder, exercise, *, out_csv="grades.csv", jobs=2, results_dir=Non
         old = None if restart else read_results(results_dir / f"{sid}.json")
         extra = (old or {}).get("extra_data") or {}
         if (old and extra.get("submission_sha256") == fp and extra.get("exercise") == exercise
-                and isinstance(extra.get("batch_row"), dict) and (seed is None or extra.get("seed") == seed)):
+                and isinstance(extra.get("batch_row"), dict) and (seed is None or extra.get("seed") == seed)
+                and extra["batch_row"].get("status") != "grader-error"):  # the grader's failure is graded again
             rows.append(extra["batch_row"])
         else:
             todo.append((sid, path, why, fp))

@@ -37,7 +37,7 @@ from .sandbox import CallOutcome, ChildFailed, Limits, Sandbox
 from .spec import VISIBILITY
 from .submission import FORBIDDEN, SubmissionError, forbidden_usage, load_submission
 
-__all__ = ["grade", "GradeResult", "TestResult", "run_tests", "Budget"]
+__all__ = ["grade", "GradeResult", "TestResult", "run_tests", "Budget", "GraderFault"]
 
 #: A worker that died is forked again at most this many times per function.
 MAX_RESTARTS = 3
@@ -70,6 +70,14 @@ def _call_failure_text(err):
         if tail:
             lines.append("its output ended with:\n" + "\n".join("  | " + ln for ln in tail.splitlines()[-8:]))
     return "\n".join(lines)
+
+
+class GraderFault(Exception):
+    """The grader's own machinery failed during a call (not the submission): never a failed test.
+
+    :func:`grade` grades the submission once more, one function at a time; a second fault propagates, so the
+    command reports an internal error for the course staff instead of a score.
+    """
 
 
 class Budget:
@@ -137,11 +145,21 @@ class _WorkerCaller:
             except ChildFailed as exc:
                 self.broken = f"not run: {exc.outcome.error}"
                 return exc.outcome
+            except Exception as exc:  # the grader's machinery, not the submission
+                raise GraderFault(f"starting a worker for {self.fn}: {type(exc).__name__}: {exc}") from exc
             self.started += 1
-        with self.grading.calling(self.fn):
-            out = self.worker.call(fn, args, kwargs, timeout=max(limit, 0.001), names=names, global_seed=global_seed)
-        if out.status == "crashed" and self.worker.zygote_gone:
-            blame = self.grading.sandbox_died(self.generation, self.fn)
+        blame = None
+        try:
+            with self.grading.calling(self.fn):
+                out = self.worker.call(fn, args, kwargs, timeout=max(limit, 0.001), names=names,
+                                       global_seed=global_seed)
+                if out.status == "crashed" and self.worker.zygote_gone:
+                    # judged while this call still counts as under way: a thread that finds the sandbox dead at
+                    # its next fork in the meantime must count this call among the suspects
+                    blame = self.grading.sandbox_died(self.generation, self.fn)
+        except Exception as exc:  # Worker.call turns everything the submission can do into an outcome
+            raise GraderFault(f"calling {fn}: {type(exc).__name__}: {exc}") from exc
+        if blame is not None:
             if blame == "alone":  # the whole sandbox ended during a call of this function, and of no other
                 self.worker.close()
                 self.worker = None
@@ -207,6 +225,8 @@ def run_tests(ex, fn, caller, *, seed=None, limits=None, budget=None):
                 skip_reason = f"not run: {fn} raised NotImplementedError in '{test.title}' (not implemented yet)"
         except SkipRest as exc:
             score, text = 0.0, str(exc)
+        except (GraderFault, MemoryError, OSError):  # the grader's failure, not the submission's: no score from it
+            raise
         except Exception as exc:  # noqa: BLE001 - a bug in a test must not end grading
             score = 0.0
             text = ("FAILED\nthe grader could not complete this test "
@@ -251,13 +271,23 @@ class _Grading:
             with self.lock:
                 if self.box.loads == generation:  # the sandbox that refused the fork is gone: start it again
                     self.box.kill()
-                    blamed = self.deaths.get(self.box.loads)
-                    if not (blamed is not None and len(blamed) == 1):  # a death one function is charged with
+                    # the death is judged now, by the calls under way, even when this thread is the first to see it
+                    # (the thread whose call ended it may not have noticed yet)
+                    if len(self._suspects(generation)) != 1:  # no single function to charge it to
                         if self.reloads >= MAX_RELOADS:
                             raise
                         self.reloads += 1
                     self.box.start()
                 return self.box.fork_worker(), self.box.loads
+
+    def _suspects(self, generation, fn=None):
+        """The functions charged with the death of sandbox ``generation``: those with calls under way when it was
+        first seen dead (and ``fn``, whose call saw it). Call with ``self.lock`` held."""
+        if generation not in self.deaths:
+            self.deaths[generation] = {f for f, n in self.inflight.items() if n > 0} | ({fn} if fn else set())
+            if len(self.deaths[generation]) > 1 and self.serial is None:
+                self.serial = threading.Lock()
+        return self.deaths[generation]
 
     @contextlib.contextmanager
     def calling(self, fn):
@@ -282,11 +312,7 @@ class _Grading:
             if generation not in self.deaths:
                 if generation == self.box.loads and not self.box.ended(timeout=0.5):
                     return None
-                # the first to see this death: every function with a call under way is a suspect
-                self.deaths[generation] = {f for f, n in self.inflight.items() if n > 0} | {fn}
-                if len(self.deaths[generation]) > 1 and self.serial is None:
-                    self.serial = threading.Lock()
-            suspects = self.deaths[generation]
+            suspects = self._suspects(generation, fn)  # the first to see this death: every call under way
         if fn not in suspects:  # its worker came from a sandbox that another function's call ended
             return "innocent"
         return "alone" if len(suspects) == 1 else "shared"
@@ -361,7 +387,27 @@ def grade(path, exercise=None, *, limits=None, workers=None, seed=None, function
     Returns
     -------
     GradeResult
+
+    Raises
+    ------
+    GraderFault
+        When the grader's own machinery failed twice (the first fault is followed
+        by a second grading, one function at a time, noted in the result).
     """
+    t0 = time.perf_counter()
+    kw = dict(limits=limits, seed=seed, functions=functions, secret=secret)
+    try:
+        return _grade(path, exercise, workers=workers, **kw)
+    except GraderFault as exc:
+        first = exc
+    result = _grade(path, exercise, workers=1, **kw)
+    result.notes.append(f"graded a second time, one function at a time, after an internal error of the grader "
+                        f"({first}); the first grading was discarded")
+    result.execution_time = time.perf_counter() - t0
+    return result
+
+
+def _grade(path, exercise, *, limits, workers, seed, functions, secret):
     t0 = time.perf_counter()
     start = time.monotonic()
     limits = limits or Limits()

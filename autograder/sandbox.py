@@ -433,7 +433,9 @@ class Sandbox:
         self.loads = 0
         self._ctl = None
         self._out_r = None
-        self._lock = threading.Lock()
+        # guards the control socket and the process handle: a thread closing its worker (kill_worker) must never
+        # use a socket another thread's kill() is closing, nor a descriptor number the next start has reused
+        self._lock = threading.RLock()
         self._ids = itertools.count(1)
 
     def _labels(self, unit, stmt, line):
@@ -499,21 +501,27 @@ class Sandbox:
         parent_ctl, child_ctl = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
         out_r, out_w = os.pipe()
         try:
-            self.proc = subprocess.Popen(
+            proc = subprocess.Popen(
                 [sys.executable, "-I", "-S", RUNNER, str(child_ctl.fileno())],
                 stdin=subprocess.PIPE, stdout=out_w, stderr=out_w, cwd="/", env=_env(),
                 start_new_session=True, pass_fds=(child_ctl.fileno(),), close_fds=True)
+        except BaseException:
+            parent_ctl.close()
+            os.close(out_r)
+            raise
         finally:
             os.close(out_w)
             child_ctl.close()
-        self.loads += 1
-        self._ctl = parent_ctl
-        self._out_r = out_r
+        with self._lock:  # published together: a reader sees the old sandbox's state or the new one's, never a mix
+            self.proc = proc
+            self.loads += 1
+            self._ctl = parent_ctl
+            self._out_r = out_r
         self._zout = bytearray()
         self._zout_total = 0
         try:
-            self.proc.stdin.write(pack_frame(job))
-            self.proc.stdin.close()
+            proc.stdin.write(pack_frame(job))
+            proc.stdin.close()
         except (BrokenPipeError, OSError):
             pass
         os.set_blocking(out_r, False)
@@ -557,7 +565,7 @@ class Sandbox:
                     if not data:
                         code = None
                         try:
-                            code = self.proc.wait(timeout=2)
+                            code = proc.wait(timeout=2)
                         except subprocess.TimeoutExpired:
                             pass
                         return ("eof", _exit_text(code))
@@ -583,7 +591,8 @@ class Sandbox:
 
     @property
     def alive(self):
-        return self.proc is not None and self.proc.poll() is None
+        proc = self.proc  # one read: another thread may kill the sandbox meanwhile
+        return proc is not None and proc.poll() is None
 
     def ended(self, timeout=0.0):
         """True when the sandbox process has ended, or ends within ``timeout`` seconds."""
@@ -598,51 +607,53 @@ class Sandbox:
 
     def kill(self):
         """Kill the sandbox and everything in it."""
-        proc = self.proc
-        if proc is not None:
-            if proc.poll() is None:
+        with self._lock:
+            proc = self.proc
+            if proc is not None:
+                if proc.poll() is None:
+                    try:
+                        os.killpg(proc.pid, signal.SIGKILL)
+                    except (ProcessLookupError, PermissionError):
+                        pass
+                    try:
+                        proc.kill()
+                    except ProcessLookupError:
+                        pass
+                try:
+                    proc.wait(timeout=10)
+                except subprocess.TimeoutExpired:
+                    pass
                 try:
                     os.killpg(proc.pid, signal.SIGKILL)
                 except (ProcessLookupError, PermissionError):
                     pass
+                if proc.stdin:
+                    try:
+                        proc.stdin.close()
+                    except OSError:
+                        pass
+            if self._ctl is not None:
+                self._ctl.close()
+                self._ctl = None
+            if self._out_r is not None:
                 try:
-                    proc.kill()
-                except ProcessLookupError:
-                    pass
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                pass
-            try:
-                os.killpg(proc.pid, signal.SIGKILL)
-            except (ProcessLookupError, PermissionError):
-                pass
-            if proc.stdin:
-                try:
-                    proc.stdin.close()
+                    os.close(self._out_r)
                 except OSError:
                     pass
-        if self._ctl is not None:
-            self._ctl.close()
-            self._ctl = None
-        if self._out_r is not None:
-            try:
-                os.close(self._out_r)
-            except OSError:
-                pass
-            self._out_r = None
-        self.proc = None
+                self._out_r = None
+            self.proc = None
 
     def close(self):
         """Stop the sandbox (politely first) and every worker."""
-        if self.alive and self._ctl is not None:
-            try:
-                self._ctl.setblocking(True)
-                self._ctl.send(b'{"op":"exit"}')
-                self.proc.wait(timeout=0.5)
-            except (OSError, subprocess.TimeoutExpired):
-                pass
-        self.kill()
+        with self._lock:
+            if self.alive and self._ctl is not None:
+                try:
+                    self._ctl.setblocking(True)
+                    self._ctl.send(b'{"op":"exit"}')
+                    self.proc.wait(timeout=0.5)
+                except (OSError, subprocess.TimeoutExpired):
+                    pass
+            self.kill()
 
     # ------------------------------------------------------------------ workers
     def fork_worker(self):
@@ -672,6 +683,7 @@ class Sandbox:
             return Worker(self, wid, req_w, res_r, out_r)
 
     def kill_worker(self, wid):
+        """Ask the sandbox to end worker ``wid`` (nothing to do when the sandbox is gone)."""
         with self._lock:
             if self._ctl is None:
                 return
@@ -681,8 +693,10 @@ class Sandbox:
             except OSError:
                 pass
             finally:
-                if self._ctl is not None:
+                try:
                     self._ctl.setblocking(False)
+                except OSError:
+                    pass
 
 
 class Worker:

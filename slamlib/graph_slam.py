@@ -659,6 +659,8 @@ def _uniform_blocks(n_var, terms, new):
     d = terms[0][1]
     if any(p != d or q != d for _, p, _, q in terms) or n_var % d:
         return 0
+    if not any(np.size(t[0]) for t in terms):  # no term at all (a graph with no edge): the empty pattern of entries
+        return 0
     if any(np.any(np.asarray(o) % d) for t in terms for o in (t[0], t[2])):
         return 0
     Nv = new.reshape(-1, d)

@@ -290,6 +290,8 @@ def run_lidar_slam(odom_poses, ranges, angles, *, z_max, sensor_offset=0.0, para
         raise TypeError(f"params must be a LidarSlamParams, got {type(p).__name__}")
     odom = as_array(odom_poses, "odom_poses", (None, 3))
     L = odom.shape[0]
+    if L < 2:
+        raise ValueError(f"odom_poses must hold at least two poses, one per scan (a map needs two keyframes), got {L}")
     try:
         Z_all = as_array(ranges, "ranges", (L, None))
     except ValueError as exc:

@@ -23,6 +23,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -33,6 +34,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent / "autograder_fixtures"))
 
 from agtest import by_function, replace_function, solution, solution_text  # noqa: E402
 
+import autograder.engine as engine_mod  # noqa: E402
 import autograder.sandbox as sandbox_mod  # noqa: E402
 from autograder.engine import grade  # noqa: E402
 from autograder.sandbox import Limits, Sandbox, isolation_report  # noqa: E402
@@ -682,6 +684,153 @@ def test_a_function_that_ends_the_sandbox_loses_its_own_tests_only(monkeypatch):
     assert got["ekf_predict"][0] == 0, got
     for fn in ("ekf_update", "associate_ml"):
         assert got[fn][0] == got[fn][1], (fn, got, [t.output[-300:] for t in result.tests if t.function == fn])
+
+
+
+# =========================================================================== the grader's own threads
+def test_a_worker_closed_while_another_thread_restarts_the_sandbox_is_no_error():
+    """Closing a worker (which asks the sandbox to end it) while another thread kills and restarts the sandbox
+    never fails on the control socket the other thread is closing (a race that once cost a correct function a
+    test: 'OSError: [Errno 9] Bad file descriptor')."""
+    box = Sandbox([{"source": "def f(x):\n    return x\n", "filename": "f.py", "label": "f"}], ["f"],
+                  Limits(call_timeout=10.0))
+    errors, stop = [], threading.Event()
+
+    def closer():
+        while not stop.is_set():
+            try:
+                box.kill_worker(10**6)
+            except Exception as exc:  # noqa: BLE001 - the failure under test
+                errors.append(exc)
+                return
+
+    box.start()
+    t = threading.Thread(target=closer)
+    switch = sys.getswitchinterval()
+    sys.setswitchinterval(1e-6)  # the threads take turns between almost every bytecode: the race's window is open
+    t.start()
+    try:
+        for _ in range(20):
+            box.kill()
+            box.start()
+        w = box.fork_worker()
+        got = w.call("f", [2.0], timeout=10.0)
+        w.close()
+    finally:
+        stop.set()
+        t.join()
+        sys.setswitchinterval(switch)
+        box.close()
+    assert not errors, errors
+    assert got.status == "ok" and float(got.returned.value.array) == 2.0, got
+
+
+class _DeadBox:
+    """A sandbox found dead at the next fork: what a thread sees when another function's call ended it."""
+
+    def __init__(self):
+        self.loads, self.dead, self.starts = 1, True, 0
+
+    def fork_worker(self):
+        if self.dead:
+            raise engine_mod.ChildFailed(sandbox_mod.CallOutcome("crashed", error="the sandbox process is not running"))
+        return "worker"
+
+    def kill(self):
+        pass
+
+    def start(self):
+        self.loads += 1
+        self.starts += 1
+        self.dead = False
+
+    def ended(self, timeout=0.0):
+        return True
+
+
+def _grading_with(box, inflight, reloads):
+    g = engine_mod._Grading.__new__(engine_mod._Grading)
+    g.box, g.lock, g.reloads, g.inflight, g.deaths, g.serial = box, threading.Lock(), reloads, dict(inflight), {}, None
+    return g
+
+
+def test_a_death_first_seen_by_another_thread_is_charged_to_the_call_under_way():
+    """The thread that finds the sandbox dead at its next fork may see the death before the thread whose call
+    ended it: the death is still charged to that call (no reload spent), not refused for want of reloads."""
+    box = _DeadBox()
+    g = _grading_with(box, {"ekf_predict": 1, "ekf_update": 0}, reloads=engine_mod.MAX_RELOADS)
+    assert g.fork_worker() == ("worker", 2)
+    assert box.starts == 1 and g.reloads == engine_mod.MAX_RELOADS
+    assert g.sandbox_died(1, "ekf_predict") == "alone"
+    assert g.sandbox_died(1, "ekf_update") == "innocent"
+    # a death between calls is no one's: it spends a reload, and once they are spent the fork is refused
+    box2 = _DeadBox()
+    g2 = _grading_with(box2, {"ekf_predict": 0}, reloads=engine_mod.MAX_RELOADS - 1)
+    assert g2.fork_worker() == ("worker", 2) and g2.reloads == engine_mod.MAX_RELOADS
+    box2.dead = True
+    with pytest.raises(engine_mod.ChildFailed):
+        g2.fork_worker()
+    # two calls under way: both are suspects, and from then on calls run one at a time
+    g3 = _grading_with(_DeadBox(), {"ekf_predict": 1, "ekf_update": 1}, reloads=0)
+    g3.fork_worker()
+    assert g3.reloads == 1 and g3.serial is not None and g3.sandbox_died(1, "ekf_update") == "shared"
+
+
+class _DyingWorker:
+    """A worker whose call ends the whole sandbox."""
+
+    dead, zygote_gone = False, True
+
+    def call(self, *args, **kwargs):
+        return sandbox_mod.CallOutcome("crashed", error="the process ended")
+
+    def close(self):
+        self.dead = True
+
+
+def test_a_call_that_ends_the_sandbox_counts_as_under_way_until_its_death_is_judged(monkeypatch):
+    """Between the end of the call that killed the sandbox and the judgment of that death, another thread may find
+    the sandbox dead at its next fork: the call must still count as under way then, or the death is charged to no
+    one (a reload spent) and the function that caused it is judged innocent and run again."""
+    box = _DeadBox()
+    box.fork_worker = lambda: _DyingWorker()
+    g = _grading_with(box, {}, reloads=0)
+    seen = []
+    real = g.sandbox_died
+
+    def sandbox_died(generation, fn):
+        seen.append(dict(g.inflight))
+        return real(generation, fn)
+
+    monkeypatch.setattr(g, "sandbox_died", sandbox_died)
+    caller = engine_mod._WorkerCaller(g, "ekf_predict", None)
+    out = caller.call("ekf_predict", [1.0], {}, timeout=1.0)
+    assert seen == [{"ekf_predict": 1}], seen
+    assert out.status == "crashed" and "the sandbox ended during this call" in out.error
+    assert caller.broken and g.inflight == {"ekf_predict": 0}
+
+
+def test_a_fault_of_the_grader_is_graded_again_never_a_failed_test(monkeypatch):
+    """An exception of the grader's own machinery during a call (here an OSError from the worker's pipes) is no
+    failed test: the submission is graded again, one function at a time, and the result says so; a fault that
+    persists raises GraderFault (an internal error for the course staff), never a score."""
+    real_call = sandbox_mod.Worker.call
+    faults = {"left": 1}
+
+    def call(self, fn, *args, **kwargs):
+        if fn == "ekf_update" and faults["left"] > 0:
+            faults["left"] -= 1
+            raise OSError(9, "Bad file descriptor")
+        return real_call(self, fn, *args, **kwargs)
+
+    monkeypatch.setattr(sandbox_mod.Worker, "call", call)
+    result = grade(solution("ekf_localization"), "ekf_localization", workers=2)
+    got = by_function(result)
+    assert all(s == m for s, m in got.values()), got
+    assert any("internal error of the grader" in n and "Bad file descriptor" in n for n in result.notes), result.notes
+    faults["left"] = 10**6
+    with pytest.raises(engine_mod.GraderFault, match="Bad file descriptor"):
+        grade(solution("ekf_localization"), "ekf_localization", workers=2, functions=["ekf_update"])
 
 
 # =========================================================================== fork, isolate, then load

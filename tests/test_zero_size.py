@@ -66,3 +66,24 @@ def test_noise_calibration_of_a_run_without_sightings_is_refused_naming_the_run(
                                        rng=np.random.default_rng(0))
         with pytest.raises(ValueError, match="run must hold at least 3 landmark sightings"):
             sl.calibrate_noise(run)
+
+
+def test_a_pose_graph_of_no_edge_has_the_empty_sum_as_its_system():
+    """H and b are sums over the edges: with none they are zero (and a single pose needs no step); with more poses
+    than one the graph is refused as disconnected, naming what is missing."""
+    empty = (np.zeros((0, 2), np.int64), np.zeros((0, 3)), np.zeros((0, 3, 3)))
+    for n in (1, 4):
+        H, b = sl.build_linear_system(np.zeros((n, 3)), *empty)
+        np.testing.assert_array_equal(H.toarray(), np.zeros((3 * n, 3 * n)))
+        np.testing.assert_array_equal(b, np.zeros(3 * n))
+    X = np.array([[1.0, 2.0, 0.5]])
+    np.testing.assert_array_equal(sl.gauss_newton_step(X, *empty), X)
+    with pytest.raises(ValueError, match="disconnected"):
+        sl.gauss_newton_step(np.zeros((4, 3)), *empty)
+
+
+def test_a_lidar_log_of_fewer_than_two_scans_is_refused_naming_the_poses():
+    angles = np.linspace(-1.5, 1.5, 30)
+    for n in (0, 1):
+        with pytest.raises(ValueError, match="odom_poses must hold at least two poses.*got %d" % n):
+            sl.run_lidar_slam(np.zeros((n, 3)), np.ones((n, 30)), angles, z_max=8.0)
