@@ -11,11 +11,15 @@ state never leaks into another's. Scenarios come from a seed derived from the
 deployment's secret and the submission's content (:mod:`autograder.seeds`), and
 time is bounded per call, per test and per submission.
 
-When the whole sandbox ends during a call, the function whose call was the only
-one under way is charged with it: its remaining tests score 0, and the sandbox
-is loaded again for the others at no cost to them. When several calls were under
-way, each is run again once in the new sandbox, and from then on calls run one
-at a time so that the next death has a single suspect.
+When the whole sandbox ends during a call, or the worker alone is killed by
+SIGKILL, the call is run again once (in a new sandbox, or a new worker): workers
+may not signal the sandbox, and a function's own error does not send SIGKILL, so
+such a death is most often the machine's (an out-of-memory kill, say), never a
+reason for a zero. If the sandbox ends again during a call of a function whose
+call was the only one under way, that function is charged with it: its remaining
+tests score 0, and the sandbox is loaded again for the others at no cost to them.
+When several calls were under way, each is run again once in the new sandbox, and
+from then on calls run one at a time so that the next death has a single suspect.
 """
 
 from __future__ import annotations
@@ -128,7 +132,8 @@ class _WorkerCaller:
         self.timed_out = False
         self.broken = None
         self.generation = None
-        self.retried = False
+        self.retried = False  # a call of this function was run again after a death shared with other calls
+        self.forgiven = False  # ... after a death during its call alone
 
     def call(self, fn, args, kwargs, *, timeout, names=(), global_seed=None):
         if self.broken:
@@ -159,8 +164,19 @@ class _WorkerCaller:
                     blame = self.grading.sandbox_died(self.generation, self.fn)
         except Exception as exc:  # Worker.call turns everything the submission can do into an outcome
             raise GraderFault(f"calling {fn}: {type(exc).__name__}: {exc}") from exc
+        if (blame is None and out.status == "crashed" and not self.forgiven
+                and "killed by signal SIGKILL" in (out.error or "")):
+            # the worker alone was killed, by a signal a function's own error does not send (the kernel's
+            # out-of-memory killer sends it): perhaps the machine's doing, so once, the call runs again
+            blame = "alone"
         if blame is not None:
-            if blame == "alone":  # the whole sandbox ended during a call of this function, and of no other
+            if blame == "alone" and not self.forgiven:  # perhaps the machine's doing: once, the call runs again
+                self.forgiven = True
+                self.worker.close()
+                self.worker = None
+                self.started -= 1
+                return self.call(fn, args, kwargs, timeout=timeout, names=names, global_seed=global_seed)
+            if blame == "alone" and self.worker.zygote_gone:  # the sandbox ended during a call of it alone, twice
                 self.worker.close()
                 self.worker = None
                 self.broken = (f"not run: the sandbox ended during a call of {self.fn} (a function that ends the "

@@ -253,6 +253,33 @@ def test_batch(tmp_path):
 
 
 @pytest.mark.slow
+def test_batch_rerun_keeps_graded_rows_and_grades_the_graders_failures_again(tmp_path):
+    """A rerun skips a submission whose results JSON matches its content, except where the grader itself failed on
+    it ("grader-error"): that was no grade, so it is graded again."""
+    from autograder.batch import _fingerprint
+    from autograder.results import fallback_results, write_json_atomic
+
+    subs = tmp_path / "subs"
+    subs.mkdir()
+    ex = get_exercise("particle_filter")
+    results = tmp_path / "grades_results"
+    results.mkdir()
+    for sid, status, score in (("alice", "grader-error", 0.0), ("bob", "ok", 42.0)):
+        path = subs / f"{sid}.py"
+        path.write_text(solution_text("particle_filter"))
+        row = {"submission": sid, "file": str(path), "score": score, "max_score": ex.max_score(), "status": status,
+               "message": "OSError: [Errno 9] Bad file descriptor" if status != "ok" else ""}
+        write_json_atomic(results / f"{sid}.json", {**fallback_results("earlier run"), "extra_data": {
+            "exercise": "particle_filter", "submission_sha256": _fingerprint(path, None), "batch_row": row}})
+    out = tmp_path / "grades.csv"
+    p = _run(["batch", str(subs), "--exercise", "particle_filter", "--out", str(out), "--jobs", "1", "--quiet"])
+    assert p.returncode == 0, p.stderr
+    rows = {r["submission"]: r for r in csv.DictReader(out.open())}
+    assert float(rows["alice"]["score"]) == 100 and rows["alice"]["status"] == "ok", rows["alice"]
+    assert float(rows["bob"]["score"]) == 42, rows["bob"]  # kept: graded before, same content
+
+
+@pytest.mark.slow
 def test_gradescope_bundle_runs(tmp_path):
     zpath = tmp_path / "autograder.zip"
     p = _run(["bundle", "--exercise", "ekf_localization", "-o", str(zpath)])

@@ -805,9 +805,56 @@ def test_a_call_that_ends_the_sandbox_counts_as_under_way_until_its_death_is_jud
     monkeypatch.setattr(g, "sandbox_died", sandbox_died)
     caller = engine_mod._WorkerCaller(g, "ekf_predict", None)
     out = caller.call("ekf_predict", [1.0], {}, timeout=1.0)
-    assert seen == [{"ekf_predict": 1}], seen
+    assert seen == [{"ekf_predict": 1}] * 2, seen  # the call is run once more before it is charged
     assert out.status == "crashed" and "the sandbox ended during this call" in out.error
     assert caller.broken and g.inflight == {"ekf_predict": 0}
+
+
+def test_one_death_of_the_sandbox_during_a_call_costs_nothing(monkeypatch):
+    """A worker cannot signal its sandbox, so one death of the sandbox during a call is most likely the machine's
+    (an out-of-memory kill): the call runs again in a new sandbox and the function keeps every mark. Only a
+    function whose calls end the sandbox again is charged (test_a_function_that_ends_the_sandbox_loses_...)."""
+    real_call = sandbox_mod.Worker.call
+    kills = {"ekf_update": 1, "associate_ml": 1}
+
+    def call(self, fn, *args, **kwargs):
+        if kills.get(fn, 0) > 0 and self.sandbox.proc is not None:
+            kills[fn] -= 1
+            os.killpg(self.sandbox.proc.pid, signal.SIGKILL)
+            self.sandbox.proc.wait()
+        return real_call(self, fn, *args, **kwargs)
+
+    monkeypatch.setattr(sandbox_mod.Worker, "call", call)
+    for workers in (1, 3):
+        kills.update({"ekf_update": 1, "associate_ml": 1})
+        result = grade(solution("ekf_localization"), "ekf_localization", workers=workers)
+        got = by_function(result)
+        assert all(s == m for s, m in got.values()), (workers, got)
+        assert result.loads >= 2 and not kills["ekf_update"] and not kills["associate_ml"], (result.loads, kills)
+
+
+def test_a_worker_killed_once_by_sigkill_costs_nothing_and_twice_costs_the_test(monkeypatch):
+    """The kernel's out-of-memory killer ends a worker with SIGKILL, which no error of the function sends: the call
+    runs once more in a new worker. A second such death is the function's (its test fails, as any crash)."""
+    real_call = sandbox_mod.Worker.call
+    kills = {"left": 1}
+
+    def call(self, fn, *args, **kwargs):
+        if fn == "ekf_update" and kills["left"] > 0:
+            kills["left"] -= 1
+            self.close()  # the worker is gone, as the zygote reports a worker killed from outside
+            return sandbox_mod.CallOutcome(
+                "crashed", error="the process running the function ended during the call (killed by signal SIGKILL)")
+        return real_call(self, fn, *args, **kwargs)
+
+    monkeypatch.setattr(sandbox_mod.Worker, "call", call)
+    result = grade(solution("ekf_localization"), "ekf_localization", workers=1, functions=["ekf_update"])
+    assert by_function(result)["ekf_update"] == (40.0, 40.0) and kills["left"] == 0
+    kills["left"] = 2
+    result = grade(solution("ekf_localization"), "ekf_localization", workers=1, functions=["ekf_update"])
+    s, m = by_function(result)["ekf_update"]
+    assert 0 < s < m and kills["left"] == 0, (s, m)
+    assert "killed by signal SIGKILL" in result.tests[0].output
 
 
 def test_a_fault_of_the_grader_is_graded_again_never_a_failed_test(monkeypatch):
