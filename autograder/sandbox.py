@@ -449,14 +449,23 @@ class Sandbox:
         A top-level statement that runs longer than ``limits.statement_timeout`` is
         skipped (the submission is loaded again without it), as an interrupted cell
         of a notebook would be; the whole loading may take ``limits.import_timeout``.
+        A loading killed by SIGKILL (the kernel's out-of-memory killer, never an
+        error of the submission's) is tried once more.
         """
         lim = self.limits
         deadline = time.monotonic() + lim.import_timeout
+        killed = False
         while True:
             outcome = self._start_once(deadline)
             if outcome is None:
                 return self.ready
             status, where = outcome
+            if status == "eof" and where == "killed by signal SIGKILL" and not killed and time.monotonic() < deadline:
+                # no error of the submission's sends SIGKILL (the kernel's out-of-memory killer does): once, the
+                # submission is loaded again, never a zero for the machine's doing
+                killed = True
+                self.skip_notes.append("the process loading the submission was killed (SIGKILL) and was loaded again")
+                continue
             if status == "statement" and len(self.skip) < 20 and time.monotonic() < deadline:
                 unit, stmt, line = where
                 self.skip.append((unit, stmt))

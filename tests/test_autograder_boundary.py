@@ -857,6 +857,36 @@ def test_a_worker_killed_once_by_sigkill_costs_nothing_and_twice_costs_the_test(
     assert "killed by signal SIGKILL" in result.tests[0].output
 
 
+def test_a_loading_killed_once_by_sigkill_is_loaded_again(monkeypatch, tmp_path):
+    """The kernel's out-of-memory killer may end the process loading a submission: the loading is tried once more
+    (with a note), and the submission keeps every mark; killed again, every test fails naming the signal."""
+    path = tmp_path / "slow_load.py"
+    path.write_text("import time\ntime.sleep(1.0)\n" + solution_text("ekf_localization"))
+    real = sandbox_mod.Sandbox._start_once
+    kills = {"left": 1}
+
+    def start_once(self, deadline):
+        if kills["left"] > 0:
+            kills["left"] -= 1
+
+            def killer():
+                time.sleep(0.4)  # while the submission's top level sleeps
+                if self.proc is not None:
+                    os.killpg(self.proc.pid, signal.SIGKILL)
+
+            threading.Thread(target=killer, daemon=True).start()
+        return real(self, deadline)
+
+    monkeypatch.setattr(sandbox_mod.Sandbox, "_start_once", start_once)
+    result = grade(path, "ekf_localization", workers=1, functions=["ekf_update"])
+    assert by_function(result)["ekf_update"] == (40.0, 40.0) and kills["left"] == 0
+    assert any("killed (SIGKILL) and was loaded again" in n for n in result.notes), result.notes
+    kills["left"] = 2
+    result = grade(path, "ekf_localization", workers=1, functions=["ekf_update"])
+    assert by_function(result)["ekf_update"][0] == 0 and kills["left"] == 0
+    assert "killed by signal SIGKILL" in result.tests[0].output, result.tests[0].output
+
+
 def test_a_fault_of_the_grader_is_graded_again_never_a_failed_test(monkeypatch):
     """An exception of the grader's own machinery during a call (here an OSError from the worker's pipes) is no
     failed test: the submission is graded again, one function at a time, and the result says so; a fault that
