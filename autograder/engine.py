@@ -49,6 +49,8 @@ MAX_RESTARTS = 3
 #: no single function can be blamed for (a death during the call of one function alone ends that function's
 #: tests instead, and costs the others nothing).
 MAX_RELOADS = 2
+#: Seconds to wait for the sandbox to end after a worker's result pipe closed with no word from the zygote.
+ZYGOTE_GONE_WAIT = 5.0
 
 
 def _test_seed(exercise, test_name, base):
@@ -112,6 +114,12 @@ class Budget:
             limit, reason = self.deadline - now, "submission"
         return limit, reason
 
+    def extend(self, seconds):
+        """Give back ``seconds`` the function spent waiting for other functions' calls (not its own time)."""
+        self.deadline += seconds
+        if self.test_deadline is not None:
+            self.test_deadline += seconds
+
     def message(self, reason):
         if reason == "submission":
             return (f"the submission's time budget of {self.submission_budget:g} s was used up (grading stops "
@@ -141,21 +149,31 @@ class _WorkerCaller:
         limit, reason = self.budget.limit(timeout) if self.budget else (timeout, None)
         if limit <= 0:
             return CallOutcome("timeout", error=self.budget.message(reason), budget=reason)
+        if self.worker is not None and not self.worker.dead:
+            # a worker that ended after its previous call returned (its end reported, its sandbox gone) is replaced
+            # before this call: that death is not this call's
+            if self.grading.ended_since(self.generation):
+                self.worker.close()
+                self.worker = None
+                self.started -= 1
+            elif self.worker.ended_between_calls():  # its answers stand; a new worker takes the next call
+                self.worker.close()
+                self.worker = None
+                self.started -= 1
         if self.worker is None or self.worker.dead:
             if self.started > MAX_RESTARTS:
                 self.broken = f"not run: the process running {self.fn} died {self.started} times"
                 return CallOutcome("skipped", error=self.broken)
             try:
                 self.worker, self.generation = self.grading.fork_worker()
-            except ChildFailed as exc:
-                self.broken = f"not run: {exc.outcome.error}"
-                return exc.outcome
-            except Exception as exc:  # the grader's machinery, not the submission
+            except GraderFault:
+                raise
+            except Exception as exc:  # the grader's machinery (or the machine), not the submission
                 raise GraderFault(f"starting a worker for {self.fn}: {type(exc).__name__}: {exc}") from exc
             self.started += 1
         blame = None
         try:
-            with self.grading.calling(self.fn):
+            with self.grading.calling(self.fn, self.budget):
                 out = self.worker.call(fn, args, kwargs, timeout=max(limit, 0.001), names=names,
                                        global_seed=global_seed)
                 if out.status == "crashed" and self.worker.zygote_gone:
@@ -291,10 +309,28 @@ class _Grading:
                     # (the thread whose call ended it may not have noticed yet)
                     if len(self._suspects(generation)) != 1:  # no single function to charge it to
                         if self.reloads >= MAX_RELOADS:
-                            raise
+                            raise GraderFault(f"the sandbox ended {self.reloads + 1} times with no single call to "
+                                              "charge it to (the machine's doing)") from None
                         self.reloads += 1
-                    self.box.start()
-                return self.box.fork_worker(), self.box.loads
+                    try:
+                        self.box.start()
+                    except ChildFailed as exc:  # it loaded before: a loading that fails now is not the code's doing
+                        raise GraderFault(f"the submission could not be loaded again ({exc.outcome.error})") from None
+                try:
+                    return self.box.fork_worker(), self.box.loads
+                except ChildFailed as exc:
+                    raise GraderFault(f"a sandbox loaded a moment ago is gone ({exc.outcome.error})") from None
+
+    def ended_since(self, generation):
+        """True when sandbox ``generation`` has ended (its death, first seen now, is charged to the calls under way,
+        not to the caller's next call)."""
+        with self.lock:
+            if generation != self.box.loads:
+                return True
+            if not self.box.ended(timeout=0.0):
+                return False
+            self._suspects(generation)
+            return True
 
     def _suspects(self, generation, fn=None):
         """The functions charged with the death of sandbox ``generation``: those with calls under way when it was
@@ -306,10 +342,13 @@ class _Grading:
         return self.deaths[generation]
 
     @contextlib.contextmanager
-    def calling(self, fn):
+    def calling(self, fn, budget=None):
         serial = self.serial
         if serial is not None:
+            t0 = time.monotonic()
             serial.acquire()
+            if budget is not None:  # the time spent waiting for the other functions' calls is not this one's
+                budget.extend(time.monotonic() - t0)
         with self.lock:
             self.inflight[fn] = self.inflight.get(fn, 0) + 1
         try:
@@ -326,7 +365,9 @@ class _Grading:
         ``"innocent"`` when ``fn`` had no call under way when it ended."""
         with self.lock:
             if generation not in self.deaths:
-                if generation == self.box.loads and not self.box.ended(timeout=0.5):
+                # the result pipe closed with no word from the zygote: the sandbox is ending, or (rarely) the
+                # zygote could not write that word; a loaded machine may take seconds to tear a sandbox down
+                if generation == self.box.loads and not self.box.ended(timeout=ZYGOTE_GONE_WAIT):
                     return None
             suspects = self._suspects(generation, fn)  # the first to see this death: every call under way
         if fn not in suspects:  # its worker came from a sandbox that another function's call ended

@@ -449,8 +449,8 @@ class Sandbox:
         A top-level statement that runs longer than ``limits.statement_timeout`` is
         skipped (the submission is loaded again without it), as an interrupted cell
         of a notebook would be; the whole loading may take ``limits.import_timeout``.
-        A loading killed by SIGKILL (the kernel's out-of-memory killer, never an
-        error of the submission's) is tried once more.
+        A loading whose process ended abruptly (killed, as by the kernel's
+        out-of-memory killer) is tried once more.
         """
         lim = self.limits
         deadline = time.monotonic() + lim.import_timeout
@@ -460,11 +460,13 @@ class Sandbox:
             if outcome is None:
                 return self.ready
             status, where = outcome
-            if status == "eof" and where == "killed by signal SIGKILL" and not killed and time.monotonic() < deadline:
-                # no error of the submission's sends SIGKILL (the kernel's out-of-memory killer does): once, the
-                # submission is loaded again, never a zero for the machine's doing
+            if status == "eof" and not killed and time.monotonic() < deadline:
+                # the loading process ended (an error of the submission's raises, and is skipped: an end this abrupt
+                # is most often the machine's, an out-of-memory kill): once, the submission is loaded again; an end
+                # the code itself causes comes back, and fails the loading then
                 killed = True
-                self.skip_notes.append("the process loading the submission was killed (SIGKILL) and was loaded again")
+                self.skip_notes.append(f"the process loading the submission ended ({where or status}) and the "
+                                       "submission was loaded again")
                 continue
             if status == "statement" and len(self.skip) < 20 and time.monotonic() < deadline:
                 unit, stmt, line = where
@@ -777,6 +779,34 @@ class Worker:
                                output=out, elapsed=r["elapsed"])
         return CallOutcome("ok", returned=r["returned"], mutated=r["mutated"], blocked=r["blocked"], output=out,
                            elapsed=r["elapsed"])
+
+    def ended_between_calls(self):
+        """True when the worker ended after its last call returned: the zygote's word on its end is waiting (it may
+        have come in the same read as the last result), or its result pipe is closed."""
+        if self.dead:
+            return True
+        while len(self._res) <= wire.MAX_PAYLOAD + wire.MAX_HEADER + 64:
+            try:
+                chunk = os.read(self._res_r, 1 << 20)
+            except BlockingIOError:
+                break
+            except OSError:
+                return True
+            if not chunk:
+                return True
+            self._res.extend(chunk)
+        buf = bytearray(self._res)
+        while True:  # the frames left over (an answer to no call); anything unreadable is the next call's to refuse
+            try:
+                got = parse_result_frame(buf)
+            except ProtocolError:
+                return False
+            if got is None:
+                return False
+            header, _, used = got
+            if header.get("status") == "exited":
+                return True
+            del buf[:used]
 
     def _output_text(self):
         return bytes(self._out[-4000:]).decode("utf-8", "replace")

@@ -763,12 +763,12 @@ def test_a_death_first_seen_by_another_thread_is_charged_to_the_call_under_way()
     assert box.starts == 1 and g.reloads == engine_mod.MAX_RELOADS
     assert g.sandbox_died(1, "ekf_predict") == "alone"
     assert g.sandbox_died(1, "ekf_update") == "innocent"
-    # a death between calls is no one's: it spends a reload, and once they are spent the fork is refused
+    # a death between calls is no one's: it spends a reload, and once they are spent the machine is at fault
     box2 = _DeadBox()
     g2 = _grading_with(box2, {"ekf_predict": 0}, reloads=engine_mod.MAX_RELOADS - 1)
     assert g2.fork_worker() == ("worker", 2) and g2.reloads == engine_mod.MAX_RELOADS
     box2.dead = True
-    with pytest.raises(engine_mod.ChildFailed):
+    with pytest.raises(engine_mod.GraderFault, match="no single call"):
         g2.fork_worker()
     # two calls under way: both are suspects, and from then on calls run one at a time
     g3 = _grading_with(_DeadBox(), {"ekf_predict": 1, "ekf_update": 1}, reloads=0)
@@ -880,11 +880,109 @@ def test_a_loading_killed_once_by_sigkill_is_loaded_again(monkeypatch, tmp_path)
     monkeypatch.setattr(sandbox_mod.Sandbox, "_start_once", start_once)
     result = grade(path, "ekf_localization", workers=1, functions=["ekf_update"])
     assert by_function(result)["ekf_update"] == (40.0, 40.0) and kills["left"] == 0
-    assert any("killed (SIGKILL) and was loaded again" in n for n in result.notes), result.notes
+    assert any("killed by signal SIGKILL) and the submission was loaded again" in n for n in result.notes), \
+        result.notes
     kills["left"] = 2
     result = grade(path, "ekf_localization", workers=1, functions=["ekf_update"])
     assert by_function(result)["ekf_update"][0] == 0 and kills["left"] == 0
     assert "killed by signal SIGKILL" in result.tests[0].output, result.tests[0].output
+
+
+def test_a_sandbox_that_cannot_be_loaded_again_is_the_graders_fault_not_the_reloading_function():
+    """The submission loaded once: a reload that fails (the loading killed twice) or a sandbox gone right after its
+    reload is the machine's doing, never charged to the function that happened to need the reload."""
+    box = _DeadBox()
+
+    def start():
+        raise engine_mod.ChildFailed(sandbox_mod.CallOutcome("crashed", error="ended unexpectedly (exit status 1)"))
+
+    box.start = start
+    g = _grading_with(box, {"ekf_predict": 1}, reloads=0)
+    with pytest.raises(engine_mod.GraderFault, match="could not be loaded again"):
+        g.fork_worker()
+    box2 = _DeadBox()
+    box2.start = lambda: setattr(box2, "loads", box2.loads + 1)  # loads, but the new sandbox is gone at once
+    g2 = _grading_with(box2, {"ekf_predict": 1}, reloads=0)
+    with pytest.raises(engine_mod.GraderFault, match="gone"):
+        g2.fork_worker()
+
+
+def test_a_sandbox_slow_to_end_is_still_a_death_of_the_sandbox():
+    """The zygote is gone but the sandbox's outer process takes a while to end (a loaded machine): the death is
+    judged as the sandbox's (run again), not as the function's own crash."""
+    class SlowBox(_DeadBox):
+        def ended(self, timeout=0.0):
+            return timeout >= 1.5
+
+    g = _grading_with(SlowBox(), {"ekf_update": 1}, reloads=0)
+    assert g.sandbox_died(1, "ekf_update") == "alone"
+
+
+def test_waiting_for_other_functions_calls_is_given_back_to_the_budget():
+    """Once calls run one at a time, the time a function waits for another's call does not count against its test
+    budget or the submission's."""
+    g = _grading_with(_DeadBox(), {}, reloads=0)
+    g.serial = threading.Lock()
+    budget = engine_mod.Budget(30.0, 300.0)
+    budget.start_test()
+    before = (budget.test_deadline, budget.deadline)
+    g.serial.acquire()
+    threading.Timer(0.5, g.serial.release).start()
+    with g.calling("ekf_update", budget):
+        pass
+    assert budget.test_deadline - before[0] >= 0.45 and budget.deadline - before[1] >= 0.45
+
+
+ENDS_AFTER_ANSWERING = """import signal
+
+def f(x):
+    if x > 0:
+        signal.signal(signal.SIGALRM, signal.SIG_DFL)
+        signal.setitimer(signal.ITIMER_REAL, 0.3)  # the worker ends a moment after it has answered
+    return float(x)
+"""
+
+
+def test_a_worker_that_ended_between_calls_is_replaced_before_the_next_call():
+    """A worker killed after it answered (its end reported by the zygote, perhaps in the same read as the answer) is
+    replaced before the next call, which then runs normally: that death is not the next call's."""
+    box = Sandbox([{"source": ENDS_AFTER_ANSWERING, "filename": "ends.py", "label": "ends"}], ["f"],
+                  Limits(call_timeout=10.0))
+    try:
+        box.start()
+        w = box.fork_worker()
+        assert w.call("f", [-1.0], timeout=10.0).status == "ok" and not w.ended_between_calls()
+        first = w.call("f", [1.0], timeout=10.0)
+        assert first.status == "ok" and float(first.returned.value.array) == 1.0
+        deadline = time.monotonic() + 10
+        while not w.ended_between_calls() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert w.ended_between_calls()
+        w.close()
+    finally:
+        box.close()
+    # through the engine: every second call of ekf_update kills its worker once it has answered
+    real_call = sandbox_mod.Worker.call
+    calls = {"n": 0}
+
+    def call(self, fn, *args, **kwargs):
+        out = real_call(self, fn, *args, **kwargs)
+        if fn == "ekf_update":
+            calls["n"] += 1
+            if calls["n"] % 2 == 0:
+                self.sandbox.kill_worker(self.id)  # the zygote ends it: the result pipe closes
+                deadline = time.monotonic() + 10
+                while not self.ended_between_calls() and time.monotonic() < deadline:  # ended before the next call
+                    time.sleep(0.01)
+        return out
+
+    mp = pytest.MonkeyPatch()
+    mp.setattr(sandbox_mod.Worker, "call", call)
+    try:
+        result = grade(solution("ekf_localization"), "ekf_localization", workers=1, functions=["ekf_update"])
+    finally:
+        mp.undo()
+    assert by_function(result)["ekf_update"] == (40.0, 40.0) and calls["n"] > 8, (by_function(result), calls)
 
 
 def test_a_fault_of_the_grader_is_graded_again_never_a_failed_test(monkeypatch):
