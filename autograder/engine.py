@@ -143,7 +143,7 @@ class _WorkerCaller:
         self.retried = False  # a call of this function was run again after a death shared with other calls
         self.forgiven = False  # ... after a death during its call alone
 
-    def call(self, fn, args, kwargs, *, timeout, names=(), global_seed=None):
+    def call(self, fn, args, kwargs, *, timeout, names=(), global_seed=None, _retry_of_gone=False):
         if self.broken:
             return CallOutcome("skipped", error=self.broken)
         limit, reason = self.budget.limit(timeout) if self.budget else (timeout, None)
@@ -176,7 +176,9 @@ class _WorkerCaller:
             with self.grading.calling(self.fn, self.budget):
                 out = self.worker.call(fn, args, kwargs, timeout=max(limit, 0.001), names=names,
                                        global_seed=global_seed)
-                if out.status == "crashed" and self.worker.zygote_gone:
+                if out.status == "crashed" and self.worker.gone_before_call:
+                    blame = "before"
+                elif out.status == "crashed" and self.worker.zygote_gone:
                     # judged while this call still counts as under way: a thread that finds the sandbox dead at
                     # its next fork in the meantime must count this call among the suspects
                     blame = self.grading.sandbox_died(self.generation, self.fn)
@@ -187,6 +189,17 @@ class _WorkerCaller:
             # the worker alone was killed, by a signal a function's own error does not send (the kernel's
             # out-of-memory killer sends it): perhaps the machine's doing, so once, the call runs again
             blame = "alone"
+        if blame == "before" and not _retry_of_gone:
+            # the worker (or its sandbox) had ended before the request was sent: not this call's doing; the death
+            # is judged by the calls under way now, and the call runs in a new worker
+            self.grading.ended_since(self.generation)
+            self.worker.close()
+            self.worker = None
+            self.started -= 1
+            return self.call(fn, args, kwargs, timeout=timeout, names=names, global_seed=global_seed,
+                             _retry_of_gone=True)
+        if blame == "before":
+            blame = None
         if blame is not None:
             if blame == "alone" and not self.forgiven:  # perhaps the machine's doing: once, the call runs again
                 self.forgiven = True

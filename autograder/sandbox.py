@@ -725,6 +725,7 @@ class Worker:
         self._out_total = 0
         self.dead = False
         self.zygote_gone = False  # set when the result pipe closed without the zygote's word on the worker's end
+        self.gone_before_call = False  # set when not a byte of the request could be written: the worker had ended
 
     def close(self, kill=True):
         if kill and not self.dead:
@@ -855,6 +856,9 @@ class Worker:
                         except BlockingIOError:
                             continue
                         except (BrokenPipeError, OSError):
+                            # only the worker reads this pipe: closed before the first byte, it had ended before
+                            # the call
+                            self.gone_before_call = self.gone_before_call or len(pending) == len(request)
                             sel.unregister(self._req_w)
                             pending = memoryview(b"")
                             continue

@@ -779,7 +779,10 @@ def test_a_death_first_seen_by_another_thread_is_charged_to_the_call_under_way()
 class _DyingWorker:
     """A worker whose call ends the whole sandbox."""
 
-    dead, zygote_gone = False, True
+    dead, zygote_gone, gone_before_call = False, True, False
+
+    def ended_between_calls(self):
+        return False
 
     def call(self, *args, **kwargs):
         return sandbox_mod.CallOutcome("crashed", error="the process ended")
