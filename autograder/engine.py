@@ -174,14 +174,17 @@ class _WorkerCaller:
         blame = None
         try:
             with self.grading.calling(self.fn, self.budget):
-                out = self.worker.call(fn, args, kwargs, timeout=max(limit, 0.001), names=names,
-                                       global_seed=global_seed)
-                if out.status == "crashed" and self.worker.gone_before_call:
-                    blame = "before"
-                elif out.status == "crashed" and self.worker.zygote_gone:
-                    # judged while this call still counts as under way: a thread that finds the sandbox dead at
-                    # its next fork in the meantime must count this call among the suspects
-                    blame = self.grading.sandbox_died(self.generation, self.fn)
+                if self.grading.ended_since(self.generation, exclude=self.fn):  # while this call waited its turn
+                    out, blame = CallOutcome("crashed", error="the sandbox had ended before the call"), "before"
+                else:
+                    out = self.worker.call(fn, args, kwargs, timeout=max(limit, 0.001), names=names,
+                                           global_seed=global_seed)
+                    if out.status == "crashed" and self.worker.gone_before_call:
+                        blame = "before"
+                    elif out.status == "crashed" and self.worker.zygote_gone:
+                        # judged while this call still counts as under way: a thread that finds the sandbox dead at
+                        # its next fork in the meantime must count this call among the suspects
+                        blame = self.grading.sandbox_died(self.generation, self.fn)
         except Exception as exc:  # Worker.call turns everything the submission can do into an outcome
             raise GraderFault(f"calling {fn}: {type(exc).__name__}: {exc}") from exc
         if (blame is None and out.status == "crashed" and not self.forgiven
@@ -334,22 +337,24 @@ class _Grading:
                 except ChildFailed as exc:
                     raise GraderFault(f"a sandbox loaded a moment ago is gone ({exc.outcome.error})") from None
 
-    def ended_since(self, generation):
+    def ended_since(self, generation, exclude=None):
         """True when sandbox ``generation`` has ended (its death, first seen now, is charged to the calls under way,
-        not to the caller's next call)."""
+        not counting one call of ``exclude``, whose request has not been sent)."""
         with self.lock:
             if generation != self.box.loads:
                 return True
             if not self.box.ended(timeout=0.0):
                 return False
-            self._suspects(generation)
+            self._suspects(generation, exclude=exclude)
             return True
 
-    def _suspects(self, generation, fn=None):
+    def _suspects(self, generation, fn=None, exclude=None):
         """The functions charged with the death of sandbox ``generation``: those with calls under way when it was
-        first seen dead (and ``fn``, whose call saw it). Call with ``self.lock`` held."""
+        first seen dead (and ``fn``, whose call saw it; not one call of ``exclude``, which had sent nothing). Call
+        with ``self.lock`` held."""
         if generation not in self.deaths:
-            self.deaths[generation] = {f for f, n in self.inflight.items() if n > 0} | ({fn} if fn else set())
+            self.deaths[generation] = {f for f, n in self.inflight.items() if n - (f == exclude) > 0} | (
+                {fn} if fn else set())
             if len(self.deaths[generation]) > 1 and self.serial is None:
                 self.serial = threading.Lock()
         return self.deaths[generation]

@@ -13,6 +13,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import itertools
 import json
@@ -745,7 +746,7 @@ class _DeadBox:
         self.dead = False
 
     def ended(self, timeout=0.0):
-        return True
+        return self.dead
 
 
 def _grading_with(box, inflight, reloads):
@@ -781,10 +782,14 @@ class _DyingWorker:
 
     dead, zygote_gone, gone_before_call = False, True, False
 
+    def __init__(self, box):
+        self.box = box
+
     def ended_between_calls(self):
         return False
 
     def call(self, *args, **kwargs):
+        self.box.dead = True
         return sandbox_mod.CallOutcome("crashed", error="the process ended")
 
     def close(self):
@@ -796,7 +801,9 @@ def test_a_call_that_ends_the_sandbox_counts_as_under_way_until_its_death_is_jud
     the sandbox dead at its next fork: the call must still count as under way then, or the death is charged to no
     one (a reload spent) and the function that caused it is judged innocent and run again."""
     box = _DeadBox()
-    box.fork_worker = lambda: _DyingWorker()
+    box.dead = False
+    real_fork = box.fork_worker
+    box.fork_worker = lambda: real_fork() and _DyingWorker(box)
     g = _grading_with(box, {}, reloads=0)
     seen = []
     real = g.sandbox_died
@@ -986,6 +993,28 @@ def test_a_worker_that_ended_between_calls_is_replaced_before_the_next_call():
     finally:
         mp.undo()
     assert by_function(result)["ekf_update"] == (40.0, 40.0) and calls["n"] > 8, (by_function(result), calls)
+
+
+def test_deaths_of_the_sandbox_before_a_call_sends_its_request_cost_that_function_nothing(monkeypatch):
+    """The sandbox is killed twice just before a call of ekf_update (no call under way): a death that came before
+    the request could be written is not that call's, however often it happens (the reloads are the machine's)."""
+    real = engine_mod._Grading.calling
+    n = {"calls": 0}
+
+    @contextlib.contextmanager
+    def calling(self, fn, budget=None):
+        if fn == "ekf_update":
+            n["calls"] += 1
+            if n["calls"] in (3, 6):
+                os.killpg(self.box.proc.pid, signal.SIGKILL)
+                self.box.proc.wait()
+        with real(self, fn, budget) if budget is not None else real(self, fn):
+            yield
+
+    monkeypatch.setattr(engine_mod._Grading, "calling", calling)
+    result = grade(solution("ekf_localization"), "ekf_localization", workers=1)
+    assert all(s == m for s, m in by_function(result).values()), by_function(result)
+    assert result.loads == 3 and n["calls"] > 6, (result.loads, n)
 
 
 def test_a_fault_of_the_grader_is_graded_again_never_a_failed_test(monkeypatch):
