@@ -11,15 +11,30 @@ state never leaks into another's. Scenarios come from a seed derived from the
 deployment's secret and the submission's content (:mod:`autograder.seeds`), and
 time is bounded per call, per test and per submission.
 
-When the whole sandbox ends during a call, or the worker alone is killed by
-SIGKILL, the call is run again once (in a new sandbox, or a new worker): workers
-may not signal the sandbox, and a function's own error does not send SIGKILL, so
-such a death is most often the machine's (an out-of-memory kill, say), never a
-reason for a zero. If the sandbox ends again during a call of a function whose
-call was the only one under way, that function is charged with it: its remaining
-tests score 0, and the sandbox is loaded again for the others at no cost to them.
-When several calls were under way, each is run again once in the new sandbox, and
-from then on calls run one at a time so that the next death has a single suspect.
+Deaths are judged by when they happen; the machine's doing is never a reason
+for a zero:
+
+- A worker, or the whole sandbox, that ended between two calls (after its answer,
+  or before the next request could be written) is replaced before the next call
+  at no cost to anyone: the answers it gave stand.
+- When the whole sandbox ends during a call, or the worker alone is killed by
+  SIGKILL, the call is run again once (in a new sandbox, or a new worker): workers
+  may not signal the sandbox, and a function's own error does not send SIGKILL, so
+  such a death is most often the machine's (an out-of-memory kill, say). If the
+  sandbox ends again during a call of a function whose call was the only one under
+  way, that function is charged with it: its remaining tests score 0, and the
+  sandbox is loaded again for the others at no cost to them.
+- When several calls were under way, each is run again once in the new sandbox,
+  and from then on calls run one at a time so that the next death has a single
+  suspect; the time a function waits for the others' calls is given back to its
+  budgets.
+- A loading that ends abruptly is tried once more. Deaths no call can be charged
+  with are allowed ``MAX_RELOADS`` reloads; beyond them, or when a submission that
+  loaded once cannot be loaded again, the machine is at fault: :class:`GraderFault`.
+- A :class:`GraderFault` (the grader's own machinery failed) is never a failed
+  test: :func:`grade` grades the submission again, one function at a time, and
+  raises if that fails too, so that the command reports an internal error for the
+  course staff instead of a score.
 """
 
 from __future__ import annotations
