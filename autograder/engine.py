@@ -56,7 +56,7 @@ from .sandbox import CallOutcome, ChildFailed, Limits, Sandbox
 from .spec import VISIBILITY
 from .submission import FORBIDDEN, SubmissionError, forbidden_usage, load_submission
 
-__all__ = ["grade", "GradeResult", "TestResult", "run_tests", "Budget", "GraderFault"]
+__all__ = ["grade", "GradeResult", "TestResult", "run_tests", "Budget", "GraderFault", "SandboxLost"]
 
 #: A worker that died is forked again at most this many times per function.
 MAX_RESTARTS = 3
@@ -64,6 +64,9 @@ MAX_RESTARTS = 3
 #: no single function can be blamed for (a death during the call of one function alone ends that function's
 #: tests instead, and costs the others nothing).
 MAX_RELOADS = 2
+#: A call whose worker (or sandbox) had ended before its request was sent is run in a new one at most this many
+#: times (the sandbox's own ends are bounded by MAX_RELOADS and the charges; this bounds a worker's).
+MAX_GONE = 5
 #: Seconds to wait for the sandbox to end after a worker's result pipe closed with no word from the zygote.
 ZYGOTE_GONE_WAIT = 5.0
 
@@ -98,6 +101,16 @@ class GraderFault(Exception):
 
     :func:`grade` grades the submission once more, one function at a time; a second fault propagates, so the
     command reports an internal error for the course staff instead of a score.
+    """
+
+
+class SandboxLost(GraderFault):
+    """The sandbox kept ending with no call to charge it to (or its loading ended abruptly).
+
+    Most often the machine's doing, so the first grading raises it and the submission
+    is graded again; in that second grading the same end is the submission's (its
+    top-level code can end or disturb its own sandbox), and the functions it stops
+    fail with a message instead.
     """
 
 
@@ -158,7 +171,7 @@ class _WorkerCaller:
         self.retried = False  # a call of this function was run again after a death shared with other calls
         self.forgiven = False  # ... after a death during its call alone
 
-    def call(self, fn, args, kwargs, *, timeout, names=(), global_seed=None, _retry_of_gone=False):
+    def call(self, fn, args, kwargs, *, timeout, names=(), global_seed=None, _gone=0):
         if self.broken:
             return CallOutcome("skipped", error=self.broken)
         limit, reason = self.budget.limit(timeout) if self.budget else (timeout, None)
@@ -181,6 +194,12 @@ class _WorkerCaller:
                 return CallOutcome("skipped", error=self.broken)
             try:
                 self.worker, self.generation = self.grading.fork_worker()
+            except SandboxLost as exc:
+                if not self.grading.final:
+                    raise
+                self.broken = (f"not run: the sandbox holding the submission kept ending with no call under way "
+                               f"({exc}; graded twice). Does the top-level code end or alter its own process?")
+                return CallOutcome("crashed", error=self.broken)
             except GraderFault:
                 raise
             except Exception as exc:  # the grader's machinery (or the machine), not the submission
@@ -207,7 +226,7 @@ class _WorkerCaller:
             # the worker alone was killed, by a signal a function's own error does not send (the kernel's
             # out-of-memory killer sends it): perhaps the machine's doing, so once, the call runs again
             blame = "alone"
-        if blame == "before" and not _retry_of_gone:
+        if blame == "before" and _gone < MAX_GONE:
             # the worker (or its sandbox) had ended before the request was sent: not this call's doing; the death
             # is judged by the calls under way now, and the call runs in a new worker
             self.grading.ended_since(self.generation)
@@ -215,7 +234,7 @@ class _WorkerCaller:
             self.worker = None
             self.started -= 1
             return self.call(fn, args, kwargs, timeout=timeout, names=names, global_seed=global_seed,
-                             _retry_of_gone=True)
+                             _gone=_gone + 1)
         if blame == "before":
             blame = None
         if blame is not None:
@@ -315,8 +334,9 @@ def run_tests(ex, fn, caller, *, seed=None, limits=None, budget=None):
 class _Grading:
     """The sandbox of one submission, shared by the functions' threads (started again if it dies)."""
 
-    def __init__(self, sub, functions, limits):
+    def __init__(self, sub, functions, limits, final=False):
         self.box = Sandbox(sub.units, functions, limits, sub.display_name)
+        self.final = final  # the second grading: an end of the sandbox no call can be charged with is the code's
         self.lock = threading.Lock()
         self.reloads = 0
         self.inflight = {}  # function -> calls under way
@@ -340,17 +360,17 @@ class _Grading:
                     # (the thread whose call ended it may not have noticed yet)
                     if len(self._suspects(generation)) != 1:  # no single function to charge it to
                         if self.reloads >= MAX_RELOADS:
-                            raise GraderFault(f"the sandbox ended {self.reloads + 1} times with no single call to "
+                            raise SandboxLost(f"the sandbox ended {self.reloads + 1} times with no single call to "
                                               "charge it to (the machine's doing)") from None
                         self.reloads += 1
                     try:
                         self.box.start()
                     except ChildFailed as exc:  # it loaded before: a loading that fails now is not the code's doing
-                        raise GraderFault(f"the submission could not be loaded again ({exc.outcome.error})") from None
+                        raise SandboxLost(f"the submission could not be loaded again ({exc.outcome.error})") from None
                 try:
                     return self.box.fork_worker(), self.box.loads
                 except ChildFailed as exc:
-                    raise GraderFault(f"a sandbox loaded a moment ago is gone ({exc.outcome.error})") from None
+                    raise SandboxLost(f"a sandbox loaded a moment ago is gone ({exc.outcome.error})") from None
 
     def ended_since(self, generation, exclude=None):
         """True when sandbox ``generation`` has ended (its death, first seen now, is charged to the calls under way,
@@ -487,17 +507,17 @@ def grade(path, exercise=None, *, limits=None, workers=None, seed=None, function
     t0 = time.perf_counter()
     kw = dict(limits=limits, seed=seed, functions=functions, secret=secret)
     try:
-        return _grade(path, exercise, workers=workers, **kw)
+        return _grade(path, exercise, workers=workers, final=False, **kw)
     except GraderFault as exc:
         first = exc
-    result = _grade(path, exercise, workers=1, **kw)
+    result = _grade(path, exercise, workers=1, final=True, **kw)
     result.notes.append(f"graded a second time, one function at a time, after an internal error of the grader "
                         f"({first}); the first grading was discarded")
     result.execution_time = time.perf_counter() - t0
     return result
 
 
-def _grade(path, exercise, *, limits, workers, seed, functions, secret):
+def _grade(path, exercise, *, limits, workers, seed, functions, secret, final):
     t0 = time.perf_counter()
     start = time.monotonic()
     limits = limits or Limits()
@@ -557,12 +577,14 @@ def _grade(path, exercise, *, limits, workers, seed, functions, secret):
         return done()
     forbidden = forbidden_usage(sub.units, list(ex.functions))
     budget_args = (limits.test_budget or ex.test_budget, limits.submission_budget or ex.submission_budget)
-    grading = _Grading(sub, list(ex.functions), limits)
+    grading = _Grading(sub, list(ex.functions), limits, final=final)
     outs = {}
     try:
         try:
             ready = grading.start()
         except ChildFailed as exc:
+            if exc.reason == "eof" and not final:  # its process ended abruptly twice: the machine's doing, perhaps
+                raise SandboxLost(f"loading: {exc.outcome.error}") from None
             ready = None
             load_failure = exc.outcome.error
         result.loads = grading.box.loads

@@ -206,9 +206,10 @@ class CallOutcome:
 class ChildFailed(Exception):
     """The sandbox could not be started or the submission not loaded (carries a CallOutcome)."""
 
-    def __init__(self, outcome):
+    def __init__(self, outcome, reason=None):
         super().__init__(outcome.error)
         self.outcome = outcome
+        self.reason = reason  # why a loading failed: "timeout", "statement", "output", "protocol", "eof"
 
 
 # --------------------------------------------------------------------------- what the sandbox may see
@@ -484,7 +485,7 @@ class Sandbox:
                 "protocol": f"the process loading the submission sent a malformed message ({where})",
             }.get(status, f"the process loading the submission ended unexpectedly ({where or status})")
             raise ChildFailed(CallOutcome(status if status in ("timeout", "output") else "crashed", error=what,
-                                          output=out))
+                                          output=out), reason=status)
 
     def _start_once(self, deadline):
         self.kill()

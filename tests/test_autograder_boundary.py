@@ -668,18 +668,36 @@ def test_read_array_refuses_absurd_shapes():
     assert _read_array({"dtype": "<f8", "shape": [0, 3], "off": 0, "len": 0}, b"", np).shape == (0, 3)
 
 
+def _ends_the_sandbox_during_its_calls(monkeypatch, times):
+    """The functions ``times`` (name -> how many calls, None: every call) end the whole sandbox during their calls:
+    the sandbox is stopped, the request delivered into the worker's pipe, and the sandbox killed, so that the end
+    comes once the call is under way and before any answer (as a function that signals its sandbox would, where
+    nothing stops it). Returns the calls left to end."""
+    real_exchange = sandbox_mod.Worker._exchange
+    left = dict(times)
+
+    def exchange(self, request, deadline):
+        head = bytes(request[:4096]).replace(b" ", b"")
+        for fn in left:
+            if (left[fn] is None or left[fn] > 0) and self.sandbox.proc is not None and \
+                    b'"fn":"' + fn.encode() + b'"' in head:
+                if left[fn] is not None:
+                    left[fn] -= 1
+                os.killpg(self.sandbox.proc.pid, signal.SIGSTOP)  # no answer can come now
+                assert os.write(self._req_w, request) > 0  # the call is under way ...
+                os.killpg(self.sandbox.proc.pid, signal.SIGKILL)  # ... when the sandbox ends
+                self.sandbox.proc.wait()
+                return real_exchange(self, b"", deadline)
+        return real_exchange(self, request, deadline)
+
+    monkeypatch.setattr(sandbox_mod.Worker, "_exchange", exchange)
+    return left
+
+
 def test_a_function_that_ends_the_sandbox_loses_its_own_tests_only(monkeypatch):
     """The sandbox dies during every call of ekf_predict: ekf_predict scores 0, the other functions keep their
     marks (their reloads are not spent on it)."""
-    real_call = sandbox_mod.Worker.call
-
-    def call(self, fn, *args, **kwargs):
-        if fn == "ekf_predict" and self.sandbox.proc is not None:
-            os.killpg(self.sandbox.proc.pid, signal.SIGKILL)
-            self.sandbox.proc.wait()
-        return real_call(self, fn, *args, **kwargs)
-
-    monkeypatch.setattr(sandbox_mod.Worker, "call", call)
+    _ends_the_sandbox_during_its_calls(monkeypatch, {"ekf_predict": None})
     result = grade(solution("ekf_localization"), "ekf_localization", workers=2)
     got = by_function(result)
     assert got["ekf_predict"][0] == 0, got
@@ -824,23 +842,12 @@ def test_one_death_of_the_sandbox_during_a_call_costs_nothing(monkeypatch):
     """A worker cannot signal its sandbox, so one death of the sandbox during a call is most likely the machine's
     (an out-of-memory kill): the call runs again in a new sandbox and the function keeps every mark. Only a
     function whose calls end the sandbox again is charged (test_a_function_that_ends_the_sandbox_loses_...)."""
-    real_call = sandbox_mod.Worker.call
-    kills = {"ekf_update": 1, "associate_ml": 1}
-
-    def call(self, fn, *args, **kwargs):
-        if kills.get(fn, 0) > 0 and self.sandbox.proc is not None:
-            kills[fn] -= 1
-            os.killpg(self.sandbox.proc.pid, signal.SIGKILL)
-            self.sandbox.proc.wait()
-        return real_call(self, fn, *args, **kwargs)
-
-    monkeypatch.setattr(sandbox_mod.Worker, "call", call)
     for workers in (1, 3):
-        kills.update({"ekf_update": 1, "associate_ml": 1})
+        left = _ends_the_sandbox_during_its_calls(monkeypatch, {"ekf_update": 1, "associate_ml": 1})
         result = grade(solution("ekf_localization"), "ekf_localization", workers=workers)
         got = by_function(result)
         assert all(s == m for s, m in got.values()), (workers, got)
-        assert result.loads >= 2 and not kills["ekf_update"] and not kills["associate_ml"], (result.loads, kills)
+        assert result.loads >= 2 and left == {"ekf_update": 0, "associate_ml": 0}, (result.loads, left)
 
 
 def test_a_worker_killed_once_by_sigkill_costs_nothing_and_twice_costs_the_test(monkeypatch):
@@ -869,7 +876,8 @@ def test_a_worker_killed_once_by_sigkill_costs_nothing_and_twice_costs_the_test(
 
 def test_a_loading_killed_once_by_sigkill_is_loaded_again(monkeypatch, tmp_path):
     """The kernel's out-of-memory killer may end the process loading a submission: the loading is tried once more
-    (with a note), and the submission keeps every mark; killed again, every test fails naming the signal."""
+    (with a note), and the submission keeps every mark; killed again, the submission is graded again; killed in
+    every loading of both gradings, every test fails naming the signal."""
     path = tmp_path / "slow_load.py"
     path.write_text("import time\ntime.sleep(1.0)\n" + solution_text("ekf_localization"))
     real = sandbox_mod.Sandbox._start_once
@@ -892,7 +900,11 @@ def test_a_loading_killed_once_by_sigkill_is_loaded_again(monkeypatch, tmp_path)
     assert by_function(result)["ekf_update"] == (40.0, 40.0) and kills["left"] == 0
     assert any("killed by signal SIGKILL) and the submission was loaded again" in n for n in result.notes), \
         result.notes
-    kills["left"] = 2
+    kills["left"] = 2  # both loadings of the first grading: the submission is graded again
+    result = grade(path, "ekf_localization", workers=1, functions=["ekf_update"])
+    assert by_function(result)["ekf_update"] == (40.0, 40.0) and kills["left"] == 0
+    assert any("graded a second time" in n for n in result.notes), result.notes
+    kills["left"] = 4  # every loading of both gradings: the loading fails, naming the signal
     result = grade(path, "ekf_localization", workers=1, functions=["ekf_update"])
     assert by_function(result)["ekf_update"][0] == 0 and kills["left"] == 0
     assert "killed by signal SIGKILL" in result.tests[0].output, result.tests[0].output
@@ -1015,6 +1027,27 @@ def test_deaths_of_the_sandbox_before_a_call_sends_its_request_cost_that_functio
     result = grade(solution("ekf_localization"), "ekf_localization", workers=1)
     assert all(s == m for s, m in by_function(result).values()), by_function(result)
     assert result.loads == 3 and n["calls"] > 6, (result.loads, n)
+
+
+def test_a_sandbox_that_ends_after_every_loading_is_the_submissions_doing_in_the_second_grading(monkeypatch):
+    """A sandbox that ends right after every loading, with no call under way (as top-level code that disturbs its
+    own process can arrange), is first taken for the machine's doing (graded again); in the second grading it is the
+    submission's: its functions fail with a message, and no internal error is raised on its account."""
+    real = sandbox_mod.Sandbox._start_once
+
+    def start_once(self, deadline):
+        out = real(self, deadline)
+        if out is None:
+            proc = self.proc
+            threading.Timer(0.05, lambda: os.killpg(proc.pid, signal.SIGKILL) if proc.poll() is None else None).start()
+            proc.wait()  # ended before any call
+        return out
+
+    monkeypatch.setattr(sandbox_mod.Sandbox, "_start_once", start_once)
+    result = grade(solution("ekf_localization"), "ekf_localization", workers=2)
+    assert all(s == 0 for s, _ in by_function(result).values()), by_function(result)
+    assert all("kept ending with no call under way" in t.output for t in result.tests), result.tests[0].output
+    assert any("graded a second time" in n for n in result.notes), result.notes
 
 
 def test_a_fault_of_the_grader_is_graded_again_never_a_failed_test(monkeypatch):
