@@ -29,8 +29,11 @@ for a zero:
   suspect; the time a function waits for the others' calls is given back to its
   budgets.
 - A loading that ends abruptly is tried once more. Deaths no call can be charged
-  with are allowed ``MAX_RELOADS`` reloads; beyond them, or when a submission that
-  loaded once cannot be loaded again, the machine is at fault: :class:`GraderFault`.
+  with are allowed ``MAX_RELOADS`` reloads. Beyond them, when a submission that
+  loaded once cannot be loaded again, or when its loading ended abruptly twice, the
+  machine is first taken to be at fault (:class:`SandboxLost`: graded again); in the
+  second grading the same end is the submission's (its top-level code can disturb
+  its own sandbox), and the functions it stops fail with a message.
 - A :class:`GraderFault` (the grader's own machinery failed) is never a failed
   test: :func:`grade` grades the submission again, one function at a time, and
   raises if that fails too, so that the command reports an internal error for the
@@ -309,8 +312,10 @@ def run_tests(ex, fn, caller, *, seed=None, limits=None, budget=None):
                 skip_reason = f"not run: {fn} raised NotImplementedError in '{test.title}' (not implemented yet)"
         except SkipRest as exc:
             score, text = 0.0, str(exc)
-        except (GraderFault, MemoryError, OSError):  # the grader's failure, not the submission's: no score from it
+        except GraderFault:  # the grader's failure, not the submission's: no score from it
             raise
+        except (MemoryError, OSError) as exc:  # the grader's own process (the machine): no score from it either
+            raise GraderFault(f"the grader's process, in {test.name!r}: {type(exc).__name__}: {exc}") from exc
         except Exception as exc:  # noqa: BLE001 - a bug in a test must not end grading
             score = 0.0
             text = ("FAILED\nthe grader could not complete this test "
