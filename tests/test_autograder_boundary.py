@@ -770,6 +770,7 @@ class _DeadBox:
 def _grading_with(box, inflight, reloads):
     g = engine_mod._Grading.__new__(engine_mod._Grading)
     g.box, g.lock, g.reloads, g.inflight, g.deaths, g.serial = box, threading.Lock(), reloads, dict(inflight), {}, None
+    g.final = False
     return g
 
 
