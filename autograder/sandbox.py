@@ -611,6 +611,8 @@ class Sandbox:
         proc = self.proc
         if proc is None:
             return True
+        if timeout <= 0:  # asked before every call: no exception raised and caught on the way
+            return proc.poll() is not None
         try:
             proc.wait(timeout=timeout)
         except subprocess.TimeoutExpired:
