@@ -180,17 +180,13 @@ class _WorkerCaller:
         limit, reason = self.budget.limit(timeout) if self.budget else (timeout, None)
         if limit <= 0:
             return CallOutcome("timeout", error=self.budget.message(reason), budget=reason)
-        if self.worker is not None and not self.worker.dead:
-            # a worker that ended after its previous call returned (its end reported, its sandbox gone) is replaced
-            # before this call: that death is not this call's
-            if self.grading.ended_since(self.generation):
-                self.worker.close()
-                self.worker = None
-                self.started -= 1
-            elif self.worker.ended_between_calls():  # its answers stand; a new worker takes the next call
-                self.worker.close()
-                self.worker = None
-                self.started -= 1
+        if self.worker is not None and not self.worker.dead and self.worker.ended_between_calls():
+            # a worker that ended after its previous call returned (its end reported, or its pipe closed with its
+            # sandbox) is replaced before this call at no cost: its answers stand. A sandbox that ended without its
+            # worker's pipe showing it yet is caught when this call's turn comes (ended_since below).
+            self.worker.close()
+            self.worker = None
+            self.started -= 1
         if self.worker is None or self.worker.dead:
             if self.started > MAX_RESTARTS:
                 self.broken = f"not run: the process running {self.fn} died {self.started} times"

@@ -1851,10 +1851,11 @@ def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rn
         return FastSLAMState._from_maps(_move(x_prev, u, dt, L, eta, motion), state._blocks(),
                                         _normalized(state.log_weights.copy()))
     x_hat, B = _motion_terms(x_prev, u, dt, L, motion)
+    b = _motion_norm(B)  # (M,): the motion's share of every reach margin of this step
     # the blocks some particle may reach (the union of the particles' block boxes, a superset of
     # _columns_in_reach), or every block when pruning reads every landmark in view
     reach = None if max_range is not None else (
-        lambda s: _summaries_in_reach(s, x_hat, z, lambda var: _margin2(np.sqrt(var), float(_motion_norm(B).max()), Q)))
+        lambda s: _summaries_in_reach(s, x_hat, z, lambda var: _margin2(np.sqrt(var), float(b.max()), Q)))
     maps, win, (mu, Sigma, seen, counts) = _unknown_window(state, K, "the landmarks of a particle", reach)
     cols = np.flatnonzero(seen.any(axis=0))
     if cols.size and K:
@@ -1866,7 +1867,7 @@ def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rn
         dx, dy = mu[:, cols, 0] - x_hat[:, None, 0], mu[:, cols, 1] - x_hat[:, None, 1]
         d = np.hypot(dx, dy)
         spread = np.sqrt(Sigma[:, cols, 0, 0] + Sigma[:, cols, 1, 1])
-        margin = _margin2(spread, _motion_norm(B)[:, None], Q)
+        margin = _margin2(spread, b[:, None], Q)
         near = seen[:, cols] & (d >= z[:, 0].min() - margin) & (d <= z[:, 0].max() + margin)
         keep = near.any(axis=0)
         cols = cols[keep]
