@@ -11,6 +11,7 @@
 
 from __future__ import annotations
 
+import json
 import re
 import sys
 from pathlib import Path
@@ -211,3 +212,62 @@ def test_every_question_has_an_answer(path):
     n_q = len(re.findall(r"(?m)^\d+\. ", questions[0]))
     n_a = len(re.findall(r"(?m)^\d+\. ", questions[1].split("```", 1)[0]))
     assert n_q == n_a > 0, f"{path.name}: {n_q} questions, {n_a} answers"
+
+
+# ----------------------------------------------------------------------------- the data files and their commands
+DATA = ROOT / "chapters" / "data"
+_COMMAND = re.compile(r"`(python (?:benchmarks|tools)/[^`]+)`")
+
+
+def _data_table():
+    """``{file: (commands, chapters)}`` from the instructors' page's table of the files the chapters read."""
+    rows = {}
+    for line in (ROOT / "chapters" / "instructors.md").read_text().splitlines():
+        m = re.match(r"\| `chapters/data/([^`]+)` \| (.*) \| chapters? ([0-9, and]+) \|$", line)
+        if m:
+            rows[m[1]] = (_COMMAND.findall(m[2]), sorted(int(n) for n in re.findall(r"\d+", m[3])))
+    return rows
+
+
+def _quoted_commands():
+    """Every ``python benchmarks/...`` or ``python tools/...`` command quoted in the README or a chapter's prose."""
+    texts = [("README.md", (ROOT / "README.md").read_text())]
+    texts += [(p.name, (p.read_text())) for p in PAGES]
+    texts += [(p.name, c.source) for p in CHAPTERS for c in nbformat.read(p, as_version=4).cells if c.cell_type == "markdown"]
+    return [(name, cmd) for name, text in texts for cmd in _COMMAND.findall(text)]
+
+
+def test_every_data_file_has_its_commands_and_readers_listed():
+    table = _data_table()
+    assert sorted(table) == sorted(p.name for p in DATA.iterdir()), "chapters/instructors.md's table of data files"
+    for name, (commands, readers) in table.items():
+        assert commands, f"{name}: no command"
+        read = [int(p.name[:2]) for p in CHAPTERS
+                if any(c.cell_type == "code" and name in c.source for c in nbformat.read(p, as_version=4).cells)]
+        assert read == readers, f"{name} is read by chapters {read}, the table says {readers}"
+        if name.endswith(".json"):  # a file that records its own command was made by the listed ones
+            recorded = json.loads((DATA / name).read_text()).get("command")
+            assert recorded in (None, " + ".join(commands)), f"{name} records {recorded!r}, the table says {commands}"
+
+
+def _stale(quoted, table):
+    """The quoted commands that name a data file but are not among the commands listed for it."""
+    return [f"{where}: `{cmd}` (listed: {table[f][0]})" for where, cmd in quoted for f in table
+            if f"chapters/data/{f}" in cmd and cmd not in table[f][0]]
+
+
+def test_a_command_quoted_for_a_data_file_is_the_listed_one():
+    table, quoted = _data_table(), _quoted_commands()
+    assert any("chapters/data/mcl_study.json" in cmd for _, cmd in quoted)  # the README's commands are read
+    wrong = _stale(quoted, table)
+    assert not wrong, "\n".join(wrong)
+
+
+def test_the_command_checks_can_fail():
+    table = _data_table()
+    text = ("the study: `python benchmarks/mcl_study.py --updates 150 --configs defaults "
+            "--json chapters/data/mcl_study_long.json`; the table: `python tools/mrclam_table.py` (no file named)")
+    quoted = [("a chapter", cmd) for cmd in _COMMAND.findall(text)]
+    assert len(quoted) == 2 and len(_stale(quoted, table)) == 1  # a stale copy is found, a bare mention is not
+    listed = [("a chapter", table["mcl_study_long.json"][0][0])]
+    assert _stale(listed, table) == []
