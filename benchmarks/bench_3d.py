@@ -45,6 +45,7 @@ BLAS runs single-threaded (``OPENBLAS_NUM_THREADS=1`` unless set already); GTSAM
 
 from __future__ import annotations
 
+import argparse
 import os
 import statistics
 import sys
@@ -269,14 +270,22 @@ def bundle_adjustment_figures():
             spec = importlib.util.spec_from_file_location(name[:-3], path)
             mod = importlib.util.module_from_spec(spec)
             spec.loader.exec_module(mod)
-            mod.main()
+            mod.main([])
             return
     print(f"bundle adjustment: none of {', '.join(BUNDLE_ADJUSTMENT_SCRIPTS)} in benchmarks/; skipped")
 
 
+SECTIONS = ["sphere2500", "Intel", "M3500", "w10000", "w20000", "city10000", "incremental", "bundle_adjustment"]
+
+
 def main(argv=None):
-    names = list(argv if argv is not None else sys.argv[1:]) or ["sphere2500", "Intel", "M3500", "w10000", "w20000",
-                                                                  "city10000", "incremental", "bundle_adjustment"]
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("names", nargs="*", metavar="SECTION",
+                    help=f"what to measure, any of {', '.join(SECTIONS)} (default: all)")
+    names = ap.parse_args(argv).names or SECTIONS
+    unknown = [n for n in names if n not in SECTIONS]
+    if unknown:  # (argparse's choices refuse an empty list with nargs="*")
+        ap.error(f"unknown SECTION {', '.join(unknown)}; choose from {', '.join(SECTIONS)}")
     if gtsam is None:
         print("GTSAM not installed (pip install gtsam): only slamlib's figures are printed")
     if "sphere2500" in names:

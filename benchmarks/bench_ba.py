@@ -32,6 +32,7 @@ SciPy cookbook, "Large-scale bundle adjustment in scipy".
 
 from __future__ import annotations
 
+import argparse
 import os
 
 for _v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -157,7 +158,8 @@ def run_gtsam(pb, max_iter=100):
     return g.error(res), opt.iterations()
 
 
-def main():
+def main(argv=None):
+    argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter).parse_args(argv)
     problems = [("dubrovnik-3-7", load_dubrovnik()), ("Balbianello", load_balbianello()), ("synthetic", synthetic())]
     try:
         import gtsam  # noqa: F401

@@ -44,6 +44,7 @@ Course text, Algorithm 3; Thrun, Burgard & Fox, *Probabilistic Robotics*
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import math
 import os
@@ -365,6 +366,11 @@ def fastslam_figures() -> list[str]:
     ]
 
 
-if __name__ == "__main__":
+def main(argv=None):
+    argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter).parse_args(argv)
     for line in fastslam_figures():
         print(line)
+
+
+if __name__ == "__main__":
+    main()

@@ -46,6 +46,7 @@ ordering algorithm", ACM TOMS 30(3), 2004.
 
 from __future__ import annotations
 
+import argparse
 import os
 import statistics
 import time
@@ -315,10 +316,17 @@ def solver_figures(repeats=5):
           "measured: it ships only as a source distribution that needs the SuiteSparse headers")
 
 
-def main(argv=None):
-    import sys
+SECTIONS = ["solve", "edges", "solver"]
 
-    sections = list(argv if argv is not None else sys.argv[1:]) or ["solve", "edges", "solver"]
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("sections", nargs="*", metavar="SECTION",
+                    help=f"what to measure, any of {', '.join(SECTIONS)} (default: all)")
+    sections = ap.parse_args(argv).sections or SECTIONS
+    unknown = [n for n in sections if n not in SECTIONS]
+    if unknown:  # (argparse's choices refuse an empty list with nargs="*")
+        ap.error(f"unknown SECTION {', '.join(unknown)}; choose from {', '.join(SECTIONS)}")
     print(f"GTSAM: {'installed' if gtsam is not None else 'not installed, comparison skipped'}\n")
     if "solve" in sections:
         solve_figures()

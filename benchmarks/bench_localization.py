@@ -26,6 +26,7 @@ under two minutes.
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import math
 import statistics
@@ -184,7 +185,8 @@ def mcl_figures():
     return duration, out, cpu
 
 
-def main():
+def main(argv=None):
+    argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter).parse_args(argv)
     t_start = time.perf_counter()
     t_vec, t_loop = pf_figures()
     t_lib, t_bare = resample_figures()

@@ -24,6 +24,7 @@ minute.
 
 from __future__ import annotations
 
+import argparse
 import sys
 from pathlib import Path
 
@@ -92,7 +93,8 @@ def loop_scan_cells(spec, pose, ranges, angles, z_max, params, off):
     return occ, free - occ
 
 
-def main():
+def main(argv=None):
+    argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter).parse_args(argv)
     log = cmu.load_cmu_log()
     duration = float(log.laser_t[-1] - log.laser_t[0])
     index, _ = sl.odometry_steps(log.laser_pose)

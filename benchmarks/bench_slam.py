@@ -46,6 +46,7 @@ Course text, Algorithm 1; Thrun, Burgard & Fox, *Probabilistic Robotics*
 
 from __future__ import annotations
 
+import argparse
 import importlib.util
 import os
 import statistics
@@ -223,7 +224,8 @@ def fastslam_lines():
     return [str(line) for line in mod.fastslam_figures()]
 
 
-def main():
+def main(argv=None):
+    argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter).parse_args(argv)
     rng = np.random.default_rng(SEED)
     rows = []
     t_start = time.perf_counter()

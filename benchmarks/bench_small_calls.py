@@ -33,6 +33,7 @@ about half a minute.
 
 from __future__ import annotations
 
+import argparse
 import itertools
 import math
 import sys
@@ -283,7 +284,8 @@ def goal_verdict(ratios, measured):
     return f"{worst:.2f} ({'met' if all(r <= GOAL_FILTERPY for r in ratios) else 'MISSED'})"
 
 
-def main():
+def main(argv=None):
+    argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter).parse_args(argv)
     print(f"one call on a 3-state problem (us per call; best of 80 interleaved blocks of 200 calls); filterpy "
           f"{'installed' if fk else 'NOT installed (pip install -e .[bench])'}")
     print(f"{'call':<12} {'slamlib':>9} {'filterpy':>9} {'bare':>9} {'sl/filterpy':>12} {'sl/bare':>8}")

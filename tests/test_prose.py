@@ -217,6 +217,8 @@ def test_every_question_has_an_answer(path):
 # ----------------------------------------------------------------------------- the data files and their commands
 DATA = ROOT / "chapters" / "data"
 _COMMAND = re.compile(r"`(python (?:benchmarks|tools)/[^`]+)`")
+#: a command line in a script's docstring that writes a data file (usage templates with [options] are not)
+_SCRIPT_COMMAND = re.compile(r"(python (?:benchmarks|tools)/\S+\.py [^`#\n\[]*?chapters/data/[^\s`]+)")
 
 
 def _data_table():
@@ -234,7 +236,10 @@ def _quoted_commands():
     texts = [("README.md", (ROOT / "README.md").read_text())]
     texts += [(p.name, (p.read_text())) for p in PAGES]
     texts += [(p.name, c.source) for p in CHAPTERS for c in nbformat.read(p, as_version=4).cells if c.cell_type == "markdown"]
-    return [(name, cmd) for name, text in texts for cmd in _COMMAND.findall(text)]
+    quoted = [(name, cmd) for name, text in texts for cmd in _COMMAND.findall(text)]
+    for p in sorted((ROOT / "benchmarks").glob("*.py")) + sorted((ROOT / "tools").glob("*.py")):  # their docstrings
+        quoted += [(p.name, cmd) for cmd in _SCRIPT_COMMAND.findall(p.read_text())]
+    return quoted
 
 
 def test_every_data_file_has_its_commands_and_readers_listed():
@@ -258,7 +263,8 @@ def _stale(quoted, table):
 
 def test_a_command_quoted_for_a_data_file_is_the_listed_one():
     table, quoted = _data_table(), _quoted_commands()
-    assert any("chapters/data/mcl_study.json" in cmd for _, cmd in quoted)  # the README's commands are read
+    for where in ("README.md", "mcl_study.py", "mcl_holdout.py", "vo_study.py"):  # the README and the docstrings are read
+        assert any(w == where and "chapters/data/" in cmd for w, cmd in quoted), where
     wrong = _stale(quoted, table)
     assert not wrong, "\n".join(wrong)
 

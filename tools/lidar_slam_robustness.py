@@ -8,6 +8,7 @@ loop closures. Usage: ``python tools/lidar_slam_robustness.py`` (about a minute 
 every run to ``chapters/data/lidar_slam_robustness.json``, which chapter 11 reads.
 """
 
+import argparse
 import json
 import time
 from pathlib import Path
@@ -22,7 +23,8 @@ MAP_THRESHOLD = 0.80  # occupied-cell agreement a run must reach (see tests/test
 OUT = Path(__file__).resolve().parents[1] / "chapters" / "data" / "lidar_slam_robustness.json"
 
 
-def main():
+def main(argv=None):
+    argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter).parse_args(argv)
     grid, log = cmu.load_cmu_map(), cmu.load_cmu_log()
     ref = ls.cmu_reference_track(grid, log, rng=np.random.default_rng(99))
     base = ls.LidarSlamParams()

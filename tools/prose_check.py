@@ -29,6 +29,7 @@ or ``from tools.prose_check import check_notebook`` (a list of :class:`Finding`)
 
 from __future__ import annotations
 
+import argparse
 import ast
 import inspect
 import io
@@ -247,10 +248,9 @@ def check_notebook(path: str | Path) -> list[Finding]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    paths = argv if argv is not None else sys.argv[1:]
-    if not paths:
-        print(__doc__)
-        return 2
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("paths", nargs="+", metavar="NOTEBOOK", help="chapter notebooks (.ipynb) to check")
+    paths = ap.parse_args(argv).paths
     total = 0
     for p in paths:
         found = check_notebook(p)

@@ -1,0 +1,67 @@
+"""Every command-line script of the project (``benchmarks/``, ``tools/``) reads its arguments before it works.
+
+``--help`` prints the usage and exits at once; an argument the script does not know is refused with exit
+status 2 and its name. Neither starts a measurement or writes a file: a script that ignored its arguments
+would run a whole benchmark for ``--help``, or rewrite a chapter's data file.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SCRIPTS = sorted(p for folder in ("benchmarks", "tools") for p in (ROOT / folder).glob("*.py")
+                 if '__name__ == "__main__"' in p.read_text())
+
+
+def _run(script, *args):
+    data = {p: p.stat().st_mtime_ns for p in (ROOT / "chapters" / "data").iterdir()}
+    proc = subprocess.run([sys.executable, str(script), *args], capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert {p: p.stat().st_mtime_ns for p in (ROOT / "chapters" / "data").iterdir()} == data, "a data file was written"
+    return proc
+
+
+def test_the_scripts_are_found():
+    names = {p.name for p in SCRIPTS}
+    assert {"mcl_study.py", "bench_slam.py", "prose_check.py", "lidar_slam_robustness.py"} <= names
+
+
+@pytest.mark.parametrize("script, args", [("bench_3d.py", ["M3500", "Intel"]), ("bench_3d.py", []),
+                                          ("bench_graph_slam.py", ["edges"]), ("bench_graph_slam.py", [])])
+def test_sections_are_chosen_by_name(script, args, monkeypatch, capsys):
+    # the scripts that measure sections run only the named ones (all by default) and refuse other names
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(script[:-3], ROOT / "benchmarks" / script)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    ran = []
+    for name in ("sphere_figures", "figures2d", "incremental_figures", "bundle_adjustment_figures",
+                 "solve_figures", "edge_figures", "solver_figures"):
+        if hasattr(mod, name):
+            monkeypatch.setattr(mod, name, lambda *a, name=name: ran.append((name, a)))
+    mod.main(args)
+    assert ran and (len(ran) < 3) == bool(args)
+    if script == "bench_3d.py" and args:
+        assert ran == [("figures2d", (["M3500", "Intel"],))]
+    with pytest.raises(SystemExit) as exit_:
+        mod.main(["M3050"])
+    assert exit_.value.code == 2 and "M3050" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("script", SCRIPTS, ids=lambda p: f"{p.parent.name}/{p.name}")
+def test_help_prints_the_usage_and_does_nothing_else(script):
+    proc = _run(script, "--help")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.startswith("usage:"), proc.stdout[:500]
+
+
+@pytest.mark.parametrize("script", SCRIPTS, ids=lambda p: f"{p.parent.name}/{p.name}")
+def test_an_unknown_argument_is_refused_by_name(script):
+    proc = _run(script, "--no-such-option", "x")  # "x" for a script that needs a positional argument
+    assert proc.returncode == 2, (proc.returncode, proc.stdout[-1000:], proc.stderr[-1000:])
+    assert "--no-such-option" in proc.stderr
