@@ -7,6 +7,8 @@
 * The reference pages: the introduction lists every chapter; every citation key exists in
   ``references.bib`` and every entry there is well formed; the notation table has one row per
   symbol; the seed policy stated in the notation page holds in every chapter.
+* The data files: every file of ``chapters/data`` is listed on the instructors' page with the commands that
+  made it and the chapters that read it, and every command quoted for one of them, anywhere, is a listed one.
 """
 
 from __future__ import annotations
@@ -232,7 +234,8 @@ def _data_table():
 
 
 def _quoted_commands():
-    """Every ``python benchmarks/...`` or ``python tools/...`` command quoted in the README or a chapter's prose."""
+    """Every ``python benchmarks/...`` or ``python tools/...`` command quoted in the README, a page, a chapter's
+    prose or a script's docstring, with where it is quoted."""
     texts = [("README.md", (ROOT / "README.md").read_text())]
     texts += [(p.name, (p.read_text())) for p in PAGES]
     texts += [(p.name, c.source) for p in CHAPTERS for c in nbformat.read(p, as_version=4).cells if c.cell_type == "markdown"]
