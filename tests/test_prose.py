@@ -9,6 +9,8 @@
   symbol; the seed policy stated in the notation page holds in every chapter.
 * The data files: every file of ``chapters/data`` is listed on the instructors' page with the commands that
   made it and the chapters that read it, and every command quoted for one of them, anywhere, is a listed one.
+* Every library name the text cites (``sl.name``, ``slamlib.module.name`` in code spans and the ``{func}``-like
+  roles) exists.
 """
 
 from __future__ import annotations
@@ -280,3 +282,50 @@ def test_the_command_checks_can_fail():
     assert len(quoted) == 2 and len(_stale(quoted, table)) == 1  # a stale copy is found, a bare mention is not
     listed = [("a chapter", table["mcl_study_long.json"][0][0])]
     assert _stale(listed, table) == []
+
+
+# ----------------------------------------------------------------------------- the library names the text cites
+_NAME = re.compile(r"`((?:sl|slamlib|autograder)(?:\.[A-Za-z_]\w*)+)(?:\(|`)")
+_ROLE = re.compile(r"\{(?:func|class|meth|attr|mod)\}`~?([A-Za-z_][\w.]*)`")
+
+
+def _resolves(name):
+    """Whether a dotted name (``sl.`` for ``slamlib.``; a role's name may omit ``slamlib.``) is an object."""
+    import importlib
+
+    parts = name.split(".")
+    parts[0] = "slamlib" if parts[0] == "sl" else parts[0]
+    for i in range(len(parts), 0, -1):
+        try:
+            obj = importlib.import_module(".".join(parts[:i]))
+        except ImportError:
+            continue
+        for attr in parts[i:]:
+            if not hasattr(obj, attr):
+                return False
+            obj = getattr(obj, attr)
+        return True
+    return False
+
+
+def _cited_names(texts):
+    return [(where, m[1]) for where, text in texts for rx in (_NAME, _ROLE) for m in rx.finditer(text)]
+
+
+def test_every_library_name_the_text_cites_exists():
+    notebooks = CHAPTERS + sorted((ROOT / "exercises").glob("*.ipynb"))
+    texts = [(p.name, c.source) for p in notebooks for c in nbformat.read(p, as_version=4).cells
+             if c.cell_type == "markdown"]
+    texts += [(p.name, p.read_text()) for p in PAGES + sorted((ROOT / "exercises").glob("*.md")) + [ROOT / "README.md"]]
+    cited = _cited_names(texts)
+    assert len(cited) > 100  # the text is read
+    missing = [f"{where}: {name}" for where, name in cited if not (_resolves(name) or _resolves(f"slamlib.{name}"))]
+    assert not missing, "\n".join(missing)
+
+
+def test_a_name_the_library_lacks_is_found():
+    cited = _cited_names([("a chapter", "Call `sl.run_mcl(model, ...)`, {func}`slamlib.mcl.prepare_mcl`, "
+                                        "`sl.run_mcll` and {func}`~slamlib.sensors.no_such_model`.")])
+    found = {n: _resolves(n) for _, n in cited}
+    assert found == {"sl.run_mcl": True, "sl.run_mcll": False, "slamlib.mcl.prepare_mcl": True,
+                     "slamlib.sensors.no_such_model": False}

@@ -2,20 +2,37 @@
 
 ``--help`` prints the usage and exits at once; an argument the script does not know is refused with exit
 status 2 and its name. Neither starts a measurement or writes a file: a script that ignored its arguments
-would run a whole benchmark for ``--help``, or rewrite a chapter's data file.
+would run a whole benchmark for ``--help``, or rewrite a chapter's data file. Every script and option the text
+quotes (the README, the pages, the chapters, the scripts' docstrings) is one that exists.
 """
 
 from __future__ import annotations
 
+import re
+import shlex
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+from test_prose import _quoted_commands
 
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPTS = sorted(p for folder in ("benchmarks", "tools") for p in (ROOT / folder).glob("*.py")
                  if '__name__ == "__main__"' in p.read_text())
+
+
+def _quoted_options():
+    """``{script: options}``: the options of every command the README, the pages, the chapters and the
+    scripts' docstrings quote, by script (``benchmarks/mcl_study.py``)."""
+    options = {}
+    for _, cmd in _quoted_commands():
+        words = shlex.split(cmd)
+        options.setdefault(words[1], set()).update(w.split("=")[0] for w in words[2:] if w.startswith("--"))
+    return options
+
+
+QUOTED = _quoted_options()
 
 
 def _run(script, *args):
@@ -28,6 +45,9 @@ def _run(script, *args):
 def test_the_scripts_are_found():
     names = {p.name for p in SCRIPTS}
     assert {"mcl_study.py", "bench_slam.py", "prose_check.py", "lidar_slam_robustness.py"} <= names
+    # every script the text quotes exists, and the quoted options are read
+    assert set(QUOTED) <= {f"{p.parent.name}/{p.name}" for p in SCRIPTS}, set(QUOTED)
+    assert {"--json", "--configs", "--updates"} <= QUOTED["benchmarks/mcl_study.py"]
 
 
 @pytest.mark.parametrize("script, args", [("bench_3d.py", ["M3500", "Intel"]), ("bench_3d.py", []),
@@ -58,6 +78,10 @@ def test_help_prints_the_usage_and_does_nothing_else(script):
     proc = _run(script, "--help")
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert proc.stdout.startswith("usage:"), proc.stdout[:500]
+    # an option the text quotes for this script is one it has
+    missing = [o for o in QUOTED.get(f"{script.parent.name}/{script.name}", ())
+               if not re.search(rf"{re.escape(o)}(?![\w-])", proc.stdout)]
+    assert not missing, f"quoted but not an option of {script.name}: {missing}"
 
 
 @pytest.mark.parametrize("script", SCRIPTS, ids=lambda p: f"{p.parent.name}/{p.name}")
