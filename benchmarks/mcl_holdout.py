@@ -507,15 +507,29 @@ def compare(paths):
         print(f"{'':10s} ({d['slamlib']['path']}; {d['slamlib']['commit']})")
 
 
+def _existing_file(text):
+    """An argparse type: the path of an existing file."""
+    if not os.path.isfile(text):
+        raise argparse.ArgumentTypeError(f"no file {text!r}")
+    return text
+
+
+def _slamlib_tree(text):
+    """An argparse type: a source tree holding a slamlib package."""
+    if not os.path.isfile(os.path.join(text, "slamlib", "__init__.py")):
+        raise argparse.ArgumentTypeError(f"{text!r} holds no slamlib package (slamlib/__init__.py)")
+    return text
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--compare", nargs="+", metavar="JSON", help="print the tables of these --json outputs, run nothing")
+    ap.add_argument("--compare", nargs="+", type=_existing_file, metavar="JSON", help="print the tables of these --json outputs, run nothing")
     ap.add_argument("--configs", nargs="+", default=["defaults", "plain MCL"],
                     help="defaults, 'plain MCL' and/or overrides (the latter from --set / --variant)")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                     help="override an MCLParams field for the 'overrides' configuration (augmented.x, kld.x nested)")
     ap.add_argument("--variant", default=None, help="run_mcl variant of the 'overrides' configuration")
-    ap.add_argument("--slamlib", default=_ROOT, help="the tree whose slamlib is evaluated (default: this one)")
+    ap.add_argument("--slamlib", default=_ROOT, type=_slamlib_tree, help="the tree whose slamlib is evaluated (default: this one)")
     ap.add_argument("--trials", type=int, default=48, help="simulated trials")
     ap.add_argument("--log-starts", type=int, default=5, help="start points per log (at most 9)")
     ap.add_argument("--sets", nargs="+", default=["sim", "logs"], choices=["sim", "logs", "control"],

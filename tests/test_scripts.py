@@ -12,6 +12,7 @@ import re
 import shlex
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -33,6 +34,11 @@ def _quoted_options():
 
 
 QUOTED = _quoted_options()
+#: valid positional arguments for the scripts that need them ("x" for the others: refused as well); a
+#: script that writes is pointed away from the repository, should it ever run
+OUT = str(Path(tempfile.gettempdir()) / "slam-course-test-scripts")
+POSITIONAL = {"prose_check.py": ["chapters/00_intro.ipynb"], "nbstrip.py": ["--check", "chapters/00_intro.ipynb"],
+              "mrclam_subset.py": ["slamlib/data/mrclam", "--out", OUT]}
 
 
 def _run(script, *args):
@@ -86,6 +92,21 @@ def test_help_prints_the_usage_and_does_nothing_else(script):
 
 @pytest.mark.parametrize("script", SCRIPTS, ids=lambda p: f"{p.parent.name}/{p.name}")
 def test_an_unknown_argument_is_refused_by_name(script):
-    proc = _run(script, "--no-such-option", "x")  # "x" for a script that needs a positional argument
+    proc = _run(script, "--no-such-option", *POSITIONAL.get(script.name, ["x"]))
     assert proc.returncode == 2, (proc.returncode, proc.stdout[-1000:], proc.stderr[-1000:])
     assert "--no-such-option" in proc.stderr
+
+
+@pytest.mark.parametrize("script, args, named", [
+    ("tools/prose_check.py", ["chapters/no_such_chapter.ipynb"], "argument NOTEBOOK"),
+    ("tools/prose_check.py", ["README.md"], "argument NOTEBOOK"),
+    ("tools/nbstrip.py", ["--check", "chapters/no_such_chapter.ipynb"], "argument NOTEBOOK"),
+    ("tools/mrclam_subset.py", ["/no/such/folder"], "argument original"),
+    ("tools/mrclam_subset.py", ["slamlib/data/mrclam", "--out", OUT, "--robots", "6"], "argument --robots"),
+    ("benchmarks/mcl_holdout.py", ["--compare", "no_such_output.json"], "argument --compare"),
+    ("benchmarks/mcl_holdout.py", ["--slamlib", "/no/such/tree"], "argument --slamlib"),
+])
+def test_a_path_that_is_not_there_is_refused_by_its_argument(script, args, named):
+    proc = _run(ROOT / script, *args)
+    assert proc.returncode == 2 and named in proc.stderr, (proc.returncode, proc.stderr[-1500:])
+    assert "Traceback" not in proc.stderr

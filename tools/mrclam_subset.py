@@ -75,11 +75,20 @@ def groundtruth_subset(text: str) -> str:
     return GT_HEAD + "".join(f"{a:.1f}\t{b:.4f}\t{c:.4f}\t{d:.4f}\n" for a, b, c, d in zip(t, x, y, th))
 
 
+def _original(text):
+    """An argparse type: a folder holding the original dataset's files."""
+    path = Path(text)
+    if not (path / "Barcodes.dat.gz").is_file():
+        raise argparse.ArgumentTypeError(f"{text!r} is not a folder of the original MRCLAM_Dataset6 files "
+                                         "(no Barcodes.dat.gz in it)")
+    return path
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("original", type=Path, help="folder of the original MRCLAM_Dataset6 files")
+    ap.add_argument("original", type=_original, help="folder of the original MRCLAM_Dataset6 files")
     ap.add_argument("--out", type=Path, default=Path(__file__).resolve().parents[1] / "slamlib" / "data" / "mrclam")
-    ap.add_argument("--robots", type=int, nargs="+", default=[1, 2, 3, 4, 5])
+    ap.add_argument("--robots", type=int, nargs="+", default=[1, 2, 3, 4, 5], choices=range(1, 6))
     args = ap.parse_args(argv)
     for name in ("Barcodes.dat.gz", "Landmark_Groundtruth.dat.gz"):
         _write(args.out / name, _read_text(args.original / name))

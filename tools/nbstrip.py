@@ -49,9 +49,18 @@ def strip(nb: dict) -> dict:
     return nb
 
 
+def _notebook(text):
+    """An argparse type: the path of an existing notebook."""
+    path = Path(text)
+    if path.suffix != ".ipynb" or not path.is_file():
+        raise argparse.ArgumentTypeError(f"{text!r} is not a notebook file (.ipynb)")
+    return path
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("notebooks", nargs="*", type=Path)
+    ap.add_argument("notebooks", nargs="*", type=_notebook, metavar="NOTEBOOK",
+                    help="notebooks to strip (default: every chapter and exercise)")
     ap.add_argument("--check", action="store_true", help="report, do not write; exit 1 if any would change")
     args = ap.parse_args(argv)
     paths = args.notebooks or sorted([*ROOT.glob("chapters/*.ipynb"), *ROOT.glob("exercises/*.ipynb")])

@@ -247,9 +247,17 @@ def check_notebook(path: str | Path) -> list[Finding]:
     return findings
 
 
+def _notebook(text):
+    """An argparse type: the path of an existing notebook."""
+    path = Path(text)
+    if path.suffix != ".ipynb" or not path.is_file():
+        raise argparse.ArgumentTypeError(f"{text!r} is not a notebook file (.ipynb)")
+    return path
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("paths", nargs="+", metavar="NOTEBOOK", help="chapter notebooks (.ipynb) to check")
+    ap.add_argument("paths", nargs="+", type=_notebook, metavar="NOTEBOOK", help="chapter notebooks (.ipynb) to check")
     paths = ap.parse_args(argv).paths
     total = 0
     for p in paths:
