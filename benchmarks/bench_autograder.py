@@ -136,6 +136,10 @@ def _main():
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--skip-single", action="store_true")
     args = ap.parse_args()
+    for name, low in {'n': 1, 'jobs': 1}.items():  # counts at least 1, seeds at least 0
+        value = getattr(args, name)
+        if value is not None and min(value if isinstance(value, list) else [value]) < low:
+            ap.error(f"--{name.replace('_', '-')} must be at least {low}, got {value}")
     print(f"cores: {os.cpu_count()}, load average: {os.getloadavg()[0]:.1f}")
     if not args.skip_single:
         print("\none correct submission per exercise (target <= 3 s):")

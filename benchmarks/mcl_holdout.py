@@ -531,7 +531,7 @@ def main(argv=None):
     ap.add_argument("--variant", default=None, help="run_mcl variant of the 'overrides' configuration")
     ap.add_argument("--slamlib", default=_ROOT, type=_slamlib_tree, help="the tree whose slamlib is evaluated (default: this one)")
     ap.add_argument("--trials", type=int, default=48, help="simulated trials")
-    ap.add_argument("--log-starts", type=int, default=5, help="start points per log (at most 9)")
+    ap.add_argument("--log-starts", type=int, default=5, choices=range(1, 10), help="start points per log (at most 9)")
     ap.add_argument("--sets", nargs="+", default=["sim", "logs"], choices=["sim", "logs", "control"],
                     help="control: the sim set's drives sensed with the filter's own models (a diagnostic)")
     ap.add_argument("--updates", type=int, default=40, help="filter updates per simulated trial")
@@ -543,6 +543,10 @@ def main(argv=None):
     ap.add_argument("--tracking-check", action="store_true",
                     help="also report how many simulated trials plain MCL tracks when started at the truth")
     args = ap.parse_args(argv)
+    for name, low in {'trials': 1, 'updates': 2, 'jobs': 1, 'seed': 0}.items():  # counts at least 1, seeds at least 0
+        value = getattr(args, name)
+        if value is not None and min(value if isinstance(value, list) else [value]) < low:
+            ap.error(f"--{name.replace('_', '-')} must be at least {low}, got {value}")
     if args.compare:
         return compare(args.compare)
     if args.seed == STUDY_SEED:

@@ -369,6 +369,10 @@ def main(argv=None):
     ap.add_argument("--json", help="write the summary and every trial to this file")
     ap.add_argument("--cached-only", action="store_true", help="summarise the cached runs, run nothing")
     args = ap.parse_args(argv)
+    for name, low in {'sim_trials': 1, 'offsets': 1, 'screen_sim': 0, 'screen_offsets': 0, 'updates': 2, 'jobs': 1, 'seed': 0}.items():  # counts at least 1, seeds at least 0
+        value = getattr(args, name)
+        if value is not None and min(value if isinstance(value, list) else [value]) < low:
+            ap.error(f"--{name.replace('_', '-')} must be at least {low}, got {value}")
     screen = [c for c in CONFIGS if c not in args.configs and c not in TRUTH_STARTS] if args.screen == ["all"] \
         else args.screen
     for c in list(args.configs) + list(screen):

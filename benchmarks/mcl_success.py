@@ -128,7 +128,7 @@ def _run(job):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--logs", type=int, nargs="+", default=[1, 2])
+    ap.add_argument("--logs", type=int, nargs="+", default=[1, 2], choices=[1, 2])
     ap.add_argument("--seeds", type=int, default=20, help="seeds 0 .. N-1 per log")
     ap.add_argument("--first-seed", type=int, default=0)
     ap.add_argument("--seed-list", type=int, nargs="+", help="these seeds instead of --seeds")
@@ -138,6 +138,10 @@ def main(argv=None):
                     help="override an MCLParams field (augmented.x / kld.x for the nested ones)")
     ap.add_argument("--json", help="write every run (with its error track) to this file")
     args = ap.parse_args(argv)
+    for name, low in {'seeds': 1, 'first_seed': 0, 'seed_list': 0, 'jobs': 1}.items():  # counts at least 1, seeds at least 0
+        value = getattr(args, name)
+        if value is not None and min(value if isinstance(value, list) else [value]) < low:
+            ap.error(f"--{name.replace('_', '-')} must be at least {low}, got {value}")
 
     grid = cmu.load_cmu_map()
     logs = {n: cmu.load_cmu_log(log=n) for n in args.logs}

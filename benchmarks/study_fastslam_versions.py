@@ -120,6 +120,10 @@ def main(argv=None):
     ap.add_argument("--outliers", action="store_true",
                     help="instead: the gate's effect (robots 1 and 3, gate off and on, per seed) and Q x 4 on robot 1")
     args = ap.parse_args(argv)
+    for name, low in {'seeds': 1, 'real_seeds': 0}.items():  # counts at least 1, seeds at least 0
+        value = getattr(args, name)
+        if value is not None and min(value if isinstance(value, list) else [value]) < low:
+            ap.error(f"--{name.replace('_', '-')} must be at least {low}, got {value}")
     if args.outliers:
         return outliers(args.real_seeds)
     for precise in (() if args.real_only else (False, True)):

@@ -126,6 +126,12 @@ def main(argv=None):
     ap.add_argument("--versions", default="1,2", help="FastSLAM versions to run, e.g. '2'")
     ap.add_argument("--out", default=str(DEFAULT_OUT))
     args = ap.parse_args(argv)
+    for name, low in {'seeds': 1, 'particles': 1}.items():  # counts at least 1, seeds at least 0
+        value = getattr(args, name)
+        if value is not None and min(value if isinstance(value, list) else [value]) < low:
+            ap.error(f"--{name.replace('_', '-')} must be at least {low}, got {value}")
+    if args.t_max is not None and not args.t_max > 0:
+        ap.error(f"--t-max must be a positive number of seconds, got {args.t_max}")
 
     print(load_line())
     verdicts = []

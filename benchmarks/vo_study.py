@@ -212,6 +212,10 @@ def main(argv=None):
     ap.add_argument("--json", help="write the study's results here (the chapter reads chapters/data/vo_study.json)")
     ap.add_argument("--seeds", type=int, default=20, help="RANSAC seeds of the robustness runs on the whole drive")
     args = ap.parse_args(argv)
+    for name, low in {'seeds': 1}.items():  # counts at least 1, seeds at least 0
+        value = getattr(args, name)
+        if value is not None and min(value if isinstance(value, list) else [value]) < low:
+            ap.error(f"--{name.replace('_', '-')} must be at least {low}, got {value}")
     os.makedirs(os.path.dirname(os.path.abspath(args.cache)), exist_ok=True)
     runs = Runs(args.cache)
     rng = np.random.default_rng(16)

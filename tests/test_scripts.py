@@ -110,3 +110,36 @@ def test_a_path_that_is_not_there_is_refused_by_its_argument(script, args, named
     proc = _run(ROOT / script, *args)
     assert proc.returncode == 2 and named in proc.stderr, (proc.returncode, proc.stderr[-1500:])
     assert "Traceback" not in proc.stderr
+
+
+def _numeric_options():
+    """``(script, option)`` for every ``add_argument("--option", type=int or float)`` of the scripts."""
+    import ast
+
+    found = []
+    for script in SCRIPTS:
+        for node in ast.walk(ast.parse(script.read_text())):
+            if (isinstance(node, ast.Call) and getattr(node.func, "attr", None) == "add_argument"
+                    and any(k.arg == "type" and getattr(k.value, "id", None) in ("int", "float") for k in node.keywords)):
+                names = [a.value for a in node.args if isinstance(a, ast.Constant) and str(a.value).startswith("--")]
+                found += [(script, names[0])] if names else []
+    return found
+
+
+NUMERIC = _numeric_options()
+
+
+def test_the_numeric_options_are_found():
+    assert len(NUMERIC) >= 30
+    assert (ROOT / "benchmarks" / "mcl_study.py", "--jobs") in NUMERIC
+    assert (ROOT / "tools" / "victoria_park_graph.py", "--t-max") in NUMERIC
+
+
+@pytest.mark.parametrize("script, option", NUMERIC, ids=lambda v: v.name if isinstance(v, Path) else v)
+def test_a_negative_count_seed_or_duration_is_refused_by_its_option(script, option):
+    # every numeric option of the scripts is a count (at least 1), a seed (at least 0), a robot, a log or a
+    # duration (positive): -1 is none of them
+    proc = _run(script, *POSITIONAL.get(script.name, []), option, "-1")
+    assert proc.returncode == 2 and (f"argument {option}" in proc.stderr or f"{option} must be" in proc.stderr), \
+        (proc.returncode, proc.stderr[-1500:])
+    assert "Traceback" not in proc.stderr

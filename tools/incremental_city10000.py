@@ -158,6 +158,10 @@ def main(argv=None):
     ap.add_argument("--select", action="store_true", help="the threshold study on the first 5000 poses of City10000")
     ap.add_argument("--choose", action="store_true", help="apply the rule again to the rows of the last --select")
     args = ap.parse_args(argv)
+    for name, low in {'measurements': 1}.items():  # counts at least 1, seeds at least 0
+        value = getattr(args, name)
+        if value is not None and min(value if isinstance(value, list) else [value]) < low:
+            ap.error(f"--{name.replace('_', '-')} must be at least {low}, got {value}")
     if args.select:
         select()
     elif args.choose:

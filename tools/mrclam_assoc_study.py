@@ -164,7 +164,7 @@ def main(argv=None):
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--seeds-v2", type=int, default=3)
     ap.add_argument("--skip-fastslam", action="store_true", help="parts 1 and 2 only")
-    ap.add_argument("--fastslam-robots", type=int, nargs="+", default=None,
+    ap.add_argument("--fastslam-robots", type=int, nargs="+", default=None, choices=list(MRCLAM_ROBOTS),
                     help="part 3 only, on these of the two robots (to split the work between processes)")
     ap.add_argument("--merge", type=Path, nargs="+", default=None,
                     help="combine the outputs of split runs (parts 1-2 from the one that has them, part 3's cases "
@@ -173,6 +173,10 @@ def main(argv=None):
                     help="copy part 3 (FastSLAM) from this earlier output instead of recomputing it")
     ap.add_argument("--out", type=Path, default=ROOT / "chapters" / "data" / "mrclam_assoc_study.json")
     args = ap.parse_args(argv)
+    for name, low in {'seeds': 1, 'seeds_v2': 1}.items():  # counts at least 1, seeds at least 0
+        value = getattr(args, name)
+        if value is not None and min(value if isinstance(value, list) else [value]) < low:
+            ap.error(f"--{name.replace('_', '-')} must be at least {low}, got {value}")
     if args.merge:
         return merge(args.merge, args.out)
     t0 = time.perf_counter()

@@ -140,12 +140,16 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--particles", type=int, default=50)
-    ap.add_argument("--robots", type=int, nargs="+", default=list(MRCLAM_ROBOTS))
+    ap.add_argument("--robots", type=int, nargs="+", default=list(MRCLAM_ROBOTS), choices=list(MRCLAM_ROBOTS))
     ap.add_argument("--out", type=Path, default=ROOT / "chapters" / "data" / "mrclam_table.json")
     ap.add_argument("--fastslam-from", type=Path, default=None,
                     help="copy the FastSLAM rows from this earlier output (same seeds and particles) instead of "
                          "recomputing them")
     args = ap.parse_args(argv)
+    for name, low in {'seeds': 1, 'particles': 1}.items():  # counts at least 1, seeds at least 0
+        value = getattr(args, name)
+        if value is not None and min(value if isinstance(value, list) else [value]) < low:
+            ap.error(f"--{name.replace('_', '-')} must be at least {low}, got {value}")
     t0 = time.perf_counter()
     data = {"command": "python tools/mrclam_table.py " + f"--seeds {args.seeds} --particles {args.particles}",
             "seeds": args.seeds, "particles": args.particles, "fail_ate": FAIL_ATE, "robots": {}}

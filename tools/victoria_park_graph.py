@@ -40,6 +40,8 @@ def main(argv=None):
     ap.add_argument("--t-max", type=float, default=None, help="seconds of the log (default: all)")
     ap.add_argument("--out", default=str(DEFAULT_OUT))
     args = ap.parse_args(argv)
+    if args.t_max is not None and not args.t_max > 0:
+        ap.error(f"--t-max must be a positive number of seconds, got {args.t_max}")
     run = load_victoria_park(t_max=args.t_max)
     t0 = time.process_time()
     ekf = sl.run_ekf_slam(run, motion=run.motion, **EKF_OPTIONS)
