@@ -7,9 +7,10 @@ Two sets of trials, each judged against its truth:
   ``--updates`` filter updates; the truth is the reference track of ``benchmarks/mcl_success.py``
   (plain MCL started around the scan-matched start pose, checked against the map there);
 * **sim**: random collision-free trajectories in the Wean Hall map (shortest paths between random
-  free places with 0.5 m clearance, smoothed), scans ray-cast from the true poses with the beam
-  model's noise (``MCLParams``' mixture: hit, short, max, random), odometry drawn from the odometry
-  motion model with the filter's ``alpha`` around the true increments.
+  free places with 0.5 m clearance, smoothed), scans drawn from the beam model at the true poses
+  (expected ranges ray-cast and moved ``cmu.CMU_RANGE_BIAS`` beyond the map's faces, where the robot's
+  laser sees the walls; ``MCLParams``' mixture: hit, short, max, random), odometry drawn from the
+  odometry motion model with the filter's ``alpha`` around the true increments.
 
 Per trial, over the second half of its updates: *strict* success (the estimate within 0.5 m at
 every update), the share of updates within 0.5 m; over all updates: *confidently wrong* updates
@@ -117,7 +118,8 @@ def wilson(k, n, z=1.96):
 
 
 def make_params(overrides, sensor_offset=cmu.CMU_SENSOR_OFFSET, z_max=cmu.CMU_MAX_RANGE):
-    top, aug = {}, {}
+    """``MCLParams`` with the Wean Hall laser's constants (offset, maximum range, range bias) and `overrides`."""
+    top, aug = {"range_bias": cmu.CMU_RANGE_BIAS}, {}
     for key, value in overrides.items():
         if key.startswith("augmented."):
             aug[key.split(".", 1)[1]] = value
@@ -187,6 +189,8 @@ def simulate_trial(grid, field, roadmap, params, angles, n_updates, rng):
         raise RuntimeError("no collision-free trajectory found")
     z_star = sl.ray_cast(grid, truth, angles, params.z_max, sensor_offset=params.sensor_offset,
                          threshold=params.occupied_threshold)
+    # the beam model's expected range: the laser sees the walls range_bias beyond the map's faces
+    z_star = np.where(z_star < params.z_max, np.clip(z_star + params.range_bias, 0.0, params.z_max), z_star)
     w = np.array([params.w_hit, params.w_short, params.w_max, params.w_rand])
     kind = rng.choice(4, size=z_star.shape, p=w / w.sum())
     hit = z_star + params.sigma_hit * rng.standard_normal(z_star.shape)
@@ -463,7 +467,7 @@ def main(argv=None):
             json.dump(dict(settings=dict(updates=args.updates, sim_trials=len(sims), offsets_per_log=args.offsets,
                                          screen_sim=args.screen_sim, screen_offsets=args.screen_offsets,
                                          radius=RADIUS, confident=CONFIDENT, sim_step=SIM_STEP, sim_speed=SIM_SPEED,
-                                         seed=args.seed, log_updates={n: len(r) for n, r in refs.items()},
+                                         seed=args.seed, range_bias=base.range_bias, log_updates={n: len(r) for n, r in refs.items()},
                                          truth_spread=[float(v) for v in TRUTH_SPREAD],
                                          model_checks=checks),
                            configs={c: dict(variant=CONFIGS[c][0], overrides=CONFIGS[c][1])

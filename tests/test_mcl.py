@@ -768,11 +768,69 @@ def test_study_simulated_trial_is_collision_free_and_noisy_as_the_models_say():
     u_odom = sl.odometry_from_poses(trial["odom"][:-1], trial["odom"][1:])
     d_trans = u_odom[:, 1] - u_true[:, 1]
     assert 0 < np.std(d_trans) < 3 * np.sqrt(params.alpha[2]) * study.SIM_STEP
-    # scans: most beams within 3 sigma_hit of the ray-cast range
+    # scans: most beams within 3 sigma_hit of the beam model's expected range, the ray-cast one moved
+    # range_bias beyond the map's faces (where the robot's laser sees the walls)
+    assert params.range_bias == cmu.CMU_RANGE_BIAS > 0
     z_star = sl.ray_cast(grid, truth, angles, params.z_max, sensor_offset=params.sensor_offset,
                          threshold=params.occupied_threshold)
-    hit = np.abs(trial["ranges"] - z_star) < 3 * params.sigma_hit
+    hit = np.abs(trial["ranges"] - (z_star + params.range_bias)) < 3 * params.sigma_hit
     assert 0.8 < hit.mean() < 0.97
+    near = np.abs(trial["ranges"] - z_star) < 1.0
+    assert abs(np.median((trial["ranges"] - z_star)[near]) - params.range_bias) < 0.05
+
+
+def test_study_simulator_draws_hits_around_the_biased_range():
+    # no noise but the hit term, and a tiny sigma: the simulated ranges are the ray-cast ones plus the bias
+    from slamlib.datasets import cmu
+
+    study = _study_module()
+    grid = cmu.load_cmu_map()
+    field = sl.likelihood_field(grid, max_dist=2.0, threshold=0.9)
+    angles = np.linspace(-np.pi / 2, np.pi / 2, 36)
+    for bias in (0.0, 0.3):
+        params = study.make_params({"w_short": 0.0, "w_max": 0.0, "w_rand": 0.0, "sigma_hit": 1e-6,
+                                    "range_bias": bias})
+        roadmap = study._roadmap(grid, field, params.free_threshold)
+        trial = study.simulate_trial(grid, field, roadmap, params, angles, 5, np.random.default_rng(1))
+        z_star = sl.ray_cast(grid, trial["truth"], angles, params.z_max, sensor_offset=params.sensor_offset,
+                             threshold=params.occupied_threshold)
+        np.testing.assert_allclose(trial["ranges"], np.minimum(z_star + bias, params.z_max), atol=1e-4)
+
+
+def test_range_bias_moves_the_beam_models_expected_range_and_leaves_the_field_alone():
+    # MCLParams.range_bias: the beam model's z* is the ray-cast range plus the bias (max-range beams stay
+    # at z_max); the likelihood field ignores it
+    occ = np.zeros((60, 60))
+    occ[:, 50:] = 1.0  # a wall at x = 5 m
+    grid = sl.OccupancyGrid(occ, 0.1)
+    angles = np.array([-3.0, 0.0, 0.2])  # the first beam looks away from the wall: max range
+    poses = np.array([[2.0, 3.0, 0.0], [2.5, 3.0, 0.1]])
+    ranges = np.array([10.0, 3.2, 3.1])
+    kw = dict(z_max=10.0, sensor_offset=0.0, beam_step=1, ray_cache_angles=0)
+    for bias in (0.0, 0.25, -0.1):
+        model = sl.prepare_mcl(grid, sl.MCLParams(model="beam", range_bias=bias, **kw))
+        p = model.params
+        z_star = sl.ray_cast(grid, poses, angles, p.z_max, threshold=p.occupied_threshold)
+        assert z_star[0, 0] == p.z_max
+        expected = np.where(z_star < p.z_max, z_star + bias, z_star)
+        # summed over the beams, per pose
+        want = sl.beam_range_finder_log_likelihood(ranges, expected, z_max=p.z_max, sigma_hit=p.sigma_hit,
+                                                   lambda_short=p.lambda_short, w_hit=p.w_hit, w_short=p.w_short,
+                                                   w_max=p.w_max, w_rand=p.w_rand)
+        np.testing.assert_allclose(sl.scan_log_likelihood(model, poses, ranges, angles), want)
+    field = [sl.scan_log_likelihood(sl.prepare_mcl(grid, sl.MCLParams(range_bias=b, **kw)), poses, ranges, angles)
+             for b in (0.0, 0.25)]
+    np.testing.assert_array_equal(field[0], field[1])
+    # the bias is a model parameter: it changes the beam model's answer
+    a, b = (sl.scan_log_likelihood(sl.prepare_mcl(grid, sl.MCLParams(model="beam", range_bias=v, **kw)),
+                                   poses, ranges, angles) for v in (0.0, 0.25))
+    assert not np.allclose(a, b)
+
+
+@pytest.mark.parametrize("value", [np.nan, np.inf, "0.2", None])
+def test_range_bias_refuses_what_is_not_a_finite_number(value):
+    with pytest.raises((TypeError, ValueError), match="range_bias"):
+        sl.MCLParams(range_bias=value)
 
 
 def test_study_truth_between_updates_follows_the_odometry():
