@@ -779,6 +779,25 @@ def test_study_simulated_trial_is_collision_free_and_noisy_as_the_models_say():
     assert abs(np.median((trial["ranges"] - z_star)[near]) - params.range_bias) < 0.05
 
 
+def test_the_wean_range_bias_is_what_both_logs_measure():
+    # cmu.CMU_RANGE_BIAS is the measured median range excess (measured minus ray-cast range at the reference
+    # tracks), which both study files record for each log; the studies simulate with the constant
+    import json
+    from pathlib import Path
+
+    from slamlib.datasets import cmu
+
+    data = Path(__file__).resolve().parents[1] / "chapters" / "data"
+    for name in ("mcl_study.json", "mcl_study_long.json"):
+        settings = json.loads((data / name).read_text())["settings"]
+        assert settings["range_bias"] == cmu.CMU_RANGE_BIAS
+        excess = settings["model_checks"]["log_range_excess"]
+        assert sorted(excess) == ["1", "2"]
+        # each log's measurement agrees with the other's, and with the constant, to 0.03 m
+        assert abs(excess["1"] - excess["2"]) < 0.03
+        assert all(abs(v - cmu.CMU_RANGE_BIAS) < 0.03 for v in excess.values())
+
+
 def test_study_simulator_draws_hits_around_the_biased_range():
     # no noise but the hit term, and a tiny sigma: the simulated ranges are the ray-cast ones plus the bias
     from slamlib.datasets import cmu
