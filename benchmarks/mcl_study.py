@@ -10,7 +10,12 @@ Two sets of trials, each judged against its truth:
   free places with 0.5 m clearance, smoothed), scans drawn from the beam model at the true poses
   (expected ranges ray-cast and moved ``cmu.CMU_RANGE_BIAS`` beyond the map's faces, where the robot's
   laser sees the walls; ``MCLParams``' mixture: hit, short, max, random), odometry drawn from the
-  odometry motion model with the filter's ``alpha`` around the true increments.
+  odometry motion model around the true increments with the robot's noise: the filter's ``alpha``
+  scaled to ``SIM_ODOMETRY_STD`` of its standard deviation. The filter's ``alpha`` is wider than the
+  robot's odometry error on purpose (a filter that expects too little noise loses the robot); a
+  simulator that drew with it would make every drive harder than the robot's. Both are measured and
+  printed as model checks: measured ranges minus cast ones, and the odometry's error per update
+  against the reference tracks divided by the motion model's standard deviation.
 
 Per trial, over the second half of its updates: *strict* success (the estimate within 0.5 m at
 every update), the share of updates within 0.5 m; over all updates: *confidently wrong* updates
@@ -71,6 +76,10 @@ CONFIDENT = 0.9  # an update is confidently wrong when it is wrong and the heavi
 SIM_STEP = 0.3  # [m] between simulated scans (one filter update each: the filter updates every 0.2 m)
 SIM_SPEED = 0.3  # [m/s] (the robot's speed on log 1: 41 m in 135 s)
 CLEARANCE = 0.5  # [m] from the nearest wall, for the simulated paths
+#: Standard deviation of the simulated odometry error, relative to the motion model's (MCLParams.alpha):
+#: the robot's error per update against the reference tracks is 0.29 and 0.25 of it in translation, 0.18 in
+#: heading (logs 1 and 2, the reference tracks' own error included; ``odometry_error_ratio``), rounded up.
+SIM_ODOMETRY_STD = 1 / 3
 
 # name -> (run_mcl variant, MCLParams overrides): the defaults, plain MCL, and one mechanism changed at a time
 CONFIGS = {
@@ -236,6 +245,24 @@ def field_offset(model, trial, angles):
     return float(SHIFTS[int(np.argmax(total))])
 
 
+def odometry_error_ratio(log, ref, alpha):
+    """The odometry's error per update against the reference track, over the motion model's standard deviation.
+
+    Returns ``{"translation": ..., "heading": ...}``: the standard deviation of the translation error and
+    of the heading-change error, each divided per update by the one Table 5.6 gives with `alpha` at the
+    reference's increments (as the simulator draws it); 1 when the odometry is as noisy as the model says.
+    """
+    a = np.asarray(alpha, dtype=float)
+    odom, truth = log.laser_pose[ref.scan_index], ref.mean
+    u = sl.odometry_from_poses(odom[:-1], odom[1:])
+    u_ref = sl.odometry_from_poses(truth[:-1], truth[1:])
+    r1, t, r2 = u_ref.T  # the simulator draws the odometry around the true increments, with their variances
+    var_r1, var_t, var_r2 = a[0] * r1**2 + a[1] * t**2, a[2] * t**2 + a[3] * (r1**2 + r2**2), a[0] * r2**2 + a[1] * t**2
+    e_t = u[:, 1] - t
+    e_h = sl.wrap_angle(np.diff(odom[:, 2]) - np.diff(truth[:, 2]))
+    return dict(translation=float(np.std(e_t / np.sqrt(var_t))), heading=float(np.std(e_h / np.sqrt(var_r1 + var_r2))))
+
+
 def range_excess(grid, log, ref, threshold):
     """Median of measured minus ray-cast range over the log's beams within 1 m of the map's, at the reference track."""
     z = log.ranges[ref.scan_index]
@@ -393,7 +420,8 @@ def main(argv=None):
     ss = np.random.SeedSequence(args.seed)
     sim_ss, run_ss = ss.spawn(2)
     roadmap = _roadmap(grid, field, base.free_threshold)
-    sims = [simulate_trial(grid, field, roadmap, base, angles, args.updates, np.random.default_rng(s))
+    robot = dataclasses.replace(base, alpha=tuple(a * SIM_ODOMETRY_STD**2 for a in base.alpha))  # the robot's odometry
+    sims = [simulate_trial(grid, field, roadmap, robot, angles, args.updates, np.random.default_rng(s))
             for s in sim_ss.spawn(args.sim_trials)]
     log_keys = [(n, int(j)) for n in (1, 2)
                 for j in np.linspace(0, len(refs[n]) - args.updates - 1, args.offsets).round().astype(int)]
@@ -457,17 +485,22 @@ def main(argv=None):
     model = sl.prepare_mcl(grid, base)
     offsets = [field_offset(model, t, angles) for t in sims[:20]]
     checks = dict(sim_field_offset=float(np.median(offsets)), sim_field_offsets=offsets,
-                  log_range_excess={n: range_excess(grid, logs[n], refs[n], base.occupied_threshold) for n in logs})
+                  log_range_excess={n: range_excess(grid, logs[n], refs[n], base.occupied_threshold) for n in logs},
+                  odometry_error_ratio={n: odometry_error_ratio(logs[n], refs[n], base.alpha) for n in logs})
     print(f"model checks: the filter's scan likelihood of the first {len(offsets)} simulated drives peaks "
           f"{checks['sim_field_offset']:+.2f} m along the heading from the truth (median); measured ranges exceed "
           f"the map's at the logs' reference tracks by a median of "
-          + ", ".join(f"{v:.2f} m (log {n})" for n, v in checks["log_range_excess"].items()))
+          + ", ".join(f"{v:.2f} m (log {n})" for n, v in checks["log_range_excess"].items())
+          + "; the odometry's error per update is " + ", ".join(
+              f"{v['translation']:.2f} (translation) and {v['heading']:.2f} (heading) of the motion model's "
+              f"standard deviation (log {n})" for n, v in checks["odometry_error_ratio"].items())
+          + f"; the simulator draws {SIM_ODOMETRY_STD:.2f}")
     if args.json:
         with open(args.json, "w") as f:
             json.dump(dict(settings=dict(updates=args.updates, sim_trials=len(sims), offsets_per_log=args.offsets,
                                          screen_sim=args.screen_sim, screen_offsets=args.screen_offsets,
                                          radius=RADIUS, confident=CONFIDENT, sim_step=SIM_STEP, sim_speed=SIM_SPEED,
-                                         seed=args.seed, range_bias=base.range_bias, log_updates={n: len(r) for n, r in refs.items()},
+                                         seed=args.seed, range_bias=base.range_bias, sim_odometry_std=SIM_ODOMETRY_STD, log_updates={n: len(r) for n, r in refs.items()},
                                          truth_spread=[float(v) for v in TRUTH_SPREAD],
                                          model_checks=checks),
                            configs={c: dict(variant=CONFIGS[c][0], overrides=CONFIGS[c][1])

@@ -798,6 +798,49 @@ def test_the_wean_range_bias_is_what_both_logs_measure():
         assert all(abs(v - cmu.CMU_RANGE_BIAS) < 0.03 for v in excess.values())
 
 
+@pytest.mark.parametrize("scale", [1.0, 1 / 3])
+def test_study_odometry_error_ratio_recovers_the_noise_it_was_drawn_with(scale):
+    # odometry drawn from the motion model with alpha * scale**2 around a known track: the ratio is ~scale
+    study = _study_module()
+    rng = np.random.default_rng(3)
+    alpha = np.array(sl.MCLParams().alpha)
+    n = 4000
+    truth = np.zeros((n, 3))
+    for k in range(1, n):  # a wandering track, 0.2 m per update, turning now and then
+        truth[k] = sl.odometry_motion(truth[k - 1], [rng.normal(0, 0.2), rng.uniform(0.1, 0.3), rng.normal(0, 0.2)])
+    u = sl.odometry_from_poses(truth[:-1], truth[1:])
+    odom = np.zeros_like(truth)
+    for k in range(1, n):
+        odom[k] = sl.sample_motion_model_odometry(odom[k - 1], u[k - 1], alpha * scale**2, rng=rng)
+
+    class Log:
+        laser_pose = odom
+
+    class Ref:
+        scan_index = np.arange(n)
+        mean = truth
+
+    got = study.odometry_error_ratio(Log, Ref, alpha)
+    assert set(got) == {"translation", "heading"}
+    np.testing.assert_allclose([got["translation"], got["heading"]], scale, rtol=0.1)
+
+
+def test_the_simulated_odometry_is_no_quieter_than_the_robots():
+    # the study's simulator draws the odometry error with SIM_ODOMETRY_STD of the motion model's standard
+    # deviation; both logs measure at most that much (the studies record the measurement)
+    import json
+    from pathlib import Path
+
+    study = _study_module()
+    data = Path(__file__).resolve().parents[1] / "chapters" / "data"
+    for name in ("mcl_study.json", "mcl_study_long.json"):
+        settings = json.loads((data / name).read_text())["settings"]
+        assert settings["sim_odometry_std"] == study.SIM_ODOMETRY_STD
+        ratios = settings["model_checks"]["odometry_error_ratio"]
+        assert sorted(ratios) == ["1", "2"]
+        assert all(0.1 < v <= study.SIM_ODOMETRY_STD for r in ratios.values() for v in r.values())
+
+
 def test_study_simulator_draws_hits_around_the_biased_range():
     # no noise but the hit term, and a tiny sigma: the simulated ranges are the ray-cast ones plus the bias
     from slamlib.datasets import cmu
