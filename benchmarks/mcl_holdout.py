@@ -1,8 +1,9 @@
 """Hold-out evaluation of global MCL: trials that no tuning has seen, judged like ``mcl_study.py``.
 
 ``benchmarks/mcl_study.py`` is where MCL's mechanisms and defaults are chosen. Its simulated drives
-use the filter's own models (the beam model of ``MCLParams`` with the Wean Hall laser's range bias,
-``cmu.CMU_RANGE_BIAS``; the odometry model with the filter's ``alpha``), and its log trials start at ten fixed offsets. This script is the data the tuning never
+use the filter's own models calibrated to the robot (the beam model of ``MCLParams`` with the Wean
+Hall laser's range bias, ``cmu.CMU_RANGE_BIAS``; the odometry model with the robot's noise, a third of
+the filter's ``alpha`` in standard deviation), and its log trials start at ten fixed offsets. This script is the data the tuning never
 saw, with the study's criteria (``judge`` and ``summarize`` are imported from it):
 
 * **sim** (model mismatch): drives in the Wean Hall map from a reactive wander controller (follows

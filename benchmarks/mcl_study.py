@@ -38,7 +38,7 @@ then fewer CPU seconds) is chosen on one set and reported on the other, both way
     python benchmarks/mcl_study.py                        # defaults and plain MCL on the full study
     python benchmarks/mcl_study.py --screen all           # ... and every mechanism on a development subset
     # the chapter's data (the README's command):
-    python benchmarks/mcl_study.py --screen all --configs defaults "plain MCL" "tempering tau 0.2" "defaults started at the truth" "beam skipping (share 0.05)" "beam skipping started at the truth" "beam model (pre-cached ray casting)" "beam model started at the truth" --json chapters/data/mcl_study.json
+    python benchmarks/mcl_study.py --screen all --configs defaults "plain MCL" "tempering tau 0.2" "defaults started at the truth" "beam skipping (share 0.05)" "beam skipping started at the truth" "beam model started at the truth" --json chapters/data/mcl_study.json
 
 Finished runs are appended to a cache file (``--cache``), so an interrupted study resumes.
 
