@@ -848,7 +848,12 @@ def test_one_death_of_the_sandbox_during_a_call_costs_nothing(monkeypatch):
         result = grade(solution("ekf_localization"), "ekf_localization", workers=workers)
         got = by_function(result)
         assert all(s == m for s, m in got.values()), (workers, got)
-        assert result.loads >= 2 and left == {"ekf_update": 0, "associate_ml": 0}, (result.loads, left)
+        assert left == {"ekf_update": 0, "associate_ml": 0}, left
+        # the sandbox was loaded again; or, when the second death hit a sandbox loaded a moment before while
+        # another thread forked from it (several workers, a loaded machine), the grading was done a second
+        # time, one function at a time, in a new sandbox, and says so
+        regraded = any(n.startswith("graded a second time") for n in result.notes)
+        assert result.loads >= 2 or (workers > 1 and regraded), (workers, result.loads, result.notes)
 
 
 def test_a_worker_killed_once_by_sigkill_costs_nothing_and_twice_costs_the_test(monkeypatch):
