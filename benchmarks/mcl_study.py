@@ -196,10 +196,9 @@ def simulate_trial(grid, field, roadmap, params, angles, n_updates, rng):
         break
     else:
         raise RuntimeError("no collision-free trajectory found")
-    z_star = sl.ray_cast(grid, truth, angles, params.z_max, sensor_offset=params.sensor_offset,
-                         threshold=params.occupied_threshold)
     # the beam model's expected range: the laser sees the walls range_bias beyond the map's faces
-    z_star = np.where(z_star < params.z_max, np.clip(z_star + params.range_bias, 0.0, params.z_max), z_star)
+    z_star = sl.ray_cast(grid, truth, angles, params.z_max, sensor_offset=params.sensor_offset,
+                         threshold=params.occupied_threshold, range_bias=params.range_bias)
     w = np.array([params.w_hit, params.w_short, params.w_max, params.w_rand])
     kind = rng.choice(4, size=z_star.shape, p=w / w.sum())
     hit = z_star + params.sigma_hit * rng.standard_normal(z_star.shape)

@@ -873,12 +873,11 @@ def _scan_loglik(model, poses, z, a):
         ll = _field_terms(model, poses, z, a)
     else:
         if model.rays is not None:
-            z_star = model.rays.ranges(poses, a, sensor_offset=p.sensor_offset)
+            z_star = sensors._biased_ranges(model.rays.ranges(poses, a, sensor_offset=p.sensor_offset),
+                                           p.range_bias, p.z_max)
         else:
             z_star = sensors.ray_cast(model.grid, poses, a, p.z_max, sensor_offset=p.sensor_offset,
-                                      threshold=p.occupied_threshold)
-        if p.range_bias:
-            z_star = np.where(z_star < p.z_max, np.clip(z_star + p.range_bias, 0.0, p.z_max), z_star)
+                                      threshold=p.occupied_threshold, range_bias=p.range_bias)
         ll = sensors.beam_range_finder_log_likelihood(z, z_star, z_max=p.z_max, sigma_hit=p.sigma_hit,
                                               lambda_short=p.lambda_short, w_hit=p.w_hit, w_short=p.w_short,
                                               w_max=p.w_max, w_rand=p.w_rand)

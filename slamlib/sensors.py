@@ -284,7 +284,8 @@ def beam_range_finder_log_likelihood(z, z_star, *, z_max, sigma_hit, lambda_shor
 
 
 # --------------------------------------------------------------------------- ray casting
-def ray_cast(grid, poses, angles, max_range, *, sensor_offset=0.0, threshold=0.5, unknown_occupied=False):
+def ray_cast(grid, poses, angles, max_range, *, sensor_offset=0.0, threshold=0.5, unknown_occupied=False,
+             range_bias=0.0):
     """Expected ranges of beams cast from poses through an occupancy grid.
 
     All rays are traversed together, cell by cell (a vectorised
@@ -311,12 +312,17 @@ def ray_cast(grid, poses, angles, max_range, *, sensor_offset=0.0, threshold=0.5
         Occupancy from which a cell blocks beams.
     unknown_occupied : bool, keyword-only
         Treat unknown cells as occupied.
+    range_bias : float, keyword-only
+        Added to every range below `max_range` (the result clipped to
+        ``[0, max_range]``): how much further the sensor sees the walls than
+        the faces of the map's occupied cells (``MCLParams.range_bias``).
 
     Returns
     -------
     ranges : ndarray, shape (P, K) or (K,)
         ``min(distance to the first occupied cell, max_range)``; 0 for a
-        sensor inside an occupied cell.
+        sensor inside an occupied cell; plus `range_bias` where below
+        `max_range`.
 
     References
     ----------
@@ -332,9 +338,23 @@ def ray_cast(grid, poses, angles, max_range, *, sensor_offset=0.0, threshold=0.5
         raise ValueError("max_range must be positive, got nan")
     sensor_offset = as_scalar(sensor_offset, "sensor_offset")
     threshold = as_scalar(threshold, "threshold")
+    range_bias = as_scalar(range_bias, "range_bias")
     occ = grid.occupied_mask(threshold, unknown_occupied=unknown_occupied)
-    out = _dda(occ, grid.resolution, grid.origin, poses, angles, max_range, sensor_offset)
+    out = _biased_ranges(_dda(occ, grid.resolution, grid.origin, poses, angles, max_range, sensor_offset),
+                        range_bias, max_range)
     return out[0] if single else out
+
+
+def _biased_ranges(ranges, range_bias, max_range):
+    """Cast ranges moved `range_bias` further where below `max_range`, clipped to ``[0, max_range]``.
+
+    The expected range of the beam model when the map's occupied cells begin
+    in front of the surfaces the sensor sees (``MCLParams.range_bias``); the
+    ranges of :func:`ray_cast` and of a :class:`RangeTable` (unchecked).
+    """
+    if not range_bias:
+        return ranges
+    return np.where(ranges < max_range, np.clip(ranges + range_bias, 0.0, max_range), ranges)
 
 
 def _dda(occ, res, origin, poses, angles, max_range, offset):

@@ -779,23 +779,30 @@ def test_study_simulated_trial_is_collision_free_and_noisy_as_the_models_say():
     assert abs(np.median((trial["ranges"] - z_star)[near]) - params.range_bias) < 0.05
 
 
-def test_the_wean_range_bias_is_what_both_logs_measure():
+def test_the_studies_simulate_with_the_calibrations_both_logs_measure():
     # cmu.CMU_RANGE_BIAS is the measured median range excess (measured minus ray-cast range at the reference
-    # tracks), which both study files record for each log; the studies simulate with the constant
+    # tracks), and the simulator draws the odometry error with SIM_ODOMETRY_STD of the motion model's standard
+    # deviation, at least what both logs measure; both study files record the measurements and the values used
     import json
     from pathlib import Path
 
     from slamlib.datasets import cmu
 
+    study = _study_module()
     data = Path(__file__).resolve().parents[1] / "chapters" / "data"
     for name in ("mcl_study.json", "mcl_study_long.json"):
         settings = json.loads((data / name).read_text())["settings"]
+        checks = settings["model_checks"]
         assert settings["range_bias"] == cmu.CMU_RANGE_BIAS
-        excess = settings["model_checks"]["log_range_excess"]
+        excess = checks["log_range_excess"]
         assert sorted(excess) == ["1", "2"]
         # each log's measurement agrees with the other's, and with the constant, to 0.03 m
         assert abs(excess["1"] - excess["2"]) < 0.03
         assert all(abs(v - cmu.CMU_RANGE_BIAS) < 0.03 for v in excess.values())
+        assert settings["sim_odometry_std"] == study.SIM_ODOMETRY_STD
+        ratios = checks["odometry_error_ratio"]
+        assert sorted(ratios) == ["1", "2"]
+        assert all(0.1 < v <= study.SIM_ODOMETRY_STD for r in ratios.values() for v in r.values())
 
 
 @pytest.mark.parametrize("scale", [1.0, 1 / 3])
@@ -823,22 +830,6 @@ def test_study_odometry_error_ratio_recovers_the_noise_it_was_drawn_with(scale):
     got = study.odometry_error_ratio(Log, Ref, alpha)
     assert set(got) == {"translation", "heading"}
     np.testing.assert_allclose([got["translation"], got["heading"]], scale, rtol=0.1)
-
-
-def test_the_simulated_odometry_is_no_quieter_than_the_robots():
-    # the study's simulator draws the odometry error with SIM_ODOMETRY_STD of the motion model's standard
-    # deviation; both logs measure at most that much (the studies record the measurement)
-    import json
-    from pathlib import Path
-
-    study = _study_module()
-    data = Path(__file__).resolve().parents[1] / "chapters" / "data"
-    for name in ("mcl_study.json", "mcl_study_long.json"):
-        settings = json.loads((data / name).read_text())["settings"]
-        assert settings["sim_odometry_std"] == study.SIM_ODOMETRY_STD
-        ratios = settings["model_checks"]["odometry_error_ratio"]
-        assert sorted(ratios) == ["1", "2"]
-        assert all(0.1 < v <= study.SIM_ODOMETRY_STD for r in ratios.values() for v in r.values())
 
 
 def test_study_simulator_draws_hits_around_the_biased_range():

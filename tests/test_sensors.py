@@ -355,3 +355,20 @@ def test_no_input_is_modified():
     sl.ray_cast(g, poses, ang, 5.0)
     sl.likelihood_field_log_likelihood(sl.likelihood_field(g), poses, z, ang, z_max=8.0, sigma_hit=0.2, w_hit=0.8, w_rand=0.2)
     np.testing.assert_array_equal(poses, 0)
+
+
+def test_ray_cast_range_bias_moves_every_hit_and_leaves_max_range_beams():
+    occ = np.zeros((60, 60))
+    occ[:, 50:] = 1.0  # a wall at x = 5 m
+    grid = sl.OccupancyGrid(occ, 0.1)
+    angles = np.array([np.pi, 0.0, 0.3])  # the first looks away from the wall: it hits nothing within 10 m
+    pose = np.array([2.0, 3.0, 0.0])
+    plain = sl.ray_cast(grid, pose, angles, 10.0)
+    assert plain[0] == 10.0 and plain[1] == pytest.approx(3.0)
+    for bias in (0.25, -0.5):
+        got = sl.ray_cast(grid, pose, angles, 10.0, range_bias=bias)
+        np.testing.assert_allclose(got, [10.0, plain[1] + bias, plain[2] + bias])
+    assert sl.ray_cast(grid, pose, angles, 3.1, range_bias=0.5)[1] == 3.1  # clipped at max_range
+    for bad in (np.nan, "0.2", None):
+        with pytest.raises((TypeError, ValueError), match="range_bias"):
+            sl.ray_cast(grid, pose, angles, 10.0, range_bias=bad)
