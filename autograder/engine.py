@@ -512,6 +512,7 @@ def grade(path, exercise=None, *, limits=None, workers=None, seed=None, function
     except GraderFault as exc:
         first = exc
     result = _grade(path, exercise, workers=1, final=True, **kw)
+    result.loads += getattr(first, "loads", 0)
     result.notes.append(f"graded a second time, one function at a time, after an internal error of the grader "
                         f"({first}); the first grading was discarded")
     result.execution_time = time.perf_counter() - t0
@@ -627,6 +628,9 @@ def _grade(path, exercise, *, limits, workers, seed, functions, secret, final):
                     got = list(pool.map(one, todo))
             outs.update(dict(got))
         result.loads = grading.box.loads
+    except GraderFault as exc:
+        exc.loads = grading.box.loads  # a second grading adds its own loadings to these (grade)
+        raise
     finally:
         grading.close()
     for fn in functions:

@@ -38,7 +38,9 @@ class GradeResult:
 
     ``seed`` (the base seed of the scenarios), ``submission_sha256`` and
     ``isolation`` are for the course staff: they go to ``extra_data`` in
-    ``results.json`` and to the end of the printed report.
+    ``results.json`` and to the end of the printed report. ``loads`` counts
+    the times the submission was loaded into a sandbox, over both gradings
+    when a fault of the grader made it grade a second time.
     """
 
     submission: str

@@ -901,6 +901,42 @@ def test_study_truth_between_updates_follows_the_odometry():
     np.testing.assert_allclose(got[3], sl.odometry_motion(Ref.mean[1], sl.odometry_from_poses(odom[3], odom[4])))
 
 
+def test_study_alias_evidence_weighs_the_wrong_track_against_the_truth():
+    # alias_evidence: the final estimate carried back through the odometry, against the truth, summed tempered
+    # log-likelihood ratio of the scans at each track's best fit nearby. With exact odometry: 0 for a run that
+    # ends at the truth, negative for a place the scans do not fit (the simulator's map is the filter's), and
+    # the two tracks' roles swapped flip its sign exactly
+    import dataclasses
+    from types import SimpleNamespace
+
+    from slamlib.datasets import cmu
+
+    study = _study_module()
+    grid = cmu.load_cmu_map()
+    params = study.make_params({})
+    field = sl.likelihood_field(grid, max_dist=params.max_dist, threshold=params.occupied_threshold)
+    roadmap = study._roadmap(grid, field, params.free_threshold)
+    angles = np.linspace(-np.pi / 2, np.pi / 2, 180, endpoint=False)
+    exact = dataclasses.replace(params, alpha=(0.0, 0.0, 0.0, 0.0))  # odometry = the true motion
+    trial = study.simulate_trial(grid, field, roadmap, exact, angles, 12, np.random.default_rng(3))
+    truth, odom = trial["truth"], trial["odom"]
+    model = sl.prepare_mcl(grid, params)
+    idx = np.arange(len(truth))
+
+    def evidence(end, track):
+        res = SimpleNamespace(scan_index=idx, estimate=np.vstack([track[:-1], end]))
+        return study.alias_evidence(model, odom, trial["ranges"], angles, res, track)
+
+    assert abs(evidence(truth[-1], truth)) < 1e-9
+    # a wrong place: the truth's last pose turned around, its track carried back through the same odometry
+    wrong_end = truth[-1] + [0.0, 0.0, np.pi]
+    wrong = sl.odometry_motion(np.repeat(wrong_end[None], len(idx), 0),
+                               sl.odometry_from_poses(np.repeat(odom[-1][None], len(idx), 0), odom))
+    e = evidence(wrong_end, truth)
+    assert np.isfinite(e) and e < -1.0
+    assert evidence(truth[-1], wrong) == pytest.approx(-e, abs=1e-9)
+
+
 @pytest.mark.slow
 def test_study_ceilings_start_at_the_truth_and_are_never_chosen(tmp_path):
     # the ceiling (the defaults started around the true pose) is run like a configuration, but it is an
@@ -919,6 +955,13 @@ def test_study_ceilings_start_at_the_truth_and_are_never_chosen(tmp_path):
         assert all(cv["chosen"] != oracle for cv in d["cross_validation"].values())
         started = [r for r in d["runs"] if r["config"] == oracle]
         assert len(started) == 5 and all(r["final_error"] < 0.5 for r in started)  # started at the truth, it stays
+    # a run that ends on a wrong place is weighed against the truth, and the tables count both
+    assert all((r["alias_evidence"] is None) == (r["final_error"] <= study.RADIUS) for r in d["runs"])
+    for c, sets in d["table"].items():
+        for s, t in sets.items():
+            runs = [r for r in d["runs"] if r["config"] == c and r["set"] == s]
+            assert t["wrong_at_end"] == sum(r["final_error"] > study.RADIUS for r in runs)
+            assert t["alias_favoured"] == sum(r["alias_evidence"] is not None and r["alias_evidence"] >= 0 for r in runs)
     assert "plain MCL" in d["screen"] and study.BEAM_SKIP in d["screen"]  # the mechanism is screened
     assert d["table"][study.TRUTH_START]["sim"]["strict"] > d["table"]["defaults"]["sim"]["strict"]
 
