@@ -22,7 +22,11 @@ every update), the share of updates within 0.5 m; over all updates: *confidently
 (the estimate more than 0.5 m off while the heaviest mode holds more than 90 % of the mass,
 ``MCLResult.mode_mass``), and the same count with the filter's confidence (``MCLResult.confidence``, the
 mass within 0.5 m of the estimate) in place of the mode's mass. Rates come with Wilson 95 % intervals (log trials from overlapping
-windows of two logs are not independent: their interval is optimistic).
+windows of two logs are not independent: their interval is optimistic). A trial that ends with the estimate more
+than 0.5 m off is weighed against its truth (``alias_evidence``): the wrong place's track, carried back through the
+odometry, against the true track, by the scans' tempered log-likelihood ratio. The column "ends wrong (alias
+fits)" counts these trials and, in brackets, those where the scans do not favour the truth (ratio >= 0): no filter
+with the same sensor model and map could be expected to end at the truth there.
 
 Configurations differ from the library defaults in one mechanism each (``CONFIGS``); plain MCL is
 Table 8.2 as printed (uniform start, the estimate at the heaviest mode's mean). ``TRUTH_START`` is
@@ -272,35 +276,55 @@ def range_excess(grid, log, ref, threshold):
 
 # --------------------------------------------------------------------------- what the scans tell apart
 #: Where alias_evidence looks for each pose's best fit: within 0.25 m and 4 degrees (the reference track's
-#: own error, the odometry's drift over a trial), 6 x 6 x 5 poses.
+#: own error), 6 x 6 x 5 poses.
 ALIAS_SEARCH = np.array(np.meshgrid(np.linspace(-0.25, 0.25, 6), np.linspace(-0.25, 0.25, 6),
                                     np.deg2rad(np.linspace(-4.0, 4.0, 5)))).reshape(3, -1).T
+#: How far the wrong track may move from the odometry at each update, to follow the scans (the robot's
+#: odometry errs by about 0.02 m and 0.3 degrees per update): 0.05 m and 1 degree, 3 x 3 x 3 poses.
+ALIAS_STEP = np.array(np.meshgrid(np.linspace(-0.05, 0.05, 3), np.linspace(-0.05, 0.05, 3),
+                                  np.deg2rad(np.linspace(-1.0, 1.0, 3)))).reshape(3, -1).T
+
+
+def alias_track(model, odom, ranges, angles, scan_index, end):
+    """The track that ends at pose `end` and moved as the odometry says, kept on the scans.
+
+    From `end`, each earlier pose is the odometry's increment carried back from the later one, moved
+    within ``ALIAS_STEP`` to where the scan of that update fits best, so that the odometry's drift
+    does not carry the track off its place over a long trial.
+    """
+    track = np.empty((len(scan_index), 3))
+    track[-1] = end
+    for t in range(len(scan_index) - 2, -1, -1):
+        u = sl.odometry_from_poses(odom[scan_index[t + 1]], odom[scan_index[t]])
+        guess = sl.odometry_motion(track[t + 1], u) + ALIAS_STEP
+        track[t] = guess[np.argmax(sl.scan_log_likelihood(model, guess, ranges[scan_index[t]], angles))]
+    return track
 
 
 def alias_evidence(model, odom, ranges, angles, res, truth):
     """How much better the scans fit the wrong place a run ended at than the truth (tempered log-likelihood ratio).
 
-    The final estimate, carried back through the odometry to every update of the run, is a track with
-    the same motion as the true one: two hypotheses that the motion model cannot tell apart. The sum
-    over the run's updates of ``tau (log p(z | alias, m) - log p(z | truth, m))``, each pose at its best
-    fit within ``ALIAS_SEARCH``, is about the log of the odds between the two tracks that any Bayes filter
-    with this sensor model and map reaches from a uniform prior, weighed as the filter weighs a scan
-    (every beam of ``beam_step``, tempered by ``likelihood_exponent``; beam skipping not applied). It
-    weighs the scans alone: a pose in a wall or in unknown space is not rejected (``reject_unknown``),
-    since the track carried back through the odometry can graze a wall the filter's noisy particles
-    went around.
+    The final estimate, carried back through the odometry to every update of the run
+    (:func:`alias_track`), is a track that moved as the true one did: two hypotheses that the motion
+    model cannot tell apart. The sum over the run's updates of
+    ``tau (log p(z | alias, m) - log p(z | truth, m))``, each pose at its best fit within
+    ``ALIAS_SEARCH``, is about the log of the odds between the two tracks that any Bayes filter with
+    this sensor model and map reaches from a uniform prior, weighed as the filter weighs a scan (every
+    beam of ``beam_step``, tempered by ``likelihood_exponent``; beam skipping not applied). It weighs
+    the scans alone: a pose in a wall or in unknown space is not rejected (``reject_unknown``), since
+    the track carried back through the odometry can graze a wall the filter's particles went around.
     At least 0: the scans do not favour the truth; no filter with this model and map can be expected
-    to prefer it. Below 0: they do, and the filter lost a place it could have kept.
+    to prefer it. Below 0: they do, and the filter lost a place it could have kept. The wrong track
+    follows the scans only within ``ALIAS_STEP`` per update, the truth is the reference at each
+    update: where the method errs, it errs against the wrong place.
 
     `odom` and `ranges` are the run's arrays (``res.scan_index`` indexes them), `truth` the true pose at
     each update.
     """
     idx = res.scan_index
-    last = np.repeat(odom[idx[-1]][None], len(idx), axis=0)
-    alias = sl.odometry_motion(np.repeat(res.estimate[-1][None], len(idx), axis=0),
-                               sl.odometry_from_poses(last, odom[idx]))
     tau = model.params.likelihood_exponent
     model = dataclasses.replace(model, params=dataclasses.replace(model.params, reject_unknown=False))
+    alias = alias_track(model, odom, ranges, angles, idx, res.estimate[-1])
 
     def best(pose, t):
         return float(np.max(sl.scan_log_likelihood(model, pose + ALIAS_SEARCH, ranges[idx[t]], angles)))
@@ -548,6 +572,10 @@ def main(argv=None):
                                          radius=RADIUS, confident=CONFIDENT, sim_step=SIM_STEP, sim_speed=SIM_SPEED,
                                          seed=args.seed, range_bias=base.range_bias, sim_odometry_std=SIM_ODOMETRY_STD, log_updates={n: len(r) for n, r in refs.items()},
                                          truth_spread=[float(v) for v in TRUTH_SPREAD],
+                                         alias_search=dict(position=float(ALIAS_SEARCH[:, 0].max()),
+                                                           heading_deg=float(np.degrees(ALIAS_SEARCH[:, 2].max()))),
+                                         alias_step=dict(position=float(ALIAS_STEP[:, 0].max()),
+                                                         heading_deg=float(np.degrees(ALIAS_STEP[:, 2].max()))),
                                          model_checks=checks),
                            configs={c: dict(variant=CONFIGS[c][0], overrides=CONFIGS[c][1])
                                     for c in list(args.configs) + list(screen)},
