@@ -24,9 +24,10 @@ every update), the share of updates within 0.5 m; over all updates: *confidently
 mass within 0.5 m of the estimate) in place of the mode's mass. Rates come with Wilson 95 % intervals (log trials from overlapping
 windows of two logs are not independent: their interval is optimistic). A trial that ends with the estimate more
 than 0.5 m off is weighed against its truth (``alias_evidence``): the wrong place's track, carried back through the
-odometry, against the true track, by the scans' tempered log-likelihood ratio. The column "ends wrong (alias
-fits)" counts these trials and, in brackets, those where the scans do not favour the truth (ratio >= 0): no filter
-with the same sensor model and map could be expected to end at the truth there.
+odometry, against the true track, by the scans' tempered log-likelihood ratio. The column "ends wrong" counts
+these trials and, in brackets, those where the scans favour the wrong place, those too close to call and those
+where they favour the truth. Too close to call is within the measure's own spread: the largest value, over the
+set's trials, between the true track chained back from its end and the truth (``alias_null``).
 
 Configurations differ from the library defaults in one mechanism each (``CONFIGS``); plain MCL is
 Table 8.2 as printed (uniform start, the estimate at the heaviest mode's mean). ``TRUTH_START`` is
@@ -276,8 +277,8 @@ def range_excess(grid, log, ref, threshold):
 
 # --------------------------------------------------------------------------- what the scans tell apart
 #: Where alias_evidence looks for each pose's best fit: within 0.25 m and 4 degrees (the reference track's
-#: own error), 6 x 6 x 5 poses.
-ALIAS_SEARCH = np.array(np.meshgrid(np.linspace(-0.25, 0.25, 6), np.linspace(-0.25, 0.25, 6),
+#: own error), 5 x 5 x 5 poses, the pose itself among them.
+ALIAS_SEARCH = np.array(np.meshgrid(np.linspace(-0.25, 0.25, 5), np.linspace(-0.25, 0.25, 5),
                                     np.deg2rad(np.linspace(-4.0, 4.0, 5)))).reshape(3, -1).T
 #: How far the wrong track may move from the odometry at each update, to follow the scans (the robot's
 #: odometry errs by about 0.02 m and 0.3 degrees per update): 0.05 m and 1 degree, 3 x 3 x 3 poses.
@@ -301,10 +302,10 @@ def alias_track(model, odom, ranges, angles, scan_index, end):
     return track
 
 
-def alias_evidence(model, odom, ranges, angles, res, truth):
+def alias_evidence(model, odom, ranges, angles, scan_index, end, truth):
     """How much better the scans fit the wrong place a run ended at than the truth (tempered log-likelihood ratio).
 
-    The final estimate, carried back through the odometry to every update of the run
+    The final estimate `end`, carried back through the odometry to every update of the run
     (:func:`alias_track`), is a track that moved as the true one did: two hypotheses that the motion
     model cannot tell apart. The sum over the run's updates of
     ``tau (log p(z | alias, m) - log p(z | truth, m))``, each pose at its best fit within
@@ -313,23 +314,45 @@ def alias_evidence(model, odom, ranges, angles, res, truth):
     beam of ``beam_step``, tempered by ``likelihood_exponent``; beam skipping not applied). It weighs
     the scans alone: a pose in a wall or in unknown space is not rejected (``reject_unknown``), since
     the track carried back through the odometry can graze a wall the filter's particles went around.
-    At least 0: the scans do not favour the truth; no filter with this model and map can be expected
-    to prefer it. Below 0: they do, and the filter lost a place it could have kept. The wrong track
-    follows the scans only within ``ALIAS_STEP`` per update, the truth is the reference at each
-    update: where the method errs, it errs against the wrong place.
+    Above 0 the scans favour the wrong place, below 0 the truth; but the measure has a spread of its
+    own, which :func:`alias_null` measures: only a value beyond it decides. The wrong track follows
+    the scans only within ``ALIAS_STEP`` per update, the truth is the reference at each update: where
+    the method errs, it errs against the wrong place.
 
-    `odom` and `ranges` are the run's arrays (``res.scan_index`` indexes them), `truth` the true pose at
-    each update.
+    `odom` and `ranges` are the run's arrays (`scan_index`, the run's ``res.scan_index``, indexes
+    them), `truth` the true pose at each update.
     """
-    idx = res.scan_index
+    idx = scan_index
     tau = model.params.likelihood_exponent
     model = dataclasses.replace(model, params=dataclasses.replace(model.params, reject_unknown=False))
-    alias = alias_track(model, odom, ranges, angles, idx, res.estimate[-1])
+    alias = alias_track(model, odom, ranges, angles, idx, end)
 
     def best(pose, t):
         return float(np.max(sl.scan_log_likelihood(model, pose + ALIAS_SEARCH, ranges[idx[t]], angles)))
 
     return tau * sum(best(alias[t], t) - best(truth[t], t) for t in range(len(idx)))
+
+
+def alias_null(model, odom, ranges, angles, n_updates, truth_at_scans):
+    """``alias_evidence`` of a trial's true end against its truth: the measure's spread where it should be 0.
+
+    The true track, chained back from its last pose as a wrong one would be, is weighed against the
+    reference poses; the spread of these values over a set's trials is how far from 0 the measure
+    strays between two tracks that are both the truth. The trial's update scans are those the filter
+    uses (:func:`slamlib.odometry_steps`, the first `n_updates`); ``truth_at_scans(idx)`` gives the
+    true poses at them.
+    """
+    p = model.params
+    idx = sl.odometry_steps(odom, min_translation=p.min_translation, min_rotation=p.min_rotation)[0][:n_updates]
+    truth = truth_at_scans(idx)
+    return alias_evidence(model, odom, ranges, angles, idx, truth[-1], truth)
+
+
+def alias_verdict(value, band):
+    """``"wrong place"`` beyond the band, ``"truth"`` below minus the band, else ``"tie"``; None for no value."""
+    if value is None:
+        return None
+    return "wrong place" if value > band else ("truth" if value < -band else "tie")
 
 
 # --------------------------------------------------------------------------- running
@@ -379,14 +402,14 @@ def _run(job):
         odom, ranges, angles = log.laser_pose[a:], log.ranges[a:], log.angles
     out = judge(res, truth)
     # only a run that ends on a wrong place has an alias to weigh against the truth
-    out["alias_evidence"] = alias_evidence(model, odom, ranges, angles, res, truth) \
+    out["alias_evidence"] = alias_evidence(model, odom, ranges, angles, res.scan_index, res.estimate[-1], truth) \
         if out["final_error"] > RADIUS else None
     out.update(config=config, set=kind, trial=key if kind == "sim" else list(key), seed=seed,
                duration=float(res.t[-1] - res.t[0]))
     return out
 
 
-def summarize(runs):
+def summarize(runs, band=0.0):
     n = len(runs)
     k = sum(r["strict"] for r in runs)
     lo, hi = wilson(k, n)
@@ -397,7 +420,8 @@ def summarize(runs):
                 confidently_wrong_conf_updates=sum(r.get("confidently_wrong_conf", 0) for r in runs),
                 confidently_wrong_conf_trials=sum(r.get("confidently_wrong_conf", 0) > 0 for r in runs),
                 wrong_at_end=sum(r["final_error"] > RADIUS for r in runs),
-                alias_favoured=sum(r.get("alias_evidence") is not None and r["alias_evidence"] >= 0.0 for r in runs),
+                **{f"alias_{k.replace(' ', '_')}": sum(alias_verdict(r.get("alias_evidence"), band) == k for r in runs)
+                   for k in ("wrong place", "tie", "truth")},
                 updates=sum(r["updates"] for r in runs), cpu_s=float(sum(r["runtime"] for r in runs)),
                 real_time_factor=float(sum(r["duration"] for r in runs) / max(sum(r["runtime"] for r in runs), 1e-9)))
 
@@ -511,17 +535,31 @@ def main(argv=None):
     if args.cached_only:
         jobs = [j for j in jobs if _key(j) in done]
     runs = [done[_key(j)] for j in jobs]
+    # the spread of alias_evidence between two tracks that are both the truth, per set: the band within which
+    # a wrong ending is too close to call (the defaults' sensor model, every trial of the full study)
+    t_null = time.perf_counter()
+    sim_model = sl.prepare_mcl(grid, base)
+    null = {"sim": [float(alias_null(sim_model, s["odom"], s["ranges"], angles, args.updates,
+                                     lambda idx, s=s: s["truth"][idx])) for s in sims]}
+    log_models = {n: sl.prepare_mcl(grid, make_params({}, lg.sensor_offset, lg.max_range)) for n, lg in logs.items()}
+    null["logs"] = [float(alias_null(log_models[n], logs[n].laser_pose[refs[n].scan_index[j]:],
+                                     logs[n].ranges[refs[n].scan_index[j]:], logs[n].angles, args.updates,
+                                     lambda idx, n=n, a=refs[n].scan_index[j]: truth_at(refs[n], logs[n].laser_pose, idx + a)))
+                    for n, j in log_keys]
+    band = {k: float(np.max(np.abs(v))) for k, v in null.items()}
+    print(f"alias evidence between two tracks that are both the truth: within {band['sim']:.2f} (simulated drives) and "
+          f"{band['logs']:.2f} (log starts), {time.perf_counter() - t_null:.0f} s", flush=True)
 
     def table_for(configs, trial_list):
         keys = {(k, json.dumps(key if k == "sim" else list(key))) for k, key, _ in trial_list}
         return {c: {s: summarize([r for r in runs if r["config"] == c and r["set"] == s
-                                  and (s, json.dumps(r["trial"])) in keys]) for s in ("sim", "logs")}
+                                  and (s, json.dumps(r["trial"])) in keys], band[s]) for s in ("sim", "logs")}
                 for c in configs}
 
     def show(table, title):
         print(f"\n{title}")
         print(f"{'configuration':32s} {'set':5s} {'strict success (95 % CI)':>28s} {'share within':>12s} "
-              f"{'conf. wrong upd (trials)':>25s} {'by confidence':>14s} {'ends wrong (alias fits)':>24s} {'CPU [s]':>8s} "
+              f"{'conf. wrong upd (trials)':>25s} {'by confidence':>14s} {'ends wrong (scans: wrong/tie/truth)':>36s} {'CPU [s]':>8s} "
               f"{'x real time':>11s}")
         for c, row in table.items():
             for s in ("sim", "logs"):
@@ -530,7 +568,8 @@ def main(argv=None):
                       f"[{t['strict_ci'][0]:4.0%}, {t['strict_ci'][1]:4.0%}]   {t['share_within']:10.0%} "
                       f"{t['confidently_wrong_updates']:17d} ({t['confidently_wrong_trials']:3d}) "
                       f"{t['confidently_wrong_conf_updates']:7d} ({t['confidently_wrong_conf_trials']:3d}) "
-                      f"{t['wrong_at_end']:15d} ({t['alias_favoured']:3d}) {t['cpu_s']:8.0f} "
+                      f"{t['wrong_at_end']:19d} ({t['alias_wrong_place']:3d}/{t['alias_tie']:3d}/{t['alias_truth']:3d}) "
+                      f"{t['cpu_s']:8.0f} "
                       f"{t['real_time_factor']:10.1f}x")
 
     table = table_for(args.configs, trials)
@@ -556,7 +595,8 @@ def main(argv=None):
     offsets = [field_offset(model, t, angles) for t in sims[:20]]
     checks = dict(sim_field_offset=float(np.median(offsets)), sim_field_offsets=offsets,
                   log_range_excess={n: range_excess(grid, logs[n], refs[n], base.occupied_threshold) for n in logs},
-                  odometry_error_ratio={n: odometry_error_ratio(logs[n], refs[n], base.alpha) for n in logs})
+                  odometry_error_ratio={n: odometry_error_ratio(logs[n], refs[n], base.alpha) for n in logs},
+                  alias_null=null, alias_band=band)
     print(f"model checks: the filter's scan likelihood of the first {len(offsets)} simulated drives peaks "
           f"{checks['sim_field_offset']:+.2f} m along the heading from the truth (median); measured ranges exceed "
           f"the map's at the logs' reference tracks by a median of "

@@ -919,21 +919,21 @@ def _alias_drive(n_updates=40, seed=3):
 
 def test_study_alias_evidence_weighs_the_wrong_track_against_the_truth():
     # alias_evidence: the final estimate carried back through the odometry, against the truth, summed tempered
-    # log-likelihood ratio of the scans at each track's best fit nearby: about 0 for a run that ends at the truth,
-    # clearly negative for a place the scans do not fit (the simulator's map is the filter's)
-    from types import SimpleNamespace
-
+    # log-likelihood ratio of the scans at each track's best fit nearby: about 0 for a run that ends at the truth
+    # (alias_null, the measure's own spread), clearly negative for a place the scans do not fit (the simulator's
+    # map is the filter's); the verdict counts only what lies beyond the spread
     study, model, trial, angles = _alias_drive()
     truth, odom = trial["truth"], trial["odom"]
     idx = np.arange(len(truth))
-
-    def evidence(end):
-        res = SimpleNamespace(scan_index=idx, estimate=np.vstack([truth[:-1], end]))
-        return study.alias_evidence(model, odom, trial["ranges"], angles, res, truth)
-
-    assert abs(evidence(truth[-1])) < 0.05 * len(idx) * model.params.likelihood_exponent
-    e = evidence(truth[-1] + [0.0, 0.0, np.pi])  # the last pose turned around
-    assert np.isfinite(e) and e < -1.0
+    null = study.alias_null(model, odom, trial["ranges"], angles, len(truth), lambda i: truth[i])
+    assert null == study.alias_evidence(model, odom, trial["ranges"], angles, idx, truth[-1], truth)
+    assert abs(null) < 1.0
+    e = study.alias_evidence(model, odom, trial["ranges"], angles, idx, truth[-1] + [0.0, 0.0, np.pi], truth)
+    assert np.isfinite(e) and e < -1.0  # the last pose turned around
+    band = abs(null)
+    assert study.alias_verdict(e, band) == "truth" and study.alias_verdict(-e, band) == "wrong place"
+    assert study.alias_verdict(band / 2, band) == study.alias_verdict(-band, band) == "tie"
+    assert study.alias_verdict(None, band) is None
 
 
 def test_study_alias_track_follows_the_scans_through_the_odometrys_drift():
@@ -979,7 +979,11 @@ def test_study_ceilings_start_at_the_truth_and_are_never_chosen(tmp_path):
         for s, t in sets.items():
             runs = [r for r in d["runs"] if r["config"] == c and r["set"] == s]
             assert t["wrong_at_end"] == sum(r["final_error"] > study.RADIUS for r in runs)
-            assert t["alias_favoured"] == sum(r["alias_evidence"] is not None and r["alias_evidence"] >= 0 for r in runs)
+            band = d["settings"]["model_checks"]["alias_band"][s]
+            assert band == max(abs(v) for v in d["settings"]["model_checks"]["alias_null"][s])
+            assert t["alias_wrong_place"] == sum(r["alias_evidence"] is not None and r["alias_evidence"] > band
+                                                 for r in runs)
+            assert t["wrong_at_end"] == t["alias_wrong_place"] + t["alias_tie"] + t["alias_truth"]
     assert "plain MCL" in d["screen"] and study.BEAM_SKIP in d["screen"]  # the mechanism is screened
     assert d["table"][study.TRUTH_START]["sim"]["strict"] > d["table"]["defaults"]["sim"]["strict"]
 
