@@ -955,6 +955,16 @@ def test_study_alias_track_follows_the_scans_through_the_odometrys_drift():
     np.testing.assert_allclose(kept[-1], truth[-1])
 
 
+def test_study_weighs_every_configuration_by_the_defaults_sensor_model():
+    # alias_evidence is on one scale for every configuration (the one its band is measured on): the defaults'
+    # sensor model and exponent, with the run's laser constants
+    study, grid, *_ = _study_world()
+    study._WORK.setdefault("grid", grid)
+    for over in ({"likelihood_exponent": 0.2}, {"model": "beam"}, {"beam_skip_share": 0.05}):
+        params = study.make_params(over, 0.3, 50.0)
+        assert study._yardstick(params).params == study.make_params({}, 0.3, 50.0) != params
+
+
 @pytest.mark.slow
 def test_study_ceilings_start_at_the_truth_and_are_never_chosen(tmp_path):
     # the ceiling (the defaults started around the true pose) is run like a configuration, but it is an
