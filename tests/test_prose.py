@@ -71,6 +71,13 @@ def test_checker_needs_the_literal_beside_the_prose_not_anywhere(tmp_path):
     assert _numbers(check_notebook(p)) == ["50"]
 
 
+def test_checker_needs_the_code_cell_right_beside_the_prose(tmp_path):
+    # a literal across a heading or another paragraph is not beside the number it would back
+    p = _nb(("code", "n = 50"), ("md", "## A section"), ("md", "With 50 particles."), ("md", "Then 7 more."),
+            ("code", "k = 7"), path=tmp_path / "c2.ipynb")
+    assert _numbers(check_notebook(p)) == ["50"]
+
+
 def test_checker_ignores_formulas_but_not_bare_numbers_in_math(tmp_path):
     p = _nb(("code", "x = 1"), ("md", "With $k^2 = 7.81$ and $$\\chi^2 = 3$$ but $7598$ poses."),
             path=tmp_path / "d.ipynb")

@@ -4,8 +4,9 @@ A literate chapter's text must not drift from its code. A number in a Markdown c
 
 1. it is glued: MyST-NB's ``{glue:text}`name:fmt``` (or ``{glue}``) inserts a value computed by a
    code cell (``myst_nb.glue(name, value, display=False)``), so the text cannot drift at all;
-2. it is a literal of the code beside it, the code cell just before or just after the Markdown cell
-   (a setting the reader sees set, or the value an ``assert`` checks); a number with a unit is
+2. it is a literal of the code beside it, the cell just before or just after the Markdown cell when
+   that cell is code (a setting the reader sees set, or the value an ``assert`` checks; a code cell
+   beyond another Markdown cell is not beside it); a number with a unit is
    also matched in SI (``30 cm`` by ``0.3``, ``50 ms`` by ``0.05``, ``5 %`` by ``0.05``,
    ``3 deg`` by ``np.deg2rad(3)``'s ``3``);
 3. it is a numeric default of a ``slamlib`` function the chapter calls (``sl.name(...)``): the
@@ -52,8 +53,9 @@ ALLOWED: tuple[tuple[str, str], ...] = (
      "derivation Step of a textbook or of this book, not a quantity"),
     (r"\b(?:1[89]|20)\d\d\b",
      "a year (of a publication or of a data set's recording)"),
-    (r"\b(?:FastSLAM|GraphSLAM|iSAM|SE|SO|g2o)\s*\(?\d(?:\.\d)?\)?|\b\d-D\b|\brank-\d\b|[A-Za-z_]+\d+\w*",
-     "part of a name: FastSLAM 1.0 and 2.0, the groups SE(2), SO(3), '2-D', 'rank-2', data sets like M3500"),
+    (r"\b(?:FastSLAM|GraphSLAM|iSAM|SE|SO|g2o)\s*\(?\d(?:\.\d)?\)?|\b\d-D\b|\brank-\d\b|\b[01]-based\b|[A-Za-z_]+\d+\w*",
+     "part of a name: FastSLAM 1.0 and 2.0, the groups SE(2), SO(3), '2-D', 'rank-2', '0-based' indexing, data "
+     "sets like M3500"),
     (r"\b(?:[Rr]obots?|[Dd]ataset|[Bb]ox(?:es)?)\s+\d+(?:\s*(?:,|and|or|-|to)\s*\d+)*",
      "the number of a robot, a data set or a box within a collection (an identifier, as in MRCLAM)"),
     (r"(?m)^\s*\d+\.\s",
@@ -220,8 +222,9 @@ def check_notebook(path: str | Path) -> list[Finding]:
     for k, cell in enumerate(cells):
         if cell.cell_type != "markdown":
             continue
-        prev_code = next((c.source for c in reversed(cells[:k]) if c.cell_type == "code"), "")
-        next_code = next((c.source for c in cells[k + 1:] if c.cell_type == "code"), "")
+        # the cells beside this one, when they are code: a literal further away, across other prose, backs nothing
+        prev_code = cells[k - 1].source if k > 0 and cells[k - 1].cell_type == "code" else ""
+        next_code = cells[k + 1].source if k + 1 < len(cells) and cells[k + 1].cell_type == "code" else ""
         literals = _code_literals(prev_code) | _code_literals(next_code) | defaults
         for m in re.finditer(r"\{glue(?::\w+)?\}`([^`:]+)", cell.source):
             name = m.group(1).strip()
