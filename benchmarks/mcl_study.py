@@ -548,7 +548,7 @@ def main(argv=None):
     # the spread of alias_evidence between two tracks that are both the truth, per set: the band within which
     # a wrong ending is too close to call (the defaults' sensor model, every trial of the full study)
     t_null = time.perf_counter()
-    sim_model = sl.prepare_mcl(grid, base)
+    sim_model = sl.prepare_mcl(grid, base)  # the defaults' model: the band's scale, and the model checks
     null = {"sim": [float(alias_null(sim_model, s["odom"], s["ranges"], angles, args.updates,
                                      lambda idx, s=s: s["truth"][idx])) for s in sims]}
     log_models = {n: sl.prepare_mcl(grid, make_params({}, lg.sensor_offset, lg.max_range)) for n, lg in logs.items()}
@@ -601,8 +601,7 @@ def main(argv=None):
     print(f"\nthe defaults: {make_params({})}")
     print(f"wall time {wall:.0f} s with {args.jobs} process(es), {n_new} new runs, "
           f"CPU in the filters (all {len(runs)} runs) {sum(r['runtime'] for r in runs):.0f} s")
-    model = sl.prepare_mcl(grid, base)
-    offsets = [field_offset(model, t, angles) for t in sims[:20]]
+    offsets = [field_offset(sim_model, t, angles) for t in sims[:20]]
     checks = dict(sim_field_offset=float(np.median(offsets)), sim_field_offsets=offsets,
                   log_range_excess={n: range_excess(grid, logs[n], refs[n], base.occupied_threshold) for n in logs},
                   odometry_error_ratio={n: odometry_error_ratio(logs[n], refs[n], base.alpha) for n in logs},
