@@ -25,6 +25,7 @@ from __future__ import annotations
 import argparse
 import os
 import shutil
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -33,14 +34,11 @@ import nbformat
 
 ROOT = Path(__file__).resolve().parents[1]
 SOLUTIONS = ROOT / "tests" / "autograder_fixtures" / "solutions"
-NOTEBOOKS = {
-    "motion_sensor_models": "01_motion_sensor_models.ipynb",
-    "ekf_localization": "02_ekf_localization.ipynb",
-    "particle_filter": "03_particle_filter.ipynb",
-    "ekf_slam": "04_ekf_slam.ipynb",
-    "fastslam": "05_fastslam.ipynb",
-    "graph_slam": "06_graph_slam.ipynb",
-}
+sys.path.insert(0, str(ROOT))
+from autograder.exercises import EXERCISES, get_exercise  # noqa: E402
+
+#: every registered exercise and its student notebook (the registry's, so a new exercise is timed too)
+NOTEBOOKS = {name: get_exercise(name).notebook for name in EXERCISES}
 # one textual bug per exercise, in one function (as in tests/test_autograder_buggy.py)
 BUGS = {
     "motion_sensor_models": ("_normal(z - z_star, sigma_hit**2) / eta", "_normal(z - z_star, sigma_hit**2)"),
@@ -49,7 +47,10 @@ BUGS = {
     "ekf_slam": ("K = Sigma_bar @ H.T @ np.linalg.inv(S)", "K = Sigma_bar @ H.T @ np.linalg.inv(Q)"),
     "fastslam": ("Hi = np.linalg.inv(H)", "Hi = H"),
     "graph_slam": ("H[si, sj] += A.T @ W @ B", "H[si, sj] = A.T @ W @ B"),
+    "bundle_adjustment": ("s -= W @ b[sl_]", "s += W @ b[sl_]"),
 }
+if set(BUGS) != set(NOTEBOOKS):
+    raise RuntimeError(f"BUGS needs one bug for every exercise: missing {sorted(set(NOTEBOOKS) - set(BUGS))}")
 
 
 def _notebook_with(code, exercise):
@@ -78,7 +79,6 @@ def make_submissions(folder, exercise, n):
 def cold(exercise):
     """Wall seconds of ``python -m autograder grade`` in a fresh process (imports and reference runs included)."""
     import subprocess
-    import sys
 
     t0 = time.perf_counter()
     subprocess.run([sys.executable, "-m", "autograder", "grade", str(SOLUTIONS / f"{exercise}.py"), "-e", exercise],
@@ -131,7 +131,8 @@ def main():
 
 def _main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--exercise", default="ekf_localization")
+    ap.add_argument("--exercise", default="ekf_localization", choices=list(NOTEBOOKS),
+                    help="the exercise of the batch (default: %(default)s)")
     ap.add_argument("--n", type=int, default=50)
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--skip-single", action="store_true")

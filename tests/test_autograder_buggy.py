@@ -17,7 +17,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent / "autograder_fixtures"))
 from agtest import variant  # noqa: E402
 
 from autograder.engine import grade  # noqa: E402
-from autograder.exercises import get_exercise  # noqa: E402
+from autograder.exercises import EXERCISES, get_exercise  # noqa: E402
 
 VARIANTS = [
     # ---------------------------------------------------------------- exercise 1
@@ -102,6 +102,24 @@ VARIANTS = [
      [("D = np.diag([1.0, np.sign(np.linalg.det(U @ Vt))])", "D = np.eye(2)")]),
     ("graph_slam", "icp_align", "translation from the centroids the wrong way round",
      [("return R, mq - R @ mp", "return R, mp - R @ mq")]),
+    # ---------------------------------------------------------------- exercise 7
+    ("bundle_adjustment", "so3_exp", "Rodrigues with sin(a) for sin(a)/a (the axis not normalised)",
+     [("A = np.sin(a) / a", "A = np.sin(a)")]),
+    ("bundle_adjustment", "so3_log", "the quaternion's half angle returned as the angle",
+     [("angle = 2.0 * np.arctan2(s, qw)", "angle = np.arctan2(s, qw)")]),
+    ("bundle_adjustment", "project", "J_point with R for R^T",
+     [("Jx[k] = D @ R.T", "Jx[k] = D @ R")]),
+    ("bundle_adjustment", "project", "rotation block of J_pose with the wrong sign",
+     [("Jp[k, :, 3:] = D @ _hat(np.array([X, Y, Z]))", "Jp[k, :, 3:] = -D @ _hat(np.array([X, Y, Z]))")]),
+    ("bundle_adjustment", "triangulate", "T_wc used as the world-to-camera transform",
+     [("Ps.append(K @ np.hstack([R.T, (-R.T @ t)[:, None]]))", "Ps.append(K @ np.hstack([R, t[:, None]]))")]),
+    ("bundle_adjustment", "eight_point", "Hartley normalisation not undone (E = F)",
+     [("E = T2.T @ F @ T1", "E = F")]),
+    ("bundle_adjustment", "schur_complement", "the reduced right-hand side with the wrong sign",
+     [("s -= W @ b[sl_]", "s += W @ b[sl_]")]),
+    ("bundle_adjustment", "back_substitute", "the minus sign of -H_pp^-1 (...) dropped",
+     [("out[3 * j:3 * j + 3] = -inv[j] @ (b[sl_] + H[sl_, :m] @ dx_cameras)",
+       "out[3 * j:3 * j + 3] = inv[j] @ (b[sl_] + H[sl_, :m] @ dx_cameras)")]),
 ]
 
 
@@ -114,8 +132,7 @@ def test_at_least_four_variants_per_exercise():
     counts = {}
     for ex, *_ in VARIANTS:
         counts[ex] = counts.get(ex, 0) + 1
-    assert set(counts) == {"motion_sensor_models", "ekf_localization", "particle_filter", "ekf_slam", "fastslam",
-                           "graph_slam"}
+    assert set(counts) == set(EXERCISES)  # every registered exercise, so a new one cannot be left out
     assert min(counts.values()) >= 4
 
 

@@ -5,6 +5,8 @@ from pathlib import Path
 
 import pytest
 
+from autograder.exercises import EXERCISES
+
 BENCH = Path(__file__).resolve().parents[1] / "benchmarks"
 
 
@@ -35,3 +37,31 @@ def test_fastslam_size_goal_compares_the_time_per_observation():
     # twice the time per step for twice the observations per step: the same time per observation
     assert mod.unknown_ratio({(small, 2): (1.5, small, 4.0), (big, 2): (3.0, big, 8.0)}, 2) == pytest.approx(1.0)
     assert mod.unknown_ratio({(small, 1): (1.0, small, 5.0), (big, 1): (3.0, big, 5.0)}, 1) == pytest.approx(3.0)
+
+
+@pytest.fixture(scope="module")
+def bench_autograder():
+    spec = importlib.util.spec_from_file_location("bench_autograder_under_test", BENCH / "bench_autograder.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_autograder_benchmark_times_every_registered_exercise(bench_autograder):
+    assert list(bench_autograder.NOTEBOOKS) == list(EXERCISES)
+    assert set(bench_autograder.BUGS) == set(EXERCISES)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("exercise", list(EXERCISES))
+def test_autograder_benchmark_submissions_grade_as_their_names_say(bench_autograder, exercise, tmp_path):
+    """The batch the benchmark times holds what it claims: a correct notebook (full marks), one with one bug
+    (some points lost, not all), an unimplemented one (0)."""
+    from autograder.engine import grade
+
+    folder = bench_autograder.make_submissions(tmp_path / "subs", exercise, 3)
+    res = {p.stem.rsplit("_", 1)[1]: grade(p, exercise) for p in sorted(folder.glob("*.ipynb"))}
+    assert set(res) == {"good", "buggy", "stub"}
+    assert res["good"].score == res["good"].max_score > 0, res["good"].text_report()
+    assert 0 < res["buggy"].score < res["good"].score, res["buggy"].text_report()
+    assert res["stub"].score == 0
