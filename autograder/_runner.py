@@ -24,14 +24,17 @@ Order of events in the child:
    resource limits, joins a fresh session keyring and installs the seccomp filter;
 3. install an audit hook (a second line: imports of ``slamlib``/``autograder``,
    reads of their files, new processes, sockets, ``ctypes`` lookups);
-4. execute the submission's top-level statements one by one in a fresh module
-   named ``submission``, announcing each on the control socket so the grader can
-   skip one that hangs;
+4. in a throwaway child (the probe), execute the submission's top-level statements
+   one by one in a fresh module named ``submission``, announcing each so the grader
+   can skip one that hangs; the probe talks to its parent on a socket of its own,
+   which passes the messages on to the grader and kills the probe when it says
+   ``ready`` (the probe never holds the control socket fork requests come on);
 5. become the zygote: for each ``fork`` request (three pipe ends passed as
    descriptors) fork a worker that makes its private scratch folders, restricts
    itself to them with Landlock, stacks a seccomp filter that lets it signal only
-   itself, and answers call requests on those pipes; kill a worker on request;
-   reap everything.
+   itself, loads the submission again, says ``loaded`` on its result pipe (a
+   call's deadline starts then: the top-level code's time is no function's) and
+   answers call requests on those pipes; kill a worker on request; reap everything.
 
 Frames on the pipes are ``MAGIC, len(header), len(payload)`` followed by a JSON
 header and raw array bytes; control messages are JSON datagrams.
@@ -575,6 +578,7 @@ _NR_X86_64 = {
     "personality": 135, "fcntl": 72, "ioctl": 16, "fanotify_init": 300, "quotactl_fd": 443, "setdomainname": 171,
     "sethostname": 170, "settimeofday": 164, "clock_settime": 227, "adjtimex": 159, "clock_adjtime": 305,
     "migrate_pages": 256, "move_pages": 279, "mbind": 237, "nfsservctl": 180, "uselib": 134,
+    "memfd_create": 319, "memfd_secret": 447,
 }
 _NR_AARCH64 = {
     "keyctl": 219, "add_key": 217, "request_key": 218, "unshare": 97, "setns": 268, "clone": 220, "clone3": 435,
@@ -593,11 +597,12 @@ _NR_AARCH64 = {
     "fcntl": 25, "ioctl": 29, "fanotify_init": 262, "quotactl_fd": 443, "setdomainname": 162, "sethostname": 161,
     "settimeofday": 170,
     "clock_settime": 112, "adjtimex": 171, "clock_adjtime": 266, "migrate_pages": 238, "move_pages": 239,
-    "mbind": 235,
+    "mbind": 235, "memfd_create": 279, "memfd_secret": 447,
 }
 
 #: what a numerical function never needs: kernel keyrings, namespaces, tracing, BPF, io_uring, mounts,
-#: other processes' memory, kernel modules, SysV and POSIX IPC, socket pairs, clock and host settings; sockets
+#: other processes' memory, kernel modules, SysV and POSIX IPC, socket pairs, anonymous memory files (memfd:
+#: their pages count against no RLIMIT_AS and no tmpfs cap of the sandbox), clock and host settings; sockets
 #: other than IPv4/IPv6 (UNIX, netlink, packet, AF_ALG ...: see _base_rules), which the network namespace
 #: leaves without a route
 DENIED = ("keyctl", "add_key", "request_key", "unshare", "setns", "ptrace", "bpf", "perf_event_open",
@@ -610,7 +615,7 @@ DENIED = ("keyctl", "add_key", "request_key", "unshare", "setns", "ptrace", "bpf
           "msgget", "msgsnd", "msgrcv", "msgctl", "mq_open", "mq_unlink", "mq_timedsend", "mq_timedreceive",
           "mq_notify", "mq_getsetattr", "socketpair", "fanotify_init", "setdomainname", "sethostname",
           "settimeofday", "clock_settime", "adjtimex", "clock_adjtime", "migrate_pages", "move_pages", "mbind",
-          "nfsservctl", "uselib", "personality")
+          "nfsservctl", "uselib", "personality", "memfd_create", "memfd_secret")
 #: namespace flags of clone(): a process may fork, not make new namespaces
 CLONE_NS_FLAGS = (0x00020000, 0x02000000, 0x04000000, 0x08000000, 0x10000000, 0x20000000, 0x40000000)
 EPERM, ENOSYS = 1, 38
@@ -634,7 +639,9 @@ def _worker_rules(pid):
         # no signal-driven I/O: F_SETOWN/F_SETOWN_EX/F_SETSIG and FIOSETOWN/SIOCSPGRP would have the kernel
         # signal another process (the zygote) for the worker; commands are 32-bit in the kernel
         (name, EPERM, [(1, "eq32", cmd, 0)])
-        for name, cmd in (("fcntl", 8), ("fcntl", 15), ("fcntl", 10), ("ioctl", 0x8901), ("ioctl", 0x8902))]
+        for name, cmd in (("fcntl", 8), ("fcntl", 15), ("fcntl", 10), ("ioctl", 0x8901), ("ioctl", 0x8902))] + [
+        # no pipe grown beyond its default buffer (F_SETPIPE_SZ): kernel memory outside RLIMIT_AS
+        ("fcntl", EPERM, [(1, "eq32", 1031, 0)])]
 
 
 _SECCOMP_LIB = [None]
@@ -1199,6 +1206,8 @@ def _worker(job, ctl, fds, mod, attempts, npx, hook_busy, wid=0):
     if mod is None:  # fork, isolate, then load: nothing the submission does at load time outlives this worker
         _close_fds_but(req_fd, res_fd)
         mod = _quiet_load(job, attempts)
+    # the grader starts a call's deadline only now: the top-level code that just ran again is no function's time
+    _send(res_fd, {"status": "loaded"})
     _run_then_exit(_serve, job, req_fd, res_fd, mod, attempts, npx)
 
 
@@ -1240,8 +1249,12 @@ def _quiet_load(job, attempts):
     return mod
 
 
-def _probe(job, ctl, attempts, npx, hook_busy, done_w):
-    """A throwaway child that loads the submission once (statement events, ``ready``) with a worker's isolation."""
+def _probe(job, ctl, attempts, npx, hook_busy):
+    """A throwaway child that loads the submission once (statement events, ``ready``) with a worker's isolation.
+
+    ``ctl`` is the probe's own socket to its parent, which passes the messages on to the grader and ends the
+    probe when ``ready`` comes: the probe never holds the control socket that fork requests arrive on.
+    """
     import inspect
 
     import resource
@@ -1258,11 +1271,50 @@ def _probe(job, ctl, attempts, npx, hook_busy, done_w):
         _private_scratch(0, paths)
     if job.get("seccomp", True) and _SECCOMP_ON[0]:
         _seccomp(_worker_rules(_getpid()))
-    _close_fds_but(ctl.fileno(), done_w)
+    _close_fds_but(ctl.fileno())
     mod, notes = _load_submission(job, attempts, ctl)
     _send_ready(ctl, job, mod, notes, attempts, _PROBE_ISO[0])
-    os.write(done_w, b"r")
     _exit(0)
+
+
+def _relay_probe(pid, probe_ctl, ctl, hook_busy):
+    """Pass the probe's messages on to the grader until ``ready``; then end the probe and return True.
+
+    The probe ran submission code, so after its ``ready`` it is killed (SIGKILL) and reaped before the
+    zygote serves a fork: whatever it left running cannot take requests or outlive the loading. Returns
+    False when the probe's socket closed first (the probe ended while loading).
+    """
+    import signal
+
+    while True:
+        try:
+            data = probe_ctl.recv(1 << 20)
+        except InterruptedError:
+            continue
+        except OSError:
+            data = b""
+        ready = False
+        if data:
+            try:
+                ready = _loads(data.decode("utf-8")).get("ev") == "ready"
+            except (ValueError, AttributeError, RecursionError):
+                pass
+        if ready or not data:  # a probe that closed its socket but lives on is ended as well: it is reaped next
+            hook_busy[0] = True  # the runner's own act, not the submission's (the audit hook refuses os.kill)
+            try:
+                os.kill(pid, signal.SIGKILL)  # not yet reaped: the pid is still the probe's
+            except OSError:
+                pass
+            finally:
+                hook_busy[0] = False
+        if not data:
+            return False
+        try:
+            ctl.send(data)
+        except OSError:
+            pass
+        if ready:
+            return True
 
 
 _PROBE_ISO = [None]
@@ -1494,6 +1546,8 @@ def main(argv):
     import array, ast, ctypes, ctypes.util, inspect, linecache, random, resource, select, signal, stat, struct, tempfile, time, traceback, types  # noqa: E401,F401,E501
 
     npx = frozen_numpy(np)
+    # the probe's own socket to this process (made now: the filter installed while isolating refuses socketpair)
+    probe_pair = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET) if job.get("fork_then_load", True) else None
     iso = {}
     _CTL_FD[0] = ctl_fd
     _LIBC[0] = _libc_early
@@ -1511,9 +1565,10 @@ def main(argv):
     iso["audit_hook"] = bool(job.get("audit", True))
     if job.get("fork_then_load", True):
         # the zygote never runs submission code: a probe child loads it once for the grader (statement deadlines,
-        # the ready message) and ends; each worker loads it again after it has isolated itself
+        # the ready message, passed on by _relay_probe, which then ends it); each worker loads it again after it
+        # has isolated itself
         _PROBE_ISO[0] = iso
-        done_r, done_w = os.pipe()
+        probe_ctl, probe_child = probe_pair
         try:  # as before each fork of a worker (the uid's process count may be capped at its soft limit)
             import resource
 
@@ -1526,24 +1581,17 @@ def main(argv):
         finally:
             hook_busy[0] = False
         if pid == 0:
-            os.close(done_r)
-            _run_then_exit(_probe, job, ctl, attempts, npx, hook_busy, done_w)
-        os.close(done_w)
-        got = b""
-        while True:
-            try:
-                chunk = os.read(done_r, 1)
-            except InterruptedError:
-                continue
-            got += chunk
-            break
-        os.close(done_r)
+            probe_ctl.close()
+            _run_then_exit(_probe, job, probe_child, attempts, npx, hook_busy)
+        probe_child.close()
+        ready = _relay_probe(pid, probe_ctl, ctl, hook_busy)
+        probe_ctl.close()
         code = 1
         try:
             code = os.waitstatus_to_exitcode(os.waitpid(pid, 0)[1])
         except (ChildProcessError, ValueError):
             pass
-        if got != b"r":  # the probe ended while loading (os._exit, a signal): the sandbox ends the same way
+        if not ready:  # the probe ended while loading (os._exit, a signal): the sandbox ends the same way
             if code < 0:
                 import signal
 

@@ -36,11 +36,30 @@ __all__ = ["find_submissions", "run_batch", "pick_submission_file"]
 _SUFFIXES = (".ipynb", ".py")
 
 
+def _linked(path, folder):
+    """True when ``path`` or a folder between ``folder`` and it is a symbolic link."""
+    p = Path(path)
+    while True:
+        if p.is_symlink():
+            return True
+        if p == Path(folder) or p.parent == p:
+            return False
+        p = p.parent
+
+
+#: why a symbolic link is never graded: it may point at another student's work or at the grader's own files
+_LINK_REASON = "a symbolic link (links are not followed: they may point at another student's work or the grader's files)"
+
+
 def pick_submission_file(folder, notebook_name=None):
-    """The file to grade in a submission folder, or ``(None, reason)``."""
-    files = sorted(p for p in Path(folder).rglob("*")
-                   if p.is_file() and p.suffix.lower() in _SUFFIXES
-                   and not any(part.startswith((".", "__MACOSX")) for part in p.relative_to(folder).parts))
+    """The file to grade in a submission folder, or ``(None, reason)``.
+
+    Symbolic links (to files or folders) are never followed: a submission is the files in its folder.
+    """
+    found = [p for p in Path(folder).rglob("*")
+             if not any(part.startswith((".", "__MACOSX")) for part in p.relative_to(folder).parts)]
+    files = sorted(p for p in found if p.suffix.lower() in _SUFFIXES and not _linked(p, folder) and p.is_file())
+    links = sorted(p for p in found if p.is_symlink() and (p.suffix.lower() in _SUFFIXES or p.is_dir()))
     if notebook_name:
         named = [p for p in files if p.name == notebook_name]
         if named:
@@ -52,21 +71,45 @@ def pick_submission_file(folder, notebook_name=None):
         if len(cand) > 1:
             names = ", ".join(p.name for p in cand)
             return None, f"several {suffix} files ({names}); submit only the exercise notebook"
+    if links:
+        return None, f"{links[0].relative_to(folder)} is {_LINK_REASON}; no other .ipynb or .py file in the submission"
     return None, "no .ipynb or .py file in the submission"
 
 
 def find_submissions(folder, notebook_name=None):
-    """``[(id, path or None, problem or None)]`` for every submission under ``folder``, sorted by id."""
+    """``[(id, path or None, problem or None)]`` for every submission under ``folder``, sorted by id.
+
+    An entry that is a symbolic link is listed with a problem and not graded. Two entries with the same id
+    (``ann.py`` and ``ann.ipynb``, or a folder ``ann`` and ``ann.py``) are one entry with a problem: one
+    id has one row and one results file.
+    """
     out = []
     for entry in sorted(Path(folder).iterdir()):
         if entry.name.startswith("."):
+            continue
+        if entry.is_symlink():
+            if entry.is_dir() or entry.suffix.lower() in _SUFFIXES:
+                out.append((entry.stem if entry.suffix.lower() in _SUFFIXES else entry.name, None,
+                            f"{entry.name} is {_LINK_REASON}"))
             continue
         if entry.is_file() and entry.suffix.lower() in _SUFFIXES:
             out.append((entry.stem, entry, None))
         elif entry.is_dir():
             path, why = pick_submission_file(entry, notebook_name)
             out.append((entry.name, path, why))
-    return out
+    names = {}
+    for sid, path, _ in out:
+        names.setdefault(sid, []).append(path)
+    listed, unique = set(), []
+    for sid, path, why in out:  # one row per id: a clash is one row with the problem, never graded
+        if sid in listed:
+            continue
+        listed.add(sid)
+        if len(names[sid]) > 1:
+            path, why = None, (f"{len(names[sid])} submissions have the id {sid!r} (a file and a folder, or a notebook "
+                               "and a Python file, of the same name): rename all but one")
+        unique.append((sid, path, why))
+    return unique
 
 
 def _fingerprint(path, problem):
@@ -142,9 +185,17 @@ def _write_csv(out_csv, rows, ex):
     writer.writeheader()
     for r in rows:
         r["percent"] = round(100.0 * float(r["score"]) / float(r["max_score"]), 2) if float(r["max_score"]) else 0.0
-        writer.writerow(r)
+        writer.writerow({k: _cell(v) for k, v in r.items()})
     write_text_atomic(out_csv, buf.getvalue())
     return rows
+
+
+def _cell(value):
+    """A CSV cell that a spreadsheet shows as text: a string a student chose (a file name, a message quoting it) that
+    starts like a formula (``=``, ``+``, ``-``, ``@``, a tab or carriage return) gets a leading apostrophe."""
+    if isinstance(value, str) and value[:1] in ("=", "+", "-", "@", "\t", "\r"):
+        return "'" + value
+    return value
 
 
 def _remove_stale_temporaries(*folders):

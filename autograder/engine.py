@@ -210,8 +210,12 @@ class _WorkerCaller:
                 if self.grading.ended_since(self.generation, exclude=self.fn):  # while this call waited its turn
                     out, blame = CallOutcome("crashed", error="the sandbox had ended before the call"), "before"
                 else:
+                    waited = getattr(self.worker, "load_seconds", 0.0)
                     out = self.worker.call(fn, args, kwargs, timeout=max(limit, 0.001), names=names,
                                            global_seed=global_seed)
+                    if self.budget is not None and getattr(self.worker, "load_seconds", 0.0) > waited:
+                        # a fresh worker's loading of the submission is no test's time and no function's
+                        self.budget.extend(self.worker.load_seconds - waited)
                     if out.status == "crashed" and self.worker.gone_before_call:
                         blame = "before"
                     elif out.status == "crashed" and self.worker.zygote_gone:

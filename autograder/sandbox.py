@@ -727,6 +727,8 @@ class Worker:
         self._out = bytearray()
         self._out_total = 0
         self.dead = False
+        self.loaded = False  # the worker's word that it has loaded the submission (its first frame) has come
+        self.load_seconds = 0.0  # how long the grader waited for that word (no call's time)
         self.zygote_gone = False  # set when the result pipe closed without the zygote's word on the worker's end
         self.gone_before_call = False  # set when not a byte of the request could be written: the worker had ended
 
@@ -754,6 +756,10 @@ class Worker:
             header["global_seed"] = int(global_seed)
         self._out = bytearray()
         self._out_total = 0
+        if not self.loaded:
+            failed = self._await_loaded()
+            if failed is not None:
+                return failed
         del self._res[:]  # bytes left over from an earlier call are no answer to this one
         deadline = time.monotonic() + timeout
         reply, rpayload, status, err = self._exchange(pack_frame(header, payload), deadline)
@@ -783,6 +789,82 @@ class Worker:
                                output=out, elapsed=r["elapsed"])
         return CallOutcome("ok", returned=r["returned"], mutated=r["mutated"], blocked=r["blocked"], output=out,
                            elapsed=r["elapsed"])
+
+    def _await_loaded(self):
+        """Wait (up to ``limits.import_timeout``) for the worker's first frame, ``{"status": "loaded"}``.
+
+        A worker loads the submission again after it is forked (its top-level code runs in every worker), and
+        that time is no call's: the first call's deadline starts when the word has come. Returns None then,
+        else the first call's outcome (the worker ended while loading, took too long, or sent something else).
+        """
+        t0 = time.monotonic()
+        deadline = t0 + self.limits.import_timeout
+        sel = selectors.DefaultSelector()
+        try:
+            sel.register(self._res_r, selectors.EVENT_READ, "res")
+            sel.register(self._out_r, selectors.EVENT_READ, "out")
+            while True:
+                try:
+                    got = parse_result_frame(self._res)
+                except ProtocolError as exc:
+                    status, err = "protocol", str(exc)
+                    break
+                if got is not None:
+                    header, _, used = got
+                    del self._res[:used]
+                    if header == {"status": "loaded"}:
+                        status, err = "ok", None
+                    elif header.get("status") == "exited":  # written by the zygote: the worker ended while loading
+                        self._drain_output()
+                        status, err = "eof", str(header.get("exit"))[:100]
+                    else:
+                        status, err = "protocol", "a result arrived before the request was sent"
+                    break
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    status, err = "timeout", None
+                    break
+                res_closed = False
+                for key, _ in sel.select(timeout=min(left, 1.0)):
+                    if key.data == "res":
+                        try:
+                            chunk = os.read(self._res_r, 1 << 16)
+                        except BlockingIOError:
+                            continue
+                        if not chunk:
+                            res_closed = True
+                        else:
+                            self._res.extend(chunk)
+                            if len(self._res) > wire.MAX_PAYLOAD + wire.MAX_HEADER + 64:
+                                res_closed = None
+                    elif self._read_output() is False:
+                        sel.unregister(self._out_r)
+                if res_closed is None:
+                    status, err = "protocol", "result too large"
+                    break
+                if res_closed and not self._res:  # the zygote holds this pipe too: it is gone
+                    self.zygote_gone = True
+                    self._drain_output()
+                    status, err = "eof", "the process ended"
+                    break
+        finally:
+            sel.close()
+            self.load_seconds = time.monotonic() - t0
+        if status == "ok":
+            self.loaded = True
+            return None
+        out = self._output_text()
+        self.close()
+        if status == "timeout":
+            return CallOutcome("timeout", output=out, error=(
+                f"the process for this function did not finish loading the submission within "
+                f"{self.limits.import_timeout:g} s (every function's process runs the top-level code again: "
+                "put experiments under `if __name__ == \"__main__\":`)"))
+        if status == "eof":
+            self.gone_before_call = True  # it ended before the call was sent: no call's doing
+            return CallOutcome("crashed", output=out,
+                               error=f"the process for this function ended while loading the submission ({err})")
+        return CallOutcome("protocol", output=out, error=f"the grader could not read the function's result ({err})")
 
     def ended_between_calls(self):
         """True when the worker ended after its last call returned: its result pipe is closed, or bytes are waiting

@@ -17,7 +17,9 @@ from __future__ import annotations
 import ast
 import builtins
 import json
+import os
 import re
+import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -94,11 +96,19 @@ def load_submission(path):
         If the file is missing, not a readable notebook, or of another type.
     """
     path = Path(path)
+    if path.is_symlink():
+        # the grader may run as root: a link could make it read (and echo) its own files or another student's
+        raise SubmissionError(f"{path.name}: a symbolic link, not a file (links are not followed; grade the file "
+                              "itself)")
     if not path.is_file():
         raise SubmissionError(f"{path.name}: no such file")
     suffix = path.suffix.lower()
     try:
-        raw = path.read_bytes()
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)  # the check above may race a new link
+        with os.fdopen(fd, "rb") as fh:
+            if not stat.S_ISREG(os.fstat(fh.fileno()).st_mode):
+                raise SubmissionError(f"{path.name}: not a regular file")
+            raw = fh.read((50 << 20) + 1)
     except OSError as exc:
         raise SubmissionError(f"{path.name}: cannot be read ({exc})") from None
     if len(raw) > 50 << 20:
@@ -107,7 +117,13 @@ def load_submission(path):
         text = decode_python_source(raw, path.name)
         sub = Submission(path, "python", [{"source": text, "filename": path.name, "label": path.name}])
     elif suffix == ".ipynb":
-        sub = _load_notebook(path, raw)
+        try:
+            sub = _load_notebook(path, raw)
+        except SubmissionError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - any value of the untrusted JSON the reader did not expect
+            raise SubmissionError(f"{path.name}: not a readable Jupyter notebook ({type(exc).__name__}: "
+                                  f"{str(exc)[:200]})") from None
     else:
         raise SubmissionError(f"{path.name}: unsupported file type (submit the exercise notebook .ipynb or a .py file)")
     from .seeds import content_hash
@@ -166,12 +182,13 @@ def _load_notebook(path, raw):
     units = []
     code_index = 0
     for cell in nb.cells:
-        if cell.get("cell_type") != "code":
+        if not isinstance(cell, dict) or cell.get("cell_type") != "code":
             continue
         code_index += 1
         label = f"code cell {code_index}"
-        tags = cell.get("metadata", {}).get("tags", []) or []
-        if SKIP_TAG in tags:
+        meta = cell.get("metadata")
+        tags = meta.get("tags") if isinstance(meta, dict) else None  # untrusted: any JSON value
+        if isinstance(tags, list) and SKIP_TAG in [t for t in tags if isinstance(t, str)]:
             continue
         source = cell.get("source", "")
         if isinstance(source, list):
@@ -182,7 +199,8 @@ def _load_notebook(path, raw):
         if not source.strip():
             continue
         units.append({"source": source, "filename": f"{path.name}, {label}", "label": label})
-    meta = nb.get("metadata", {}).get("slam_course", {})
+    meta = nb.get("metadata")
+    meta = meta.get("slam_course") if isinstance(meta, dict) else None
     exercise = meta.get("exercise") if isinstance(meta, dict) else None
     sub = Submission(path, "notebook", units, exercise if isinstance(exercise, str) else None, notes)
     return sub

@@ -435,6 +435,47 @@ def test_signalling_process_1_or_the_zygote_costs_only_that_function(tmp_path, a
     assert scores[TARGET][0] == scores[TARGET][1], result.text_report()
 
 
+HIJACK = """import json, os, sys
+def who():
+    print(json.dumps({"pid": os.getpid()}))
+    return 1.0
+def _hijack():
+    # the probe that loads the submission for the grader: keep its control socket, say ready, never finish loading
+    f = sys._getframe()
+    while f is not None and f.f_code.co_name != "_probe":
+        f = f.f_back
+    if f is None:  # a worker loads the submission too: nothing to take there
+        return
+    g, loc = f.f_globals, f.f_locals
+    g["_send_ready"](loc["ctl"], loc["job"], sys.modules["submission"], [], loc["attempts"], {})
+    import time
+    while True:
+        time.sleep(1)
+_hijack()
+"""
+
+
+def test_the_process_that_loads_the_submission_for_the_grader_cannot_take_the_forks():
+    """The probe's code says ready on its own and stays: it is ended before any fork, and every call runs in a
+    worker of its own (the probe once held the socket fork requests came on, and one process served them all)."""
+    lim = Limits(call_timeout=5.0, import_timeout=15.0)
+    outs, ready = _sandbox_output(HIJACK, ["who"], [("who", []), ("who", [])], lim)
+    pids = [_json_of(o)["pid"] for o in outs]  # each call answered, each by a worker of its own
+    assert pids[0] != pids[1], pids
+
+
+def test_slow_top_level_code_is_no_function_s_time(tmp_path):
+    """Every worker runs the top-level code again after it is forked: that time must not count against the first
+    call's deadline (statements of 1.5 s, a call limit of 1 s: correct code once scored 0)."""
+    text = solution_text("particle_filter") + "\nimport time\nfor _ in range(2):\n    time.sleep(0.75)\n"
+    path = tmp_path / "experiments.py"
+    path.write_text(text)
+    lim = Limits(call_timeout=1.0, statement_timeout=5.0, import_timeout=20.0)
+    result = grade(path, "particle_filter", limits=lim, functions=[OTHER])
+    got, top = result.by_function()[OTHER]
+    assert got == top > 0, result.text_report()
+
+
 def test_process_1_runs_no_submission_code():
     iso = _require("pidns", "init")
     src = ("import os, json\ndef who():\n"
@@ -451,9 +492,9 @@ KEYS = r'''
 import ctypes, json, os
 libc = ctypes.CDLL(None, use_errno=True)
 NR = {{"x86_64": dict(add_key=248, request_key=249, keyctl=250, unshare=272, setns=308, ptrace=101, bpf=321,
-                     perf_event_open=298, io_uring_setup=425, mount=165, userfaultfd=323),
+                     perf_event_open=298, io_uring_setup=425, mount=165, userfaultfd=323, memfd_create=319),
       "aarch64": dict(add_key=217, request_key=218, keyctl=219, unshare=97, setns=268, ptrace=117, bpf=280,
-                      perf_event_open=241, io_uring_setup=425, mount=40, userfaultfd=282)}}[os.uname().machine]
+                      perf_event_open=241, io_uring_setup=425, mount=40, userfaultfd=282, memfd_create=279)}}[os.uname().machine]
 GRADER_KEY = {grader_key}
 PROBE_KERNEL = {kernel}
 
@@ -493,6 +534,11 @@ def _kernel():
     out["io_uring_setup"] = call("io_uring_setup", 1, None)
     out["mount"] = call("mount", b"none", b"/tmp", b"tmpfs", 0, None)
     out["userfaultfd"] = call("userfaultfd", 0)
+    # memory outside RLIMIT_AS and the sandbox's tmpfs caps: anonymous memory files, pipes grown (F_SETPIPE_SZ)
+    out["memfd_create"] = call("memfd_create", b"held", 0)
+    r, w = os.pipe()
+    grown = libc.fcntl(w, 1031, 1 << 20)
+    out["pipe_grown"] = [grown, ctypes.get_errno() if grown < 0 else 0]
     out["at_load_search"], out["at_load_unshare_user"] = AT_LOAD[:2], AT_LOAD[2:]
     return out
 

@@ -475,3 +475,79 @@ def test_hanging_cell_is_skipped_and_the_other_cells_count(tmp_path):
     notes = "\n".join(result.notes)
     assert "code cell 2, line 2: did not finish within 1.5 s" in notes
     assert "code cell 4, line 1: did not finish within 1.5 s" in notes
+
+
+# --------------------------------------------------------------------------- 9. files a student controls
+def test_a_symbolic_link_is_never_graded_as_a_submission(tmp_path):
+    """A link would make the grader (often root) read another student's work or its own secret as the submission,
+    and echo it in a load note: links to files and to folders are refused in every way in."""
+    from autograder.batch import find_submissions, pick_submission_file
+    from autograder.submission import SubmissionError, load_submission
+
+    secret = tmp_path / "grading_secret"
+    secret.write_text("a2c4864d9b54d97\n")
+    subs = tmp_path / "subs"
+    (subs / "alice").mkdir(parents=True)
+    (subs / "alice" / "my_solution.py").write_text(solution_text("particle_filter"))
+    (subs / "mallory").mkdir()
+    (subs / "mallory" / "mine.py").symlink_to(subs / "alice" / "my_solution.py")
+    (subs / "carol.py").symlink_to(secret)
+    (subs / "dave").symlink_to(subs / "alice", target_is_directory=True)
+    (subs / "erin").mkdir()
+    (subs / "erin" / "work").symlink_to(subs / "alice", target_is_directory=True)
+    got = {sid: (path, why) for sid, path, why in find_submissions(subs)}
+    assert got["alice"] == (subs / "alice" / "my_solution.py", None)
+    for sid in ("mallory", "carol", "dave", "erin"):
+        assert got[sid][0] is None and "symbolic link" in got[sid][1], (sid, got[sid])
+    assert pick_submission_file(subs / "mallory")[0] is None
+    with pytest.raises(SubmissionError, match="symbolic link"):
+        load_submission(subs / "carol.py")
+    root = tmp_path / "gs"  # a Gradescope root whose submission is a link to the grader's own secret
+    (root / "submission").mkdir(parents=True)
+    (root / "submission" / "solution.py").symlink_to(secret)
+    env = {**os.environ, "PYTHONPATH": str(AG_ROOT)}
+    p = subprocess.run([sys.executable, "-m", "autograder", "gradescope", "--root", str(root), "-e", "particle_filter"],
+                       capture_output=True, text=True, cwd=str(AG_ROOT), env=env, timeout=300)
+    out = (root / "results" / "results.json").read_text()
+    assert "a2c4864d9b54d97" not in out + p.stdout + p.stderr and "symbolic link" in out, out
+
+
+def test_two_entries_with_one_id_are_one_row_and_not_graded(tmp_path):
+    from autograder.batch import find_submissions
+
+    (tmp_path / "dave.py").write_text(solution_text("particle_filter"))
+    (tmp_path / "dave.ipynb").write_text("{}")
+    (tmp_path / "erin").mkdir()
+    (tmp_path / "erin" / "a.py").write_text("x = 1\n")
+    (tmp_path / "erin.py").write_text("x = 2\n")
+    got = find_submissions(tmp_path)
+    assert [sid for sid, _, _ in got] == ["dave", "erin"]
+    assert all(path is None and "have the id" in why for _, path, why in got), got
+
+
+def test_csv_cells_a_student_names_are_not_spreadsheet_formulas():
+    from autograder.batch import _cell
+
+    assert _cell('=HYPERLINK("http://x","y")') == '\'=HYPERLINK("http://x","y")'
+    assert [_cell(v) for v in ("+1", "-rf", "@sum", "\tx", "alice", 100.0, "")] == \
+        ["'+1", "'-rf", "'@sum", "'\tx", "alice", 100.0, ""]
+
+
+@pytest.mark.parametrize("meta", [{"tags": 5}, {"tags": "skip-grading"}, {"tags": [5, None]}, [], "x", None])
+def test_any_cell_metadata_reads_as_no_tags(tmp_path, meta):
+    """The cell's metadata is the student's JSON: a value of another type is no tag (and never a grader error)."""
+    from autograder.submission import load_submission
+
+    cell = {"cell_type": "code", "execution_count": None, "metadata": meta, "outputs": [],
+            "source": solution_text("particle_filter")}
+    nb = {"cells": [cell], "metadata": {}, "nbformat": 4, "nbformat_minor": 5}
+    path = tmp_path / "nb.ipynb"
+    path.write_text(json.dumps(nb))
+    try:
+        sub = load_submission(path)
+    except Exception as exc:  # noqa: BLE001 - the reader may refuse it, as a SubmissionError only
+        from autograder.submission import SubmissionError
+
+        assert isinstance(exc, SubmissionError), type(exc)
+        return
+    assert len(sub.units) == 1
