@@ -286,7 +286,7 @@ def _build_root(fs, iso, libc):
     # made there, a conda prefix) are bound inside it below instead of being hidden by it
     os.makedirs(f"{R}/tmp", mode=0o755)
     _check(libc, libc.mount(b"tmpfs", f"{R}/tmp".encode(), b"tmpfs", ro_fl,
-                            f"size={fs.get('tmp_size', '64m')},mode=1777".encode()), "private /tmp")
+                            f"size={fs.get('tmp_size', '64m')},nr_inodes=4096,mode=1777".encode()), "private /tmp")
 
     def mkpoint(dst, isdir):
         if isdir:
@@ -341,7 +341,7 @@ def _build_root(fs, iso, libc):
                    f"/dev/{name}")
     os.makedirs(f"{R}/dev/shm", mode=0o755)
     _check(libc, libc.mount(b"tmpfs", f"{R}/dev/shm".encode(), b"tmpfs", ro_fl,
-                            f"size={fs.get('shm_size', '16m')},mode=1777".encode()), "private /dev/shm")
+                            f"size={fs.get('shm_size', '16m')},nr_inodes=1024,mode=1777".encode()), "private /dev/shm")
     for name, target in (("fd", "/proc/self/fd"), ("stdin", "/proc/self/fd/0"), ("stdout", "/proc/self/fd/1"),
                          ("stderr", "/proc/self/fd/2")):
         os.symlink(target, f"{R}/dev/{name}")
@@ -578,7 +578,8 @@ _NR_X86_64 = {
     "personality": 135, "fcntl": 72, "ioctl": 16, "fanotify_init": 300, "quotactl_fd": 443, "setdomainname": 171,
     "sethostname": 170, "settimeofday": 164, "clock_settime": 227, "adjtimex": 159, "clock_adjtime": 305,
     "migrate_pages": 256, "move_pages": 279, "mbind": 237, "nfsservctl": 180, "uselib": 134,
-    "memfd_create": 319, "memfd_secret": 447,
+    "memfd_create": 319, "memfd_secret": 447, "setxattr": 188, "lsetxattr": 189, "fsetxattr": 190,
+    "setxattrat": 463,
 }
 _NR_AARCH64 = {
     "keyctl": 219, "add_key": 217, "request_key": 218, "unshare": 97, "setns": 268, "clone": 220, "clone3": 435,
@@ -597,12 +598,14 @@ _NR_AARCH64 = {
     "fcntl": 25, "ioctl": 29, "fanotify_init": 262, "quotactl_fd": 443, "setdomainname": 162, "sethostname": 161,
     "settimeofday": 170,
     "clock_settime": 112, "adjtimex": 171, "clock_adjtime": 266, "migrate_pages": 238, "move_pages": 239,
-    "mbind": 235, "memfd_create": 279, "memfd_secret": 447,
+    "mbind": 235, "memfd_create": 279, "memfd_secret": 447, "setxattr": 5, "lsetxattr": 6, "fsetxattr": 7,
+    "setxattrat": 463,
 }
 
 #: what a numerical function never needs: kernel keyrings, namespaces, tracing, BPF, io_uring, mounts,
 #: other processes' memory, kernel modules, SysV and POSIX IPC, socket pairs, anonymous memory files (memfd:
-#: their pages count against no RLIMIT_AS and no tmpfs cap of the sandbox), clock and host settings; sockets
+#: their pages count against no RLIMIT_AS and no tmpfs cap of the sandbox) and extended attributes (kernel memory
+#: too; the tmpfs mounts also cap their inodes), clock and host settings; sockets
 #: other than IPv4/IPv6 (UNIX, netlink, packet, AF_ALG ...: see _base_rules), which the network namespace
 #: leaves without a route
 DENIED = ("keyctl", "add_key", "request_key", "unshare", "setns", "ptrace", "bpf", "perf_event_open",
@@ -615,7 +618,8 @@ DENIED = ("keyctl", "add_key", "request_key", "unshare", "setns", "ptrace", "bpf
           "msgget", "msgsnd", "msgrcv", "msgctl", "mq_open", "mq_unlink", "mq_timedsend", "mq_timedreceive",
           "mq_notify", "mq_getsetattr", "socketpair", "fanotify_init", "setdomainname", "sethostname",
           "settimeofday", "clock_settime", "adjtimex", "clock_adjtime", "migrate_pages", "move_pages", "mbind",
-          "nfsservctl", "uselib", "personality", "memfd_create", "memfd_secret")
+          "nfsservctl", "uselib", "personality", "memfd_create", "memfd_secret", "setxattr", "lsetxattr",
+          "fsetxattr", "setxattrat")
 #: namespace flags of clone(): a process may fork, not make new namespaces
 CLONE_NS_FLAGS = (0x00020000, 0x02000000, 0x04000000, 0x08000000, 0x10000000, 0x20000000, 0x40000000)
 EPERM, ENOSYS = 1, 38
@@ -1036,6 +1040,9 @@ def _load_submission(job, attempts, ctl):
             notes.append(f"{label}: syntax error at line {getattr(exc, 'lineno', '?')}: "
                          f"{getattr(exc, 'msg', exc)} (skipped)")
             continue
+        except (RecursionError, MemoryError):
+            notes.append(f"{label}: too deeply nested for Python's parser (skipped)")
+            continue
         for i, stmt in enumerate(tree.body):
             if (k, i) in skip:
                 continue
@@ -1277,7 +1284,7 @@ def _probe(job, ctl, attempts, npx, hook_busy):
     _exit(0)
 
 
-def _relay_probe(pid, probe_ctl, ctl, hook_busy):
+def _relay_probe(pid, probe_ctl, ctl, hook_busy, iso):
     """Pass the probe's messages on to the grader until ``ready``; then end the probe and return True.
 
     The probe ran submission code, so after its ``ready`` it is killed (SIGKILL) and reaped before the
@@ -1296,8 +1303,12 @@ def _relay_probe(pid, probe_ctl, ctl, hook_busy):
         ready = False
         if data:
             try:
-                ready = _loads(data.decode("utf-8")).get("ev") == "ready"
-            except (ValueError, AttributeError, RecursionError):
+                msg = _loads(data.decode("utf-8"))
+                ready = msg.get("ev") == "ready"
+                if ready:  # which protections hold is this process's word, never the submission's
+                    msg["isolation"] = iso
+                    data = _dumps(msg, allow_nan=True, separators=(",", ":")).encode("utf-8")
+            except (ValueError, AttributeError, RecursionError, TypeError):
                 pass
         if ready or not data:  # a probe that closed its socket but lives on is ended as well: it is reaped next
             hook_busy[0] = True  # the runner's own act, not the submission's (the audit hook refuses os.kill)
@@ -1584,7 +1595,7 @@ def main(argv):
             probe_ctl.close()
             _run_then_exit(_probe, job, probe_child, attempts, npx, hook_busy)
         probe_child.close()
-        ready = _relay_probe(pid, probe_ctl, ctl, hook_busy)
+        ready = _relay_probe(pid, probe_ctl, ctl, hook_busy, iso)
         probe_ctl.close()
         code = 1
         try:

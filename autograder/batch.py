@@ -190,6 +190,20 @@ def _write_csv(out_csv, rows, ex):
     return rows
 
 
+def results_file(results_dir, sid):
+    """``results_dir / "<id>.json"``, with an id too long for a file name (255 bytes, and the atomic write's
+    temporary name around it) cut to its first 100 characters and a hash of the whole, so that it still fits."""
+    name = sid
+    if len(sid.encode("utf-8")) > 200:
+        import hashlib
+
+        name = sid[:100]
+        while len(name.encode("utf-8")) > 180:
+            name = name[:-1]
+        name = f"{name}-{hashlib.sha256(sid.encode('utf-8', 'surrogateescape')).hexdigest()[:16]}"
+    return Path(results_dir) / f"{name}.json"
+
+
 def _cell(value):
     """A CSV cell that a spreadsheet shows as text: a string a student chose (a file name, a message quoting it) that
     starts like a formula (``=``, ``+``, ``-``, ``@``, a tab or carriage return) gets a leading apostrophe."""
@@ -247,7 +261,7 @@ def run_batch(folder, exercise, *, out_csv="grades.csv", jobs=2, results_dir=Non
     rows, todo = [], []
     for sid, path, why in subs:
         fp = _fingerprint(path, why)
-        old = None if restart else read_results(results_dir / f"{sid}.json")
+        old = None if restart else read_results(results_file(results_dir, sid))
         extra = (old or {}).get("extra_data") or {}
         if (old and extra.get("submission_sha256") == fp and extra.get("exercise") == exercise
                 and isinstance(extra.get("batch_row"), dict) and (seed is None or extra.get("seed") == seed)
@@ -274,7 +288,7 @@ def run_batch(folder, exercise, *, out_csv="grades.csv", jobs=2, results_dir=Non
         if todo:
             pool = ProcessPoolExecutor(max_workers=max(1, int(jobs)), mp_context=ctx, initializer=_worker_init,
                                        initargs=(os.getpid(),))
-            futures = {pool.submit(_grade_one, sid, path, why, exercise, results_dir / f"{sid}.json", limits, fp,
+            futures = {pool.submit(_grade_one, sid, path, why, exercise, results_file(results_dir, sid), limits, fp,
                                    seed): sid for sid, path, why, fp in todo}
             pending = set(futures)
             while pending:
@@ -288,7 +302,11 @@ def run_batch(folder, exercise, *, out_csv="grades.csv", jobs=2, results_dir=Non
                                "status": "grader-error", "message": f"{type(exc).__name__}: {exc}"}
                         row.update({fn: 0.0 for fn in ex.functions})
                         rows.append(row)
-                        write_json_atomic(results_dir / f"{sid}.json", fallback_results(f"grading failed: {exc}"))
+                        try:  # the row above is what counts: a file that cannot be written does not stop the batch
+                            write_json_atomic(results_file(results_dir, sid),
+                                              fallback_results(f"grading failed: {exc}"))
+                        except OSError:
+                            pass
                     if bar is not None:
                         bar.update(1)
                 if done:

@@ -145,6 +145,12 @@ class Budget:
             limit, reason = self.deadline - now, "submission"
         return limit, reason
 
+    def forgive(self, seconds):
+        """Give the current test back ``seconds`` (a fresh worker's loading of the submission): the submission's own
+        budget stays a hard cap."""
+        if self.test_deadline is not None:
+            self.test_deadline += seconds
+
     def extend(self, seconds):
         """Give back ``seconds`` the function spent waiting for other functions' calls (not its own time)."""
         self.deadline += seconds
@@ -171,6 +177,7 @@ class _WorkerCaller:
         self.timed_out = False
         self.broken = None
         self.generation = None
+        self.load_forgiven = False  # the first worker's loading of the submission was given back to the test
         self.retried = False  # a call of this function was run again after a death shared with other calls
         self.forgiven = False  # ... after a death during its call alone
 
@@ -213,9 +220,13 @@ class _WorkerCaller:
                     waited = getattr(self.worker, "load_seconds", 0.0)
                     out = self.worker.call(fn, args, kwargs, timeout=max(limit, 0.001), names=names,
                                            global_seed=global_seed)
-                    if self.budget is not None and getattr(self.worker, "load_seconds", 0.0) > waited:
-                        # a fresh worker's loading of the submission is no test's time and no function's
-                        self.budget.extend(self.worker.load_seconds - waited)
+                    if (self.budget is not None and not self.load_forgiven
+                            and getattr(self.worker, "load_seconds", 0.0) > waited):
+                        # the function's first worker loading the submission is no test's time (never the
+                        # call's: its deadline starts after); once per function, so a submission that makes its
+                        # workers end and load again and again pays for it from its budgets
+                        self.budget.forgive(self.worker.load_seconds - waited)
+                        self.load_forgiven = True
                     if out.status == "crashed" and self.worker.gone_before_call:
                         blame = "before"
                     elif out.status == "crashed" and self.worker.zygote_gone:

@@ -1067,7 +1067,8 @@ def describe_isolation(iso):
     if iso.get("seccomp"):
         lines.append(f"system calls: seccomp filter ({iso.get('seccomp_backend', '?')}) refuses keyrings, new "
                      "namespaces, ptrace, bpf, perf events, io_uring, mounts, other processes' memory, kernel modules, "
-                     "SysV/POSIX IPC and sockets; workers may signal only themselves")
+                     "SysV/POSIX IPC, sockets, memory files, extended attributes and grown pipes (memory no limit "
+                     "counts); workers may signal only themselves")
     else:
         lines.append("system calls: NO seccomp filter (" + str(iso.get("seccomp_error", "unavailable")) + ")")
     lines.append("kernel keyrings: " + ("a fresh session keyring per sandbox" if iso.get("session_keyring")

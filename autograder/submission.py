@@ -139,6 +139,10 @@ def load_submission(path):
         except ValueError as exc:  # null bytes
             sub.syntax_errors[unit["label"]] = str(exc)
             sub.notes.append(f"{unit['label']}: {exc}")
+        except (RecursionError, MemoryError):  # an expression nested too deeply for the parser
+            msg = "too deeply nested for Python's parser"
+            sub.syntax_errors[unit["label"]] = msg
+            sub.notes.append(f"{unit['label']}: {msg} -- nothing in it can be graded")
     return sub
 
 
@@ -269,7 +273,7 @@ def forbidden_usage(units, functions):
     for unit in units:
         try:
             tree = ast.parse(unit["source"], filename=unit["filename"])
-        except (SyntaxError, ValueError):
+        except (SyntaxError, ValueError, RecursionError, MemoryError):
             continue
         for stmt in _module_level(tree.body):
             where = f"{unit['label']} line {stmt.lineno}"

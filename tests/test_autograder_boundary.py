@@ -476,6 +476,18 @@ def test_slow_top_level_code_is_no_function_s_time(tmp_path):
     assert got == top > 0, result.text_report()
 
 
+FORGED_ISOLATION = HIJACK.replace('loc["attempts"], {})', 'loc["attempts"], {"FORGED": True, "seccomp": True})')
+
+
+def test_which_protections_held_is_never_the_submission_s_word():
+    """The probe runs submission code, which can send its own ready message: the isolation report in it is replaced
+    by the sandbox's own before the grader reads it."""
+    assert FORGED_ISOLATION != HIJACK
+    _, ready = _sandbox_output(FORGED_ISOLATION, ["who"], [], Limits(call_timeout=5.0, import_timeout=15.0))
+    iso = ready["isolation"]
+    assert "FORGED" not in iso and "audit_hook" in iso, iso  # the sandbox's own report, whole
+
+
 def test_process_1_runs_no_submission_code():
     iso = _require("pidns", "init")
     src = ("import os, json\ndef who():\n"
@@ -492,9 +504,11 @@ KEYS = r'''
 import ctypes, json, os
 libc = ctypes.CDLL(None, use_errno=True)
 NR = {{"x86_64": dict(add_key=248, request_key=249, keyctl=250, unshare=272, setns=308, ptrace=101, bpf=321,
-                     perf_event_open=298, io_uring_setup=425, mount=165, userfaultfd=323, memfd_create=319),
+                     perf_event_open=298, io_uring_setup=425, mount=165, userfaultfd=323, memfd_create=319,
+                     setxattr=188),
       "aarch64": dict(add_key=217, request_key=218, keyctl=219, unshare=97, setns=268, ptrace=117, bpf=280,
-                      perf_event_open=241, io_uring_setup=425, mount=40, userfaultfd=282, memfd_create=279)}}[os.uname().machine]
+                      perf_event_open=241, io_uring_setup=425, mount=40, userfaultfd=282, memfd_create=279,
+                      setxattr=5)}}[os.uname().machine]
 GRADER_KEY = {grader_key}
 PROBE_KERNEL = {kernel}
 
@@ -539,6 +553,9 @@ def _kernel():
     r, w = os.pipe()
     grown = libc.fcntl(w, 1031, 1 << 20)
     out["pipe_grown"] = [grown, ctypes.get_errno() if grown < 0 else 0]
+    import tempfile
+    fd, name = tempfile.mkstemp()
+    out["setxattr"] = call("setxattr", name.encode(), b"user.held", b"x" * 4096, 4096, 0)  # kernel memory per file
     out["at_load_search"], out["at_load_unshare_user"] = AT_LOAD[:2], AT_LOAD[2:]
     return out
 
@@ -859,6 +876,44 @@ class _DyingWorker:
 
     def close(self):
         self.dead = True
+
+
+class _SlowLoadingWorker:
+    """A fresh worker that took 3 s to load the submission and, after its answer, looks ended (as a worker does
+    that writes a stray byte after each answer): every call gets a fresh one."""
+
+    dead, zygote_gone, gone_before_call = False, False, False
+
+    def __init__(self):
+        self.load_seconds = 0.0
+
+    def ended_between_calls(self):
+        return True
+
+    def call(self, *args, **kwargs):
+        self.load_seconds = 3.0
+        return sandbox_mod.CallOutcome("ok", returned=None)
+
+    def close(self):
+        self.dead = True
+
+
+def test_a_worker_s_loading_is_given_back_once_per_function_and_never_to_the_submission():
+    """A fresh worker loads the submission again, and that wait is no call's time. It is given back to the test's
+    budget for the function's first worker only, and never to the submission's: a submission whose workers end
+    after every answer and load slowly again pays for it (it once stretched a grading 20 times past its budget)."""
+    box = _DeadBox()
+    box.dead = False
+    box.fork_worker = lambda: _SlowLoadingWorker()
+    g = _grading_with(box, {}, reloads=0)
+    budget = engine_mod.Budget(test_budget=30.0, submission_budget=240.0)
+    budget.start_test()
+    test_deadline, submission_deadline = budget.test_deadline, budget.deadline
+    caller = engine_mod._WorkerCaller(g, "ekf_predict", budget)
+    for _ in range(5):
+        assert caller.call("ekf_predict", [1.0], {}, timeout=1.0).status == "ok"
+    assert budget.deadline == submission_deadline  # the submission's budget is a hard cap
+    assert budget.test_deadline == test_deadline + 3.0  # one loading given back, not five
 
 
 def test_a_call_that_ends_the_sandbox_counts_as_under_way_until_its_death_is_judged(monkeypatch):

@@ -551,3 +551,39 @@ def test_any_cell_metadata_reads_as_no_tags(tmp_path, meta):
         assert isinstance(exc, SubmissionError), type(exc)
         return
     assert len(sub.units) == 1
+
+
+def test_a_file_name_too_long_for_a_results_file_is_graded_like_any_other(tmp_path):
+    """The results file of an id of 237 characters would need a temporary name over 255 bytes: the batch once
+    stopped there, on every rerun, without writing grades.csv."""
+    from autograder.batch import results_file
+
+    subs = tmp_path / "subs"
+    subs.mkdir()
+    long_id = "0" * 237
+    (subs / f"{long_id}.py").write_text(solution_text("particle_filter"))
+    out = tmp_path / "grades.csv"
+    for _ in range(2):  # a rerun reads the results file back
+        p = _run_batch(subs, out, "--jobs", "1", timeout=300)
+        assert p.returncode == 0, p.stderr[-2000:]
+        rows = {r["submission"]: r for r in csv.DictReader(out.open())}
+        assert float(rows[long_id]["score"]) == 100, rows
+    name = results_file(tmp_path, long_id).name
+    assert len(name.encode()) <= 205 and results_file(tmp_path, long_id) != results_file(tmp_path, "0" * 238)
+    assert results_file(tmp_path, "alice").name == "alice.json"
+
+
+def test_code_nested_too_deeply_for_the_parser_is_a_cell_that_cannot_be_read(tmp_path):
+    from autograder.submission import load_submission
+
+    deep = "_x = " + "+".join(["1"] * 5000) + "\n"
+    nb = {"cells": [{"cell_type": "code", "execution_count": None, "metadata": {}, "outputs": [],
+                     "source": solution_text("particle_filter")},
+                    {"cell_type": "code", "execution_count": None, "metadata": {}, "outputs": [], "source": deep}],
+          "metadata": {}, "nbformat": 4, "nbformat_minor": 5}
+    path = tmp_path / "deep.ipynb"
+    path.write_text(json.dumps(nb))
+    sub = load_submission(path)
+    assert list(sub.syntax_errors.values()) == ["too deeply nested for Python's parser"], sub.syntax_errors
+    result = grade(path, "particle_filter")
+    assert result.score == result.max_score, result.text_report()

@@ -317,8 +317,9 @@ def normalize_log_weights(log_w):
 @pytest.mark.parametrize("message", [
     b'{"ev": "ready", "notes": ' + DEEP + b"}",
     b'{"ev": "ready", "notes": 7, "functions": {}, "isolation": {}}',
-    b'{"ev": "ready", "notes": [], "functions": {}, "isolation": {"uid": NaN}}',
-], ids=["deep", "notes-int", "nan-isolation"])
+    # (a NaN in "isolation" no longer reaches the grader: the sandbox puts its own report in every ready message)
+    b'{"ev": "ready", "notes": [], "functions": {"normalize_log_weights": {"defined": NaN}}, "isolation": {}}',
+], ids=["deep", "notes-int", "nan-functions"])
 def test_forged_control_messages_cost_points_not_the_grading(message, tmp_path):
     """Finding 6: exit 0, results.json written, every test present at its max_score (the forger's tests at 0)."""
     path = tmp_path / "forger.py"
