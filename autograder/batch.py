@@ -54,8 +54,11 @@ _LINK_REASON = "a symbolic link (links are not followed: they may point at anoth
 def pick_submission_file(folder, notebook_name=None):
     """The file to grade in a submission folder, or ``(None, reason)``.
 
-    Symbolic links (to files or folders) are never followed: a submission is the files in its folder.
+    Symbolic links (to files or folders, the folder itself included) are never followed: a submission is
+    the files in its folder.
     """
+    if Path(folder).is_symlink():
+        return None, f"the submission folder {Path(folder).name} is {_LINK_REASON}"
     found = [p for p in Path(folder).rglob("*")
              if not any(part.startswith((".", "__MACOSX")) for part in p.relative_to(folder).parts)]
     files = sorted(p for p in found if p.suffix.lower() in _SUFFIXES and not _linked(p, folder) and p.is_file())

@@ -842,7 +842,7 @@ class Worker:
                 if res_closed is None:
                     status, err = "protocol", "result too large"
                     break
-                if res_closed and not self._res:  # the zygote holds this pipe too: it is gone
+                if res_closed:  # the zygote holds this pipe too (it reports a worker's end on it): it is gone
                     self.zygote_gone = True
                     self._drain_output()
                     status, err = "eof", "the process ended"

@@ -481,7 +481,7 @@ def test_hanging_cell_is_skipped_and_the_other_cells_count(tmp_path):
 def test_a_symbolic_link_is_never_graded_as_a_submission(tmp_path):
     """A link would make the grader (often root) read another student's work or its own secret as the submission,
     and echo it in a load note: links to files and to folders are refused in every way in."""
-    from autograder.batch import find_submissions, pick_submission_file
+    from autograder.batch import _LINK_REASON, find_submissions, pick_submission_file
     from autograder.submission import SubmissionError, load_submission
 
     secret = tmp_path / "grading_secret"
@@ -500,6 +500,7 @@ def test_a_symbolic_link_is_never_graded_as_a_submission(tmp_path):
     for sid in ("mallory", "carol", "dave", "erin"):
         assert got[sid][0] is None and "symbolic link" in got[sid][1], (sid, got[sid])
     assert pick_submission_file(subs / "mallory")[0] is None
+    assert pick_submission_file(subs / "dave") == (None, f"the submission folder dave is {_LINK_REASON}")
     with pytest.raises(SubmissionError, match="symbolic link"):
         load_submission(subs / "carol.py")
     root = tmp_path / "gs"  # a Gradescope root whose submission is a link to the grader's own secret
