@@ -996,13 +996,15 @@ def _send_ready(ctl, job, mod, notes, attempts, iso):
     for name in job.get("functions", []):
         fn = mod.__dict__.get(name)
         entry = {"defined": fn is not None, "callable": callable(fn)}
+        # every field cut short: one datagram carries the message (a default argument of 60 000 items made the
+        # signature 400 kB, the send failed and the loading looked like a crash)
         code = getattr(fn, "__code__", None)
         if code is not None:
-            entry["filename"] = str(getattr(code, "co_filename", ""))
+            entry["filename"] = _short(str(getattr(code, "co_filename", "")), 300)
         entry["module"] = _short(getattr(fn, "__module__", None), 100) if fn is not None else None
         try:
-            entry["signature"] = str(inspect.signature(fn)) if callable(fn) else None
-        except (TypeError, ValueError):
+            entry["signature"] = _short(str(inspect.signature(fn)), 1000) if callable(fn) else None
+        except Exception:  # noqa: BLE001 - a default whose repr fails, a hostile __signature__
             entry["signature"] = None
         info[name] = entry
     try:
@@ -1010,8 +1012,8 @@ def _send_ready(ctl, job, mod, notes, attempts, iso):
         sys.stderr.flush()
     except BaseException:  # noqa: BLE001
         pass
-    _ctl_send(ctl, {"ev": "ready", "notes": notes[:200], "functions": info, "isolation": iso,
-                    "blocked": list(attempts)[:100]})
+    _ctl_send(ctl, {"ev": "ready", "notes": [_short(n, 300) for n in notes[:200]], "functions": info,
+                    "isolation": iso, "blocked": [_short(a, 300) for a in list(attempts)[:100]]})
 
 
 def _load_submission(job, attempts, ctl):

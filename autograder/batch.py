@@ -22,6 +22,7 @@ import csv
 import io
 import multiprocessing
 import os
+import re
 import signal
 import sys
 import traceback
@@ -51,6 +52,48 @@ def _linked(path, folder):
 _LINK_REASON = "a symbolic link (links are not followed: they may point at another student's work or the grader's files)"
 
 
+#: how far and how wide a submission folder is searched (an upload nested 1100 levels deep stopped the batch)
+MAX_DEPTH, MAX_ENTRIES = 16, 10_000
+
+
+class _TooMuch(Exception):
+    """A submission folder deeper or larger than the caps above."""
+
+
+def _walk(folder):
+    """Every entry under ``folder`` (hidden ones and ``__MACOSX`` left out), links not followed, within the caps."""
+    out, stack = [], [(folder, 0)]
+    while stack:
+        d, depth = stack.pop()
+        with os.scandir(d) as it:
+            for e in it:
+                if e.name.startswith((".", "__MACOSX")):
+                    continue
+                p = Path(e.path)
+                out.append(p)
+                if len(out) > MAX_ENTRIES:
+                    raise _TooMuch(f"the submission folder holds more than {MAX_ENTRIES} files and folders")
+                if e.is_dir(follow_symlinks=False):
+                    if depth + 1 >= MAX_DEPTH:
+                        raise _TooMuch(f"the submission folder is nested more than {MAX_DEPTH} levels deep")
+                    stack.append((p, depth + 1))
+    return out
+
+
+def _utf8(name):
+    """True when a file name (as the file system gave it) is valid UTF-8."""
+    try:
+        name.encode("utf-8")
+        return True
+    except UnicodeEncodeError:
+        return False
+
+
+def _printable(name):
+    """A file name that is not valid UTF-8, with its odd bytes written as escapes (``caf\\xe9``)."""
+    return name.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+
+
 def pick_submission_file(folder, notebook_name=None):
     """The file to grade in a submission folder, or ``(None, reason)``.
 
@@ -59,10 +102,18 @@ def pick_submission_file(folder, notebook_name=None):
     """
     if Path(folder).is_symlink():
         return None, f"the submission folder {Path(folder).name} is {_LINK_REASON}"
-    found = [p for p in Path(folder).rglob("*")
-             if not any(part.startswith((".", "__MACOSX")) for part in p.relative_to(folder).parts)]
+    try:
+        found = _walk(Path(folder))
+    except _TooMuch as exc:
+        return None, str(exc)
+    except OSError as exc:
+        return None, f"the submission folder cannot be read ({exc.strerror or exc})"
+    odd = sorted(p for p in found if not _utf8(str(p.relative_to(folder))) and p.suffix.lower() in _SUFFIXES)
+    found = [p for p in found if _utf8(str(p.relative_to(folder)))]
     files = sorted(p for p in found if p.suffix.lower() in _SUFFIXES and not _linked(p, folder) and p.is_file())
     links = sorted(p for p in found if p.is_symlink() and (p.suffix.lower() in _SUFFIXES or p.is_dir()))
+    if not files and odd:
+        return None, f"{_printable(str(odd[0].relative_to(folder)))}: a file name that is not UTF-8 (rename it)"
     if notebook_name:
         named = [p for p in files if p.name == notebook_name]
         if named:
@@ -90,6 +141,12 @@ def find_submissions(folder, notebook_name=None):
     for entry in sorted(Path(folder).iterdir()):
         if entry.name.startswith("."):
             continue
+        if not _utf8(entry.name):
+            if entry.is_dir() or entry.suffix.lower() in _SUFFIXES:
+                name = _printable(entry.name)
+                out.append((name.rsplit(".", 1)[0] if entry.suffix.lower() in _SUFFIXES else name, None,
+                            f"{name}: a file name that is not UTF-8 (rename it)"))
+            continue
         if entry.is_symlink():
             if entry.is_dir() or entry.suffix.lower() in _SUFFIXES:
                 out.append((entry.stem if entry.suffix.lower() in _SUFFIXES else entry.name, None,
@@ -98,7 +155,10 @@ def find_submissions(folder, notebook_name=None):
         if entry.is_file() and entry.suffix.lower() in _SUFFIXES:
             out.append((entry.stem, entry, None))
         elif entry.is_dir():
-            path, why = pick_submission_file(entry, notebook_name)
+            try:
+                path, why = pick_submission_file(entry, notebook_name)
+            except Exception as exc:  # noqa: BLE001 - a student's folder: its own row, never the batch's end
+                path, why = None, f"the submission folder cannot be read ({type(exc).__name__}: {exc})"[:300]
             out.append((entry.name, path, why))
     names = {}
     for sid, path, _ in out:
@@ -197,14 +257,18 @@ def results_file(results_dir, sid):
     """``results_dir / "<id>.json"``, with an id too long for a file name (255 bytes, and the atomic write's
     temporary name around it) cut to its first 100 characters and a hash of the whole, so that it still fits."""
     name = sid
-    if len(sid.encode("utf-8")) > 200:
+    # an id that merely looks like a cut one is cut as well, so that two ids never share a file
+    if len(sid.encode("utf-8", "surrogateescape")) > 200 or _CUT_NAME.search(sid):
         import hashlib
 
         name = sid[:100]
-        while len(name.encode("utf-8")) > 180:
+        while len(name.encode("utf-8", "surrogateescape")) > 180:
             name = name[:-1]
         name = f"{name}-{hashlib.sha256(sid.encode('utf-8', 'surrogateescape')).hexdigest()[:16]}"
     return Path(results_dir) / f"{name}.json"
+
+
+_CUT_NAME = re.compile(r"-[0-9a-f]{16}$")
 
 
 def _cell(value):
@@ -267,7 +331,8 @@ def run_batch(folder, exercise, *, out_csv="grades.csv", jobs=2, results_dir=Non
         old = None if restart else read_results(results_file(results_dir, sid))
         extra = (old or {}).get("extra_data") or {}
         if (old and extra.get("submission_sha256") == fp and extra.get("exercise") == exercise
-                and isinstance(extra.get("batch_row"), dict) and (seed is None or extra.get("seed") == seed)
+                and isinstance(extra.get("batch_row"), dict) and extra["batch_row"].get("submission") == sid
+                and (seed is None or extra.get("seed") == seed)
                 and extra["batch_row"].get("status") != "grader-error"):  # the grader's failure is graded again
             rows.append(extra["batch_row"])
         else:

@@ -16,10 +16,12 @@ from __future__ import annotations
 
 import ast
 import builtins
+import io
 import json
 import os
 import re
 import stat
+import tokenize
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -67,15 +69,40 @@ class Submission:
         return self.path.name
 
 
+def _open_at_end(text):
+    """True when Python source ``text`` ends inside brackets, a string or a backslash continuation."""
+    try:
+        for _ in tokenize.generate_tokens(io.StringIO(text).readline):
+            pass
+    except tokenize.TokenError:  # EOF in a multi-line statement or string
+        return True
+    except (SyntaxError, ValueError, RecursionError, MemoryError):  # not for this check to judge
+        return False
+    return False
+
+
 def _strip_magics(source, label, notes):
+    """The cell with IPython's magic and shell lines (``%``, ``!`` at the start of a logical line) left out.
+
+    A line that begins with ``%`` or ``!`` inside brackets or after a backslash is Python (an operator carried
+    over from the line before, as code formatters write it), not a magic: a cell that parses as Python is left
+    as it is, and otherwise a line is a magic only where the code before it is complete.
+    """
     lines = source.splitlines(True)
     if lines and lines[0].lstrip().startswith("%%"):
         notes.append(f"{label}: cell magic {lines[0].split()[0]} -- the whole cell is left out")
         return ""
+    if not any(_MAGIC_LINE.match(line) for line in lines):
+        return source
+    try:
+        ast.parse(source)
+        return source  # valid Python: every such line is an operator carried over
+    except (SyntaxError, ValueError, RecursionError, MemoryError):
+        pass
     out = []
     dropped = 0
     for line in lines:
-        if _MAGIC_LINE.match(line):
+        if _MAGIC_LINE.match(line) and (len(lines) > 5000 or not _open_at_end("".join(out))):
             dropped += 1
             # a `pass` at the same indentation keeps blocks valid and line numbers unchanged
             indent = line[: len(line) - len(line.lstrip())]

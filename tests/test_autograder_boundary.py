@@ -464,6 +464,14 @@ def test_the_process_that_loads_the_submission_for_the_grader_cannot_take_the_fo
     assert pids[0] != pids[1], pids
 
 
+def test_a_signature_too_long_for_one_message_does_not_fail_the_loading():
+    """A contract function with a large default argument (a table of 60 000 numbers) made the ready message 400 kB,
+    more than one datagram holds: the loading looked like a crash, and correct code scored 0."""
+    src = "def who(w=None, _table=tuple(range(60000))):\n    return 1.0\n"
+    outs, ready = _sandbox_output(src, ["who"], [("who", [])], Limits(call_timeout=5.0))
+    assert outs[0].status == "ok" and len(ready["functions"]["who"]["signature"]) <= 1000, ready["functions"]
+
+
 def test_slow_top_level_code_is_no_function_s_time(tmp_path):
     """Every worker runs the top-level code again after it is forked: that time must not count against the first
     call's deadline (statements of 1.5 s, a call limit of 1 s: correct code once scored 0)."""

@@ -588,3 +588,75 @@ def test_code_nested_too_deeply_for_the_parser_is_a_cell_that_cannot_be_read(tmp
     assert list(sub.syntax_errors.values()) == ["too deeply nested for Python's parser"], sub.syntax_errors
     result = grade(path, "particle_filter")
     assert result.score == result.max_score, result.text_report()
+
+
+def test_a_folder_nested_deeper_than_python_recurses_is_its_own_row(tmp_path):
+    """An upload 1100 folders deep once stopped the batch (and was a grader error on Gradescope)."""
+    from autograder.batch import MAX_DEPTH, find_submissions, pick_submission_file
+
+    (tmp_path / "subs" / "bob").mkdir(parents=True)
+    fd = os.open(tmp_path / "subs" / "bob", os.O_RDONLY)
+    for _ in range(1100):  # one level at a time (os.makedirs itself recurses)
+        os.mkdir("d", dir_fd=fd)
+        fd, old = os.open("d", os.O_RDONLY, dir_fd=fd), fd
+        os.close(old)
+    os.close(os.open("x.py", os.O_WRONLY | os.O_CREAT, 0o644, dir_fd=fd))
+    os.close(fd)
+    (tmp_path / "subs" / "carl").mkdir()
+    (tmp_path / "subs" / "carl" / os.path.join(*["d"] * (MAX_DEPTH - 2))).mkdir(parents=True)
+    (tmp_path / "subs" / "carl" / os.path.join(*["d"] * (MAX_DEPTH - 2)) / "a.py").write_text("x = 1\n")
+    got = {sid: (path, why) for sid, path, why in find_submissions(tmp_path / "subs")}
+    assert got["bob"] == (None, f"the submission folder is nested more than {MAX_DEPTH} levels deep"), got["bob"]
+    assert got["carl"][0] is not None and got["carl"][0].name == "a.py"
+    assert pick_submission_file(tmp_path / "subs" / "bob")[0] is None
+
+
+def test_a_file_name_that_is_not_utf8_is_its_own_row(tmp_path):
+    """A Latin-1 name (caf\\xe9.py) once stopped the batch, on every rerun: its id could not be written."""
+    from autograder.batch import _write_csv, find_submissions, results_file
+    from autograder.exercises import get_exercise
+
+    fd = os.open(os.path.join(os.fsencode(tmp_path), b"caf\xe9.py"), os.O_WRONLY | os.O_CREAT, 0o644)
+    os.write(fd, b"x = 1\n")
+    os.close(fd)
+    (tmp_path / "alice.py").write_text("x = 1\n")
+    got = find_submissions(tmp_path)
+    assert got[0][0] == "alice" and got[1][:2] == ("caf\\xe9", None) and "not UTF-8" in got[1][2], got
+    ex = get_exercise("particle_filter")
+    rows = [{"submission": sid, "file": "", "score": 0.0, "max_score": ex.max_score(), "status": "error",
+             "message": why or "", **{fn: 0.0 for fn in ex.functions}} for sid, _, why in got]
+    _write_csv(tmp_path / "out" / "grades.csv", rows, ex)
+    results_file(tmp_path, got[1][0]).write_text("{}")
+
+
+def test_two_ids_never_share_a_results_file(tmp_path):
+    import hashlib
+
+    from autograder.batch import results_file
+
+    long_id = "alice_" + "x" * 210
+    looks_cut = long_id[:100] + "-" + hashlib.sha256(long_id.encode()).hexdigest()[:16]
+    assert results_file(tmp_path, long_id) != results_file(tmp_path, looks_cut)
+    assert results_file(tmp_path, "bob").name == "bob.json"
+
+
+def test_a_line_that_starts_with_an_operator_inside_brackets_is_python_not_a_magic(tmp_path):
+    """Code formatters break a long expression before its operator: a line starting with % or != inside brackets
+    is Python (the notebook once scored 0 where the same .py file scored full marks)."""
+    from autograder.submission import _strip_magics, load_submission
+
+    notes = []
+    src = "%matplotlib inline\nx = (7\n     % 2)\n!ls\ny = [1\n     != 2]\n%time z = 1\n"
+    out = _strip_magics(src, "c", notes)
+    assert out.splitlines()[1:3] == ["x = (7", "     % 2)"] and out.splitlines()[4:6] == ["y = [1", "     != 2]"]
+    assert sum("IPython line left out" in line for line in out.splitlines()) == 3, out
+    text = solution_text("particle_filter").replace("nu[:, 1] = (nu[:, 1] + np.pi) % (2 * np.pi) - np.pi",
+                                                     "nu[:, 1] = ((nu[:, 1] + np.pi)\n    % (2 * np.pi)) - np.pi")
+    assert "\n    % (2 * np.pi)" in text
+    nb = {"cells": [{"cell_type": "code", "execution_count": None, "metadata": {}, "outputs": [], "source": text}],
+          "metadata": {}, "nbformat": 4, "nbformat_minor": 5}
+    path = tmp_path / "formatted.ipynb"
+    path.write_text(json.dumps(nb))
+    assert not load_submission(path).syntax_errors
+    result = grade(path, "particle_filter", functions=["landmark_likelihood"])
+    assert result.score == result.max_score, result.text_report()
