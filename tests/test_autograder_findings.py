@@ -594,21 +594,25 @@ def test_a_folder_nested_deeper_than_python_recurses_is_its_own_row(tmp_path):
     """An upload 1100 folders deep once stopped the batch (and was a grader error on Gradescope)."""
     from autograder.batch import MAX_DEPTH, find_submissions, pick_submission_file
 
-    (tmp_path / "subs" / "bob").mkdir(parents=True)
-    fd = os.open(tmp_path / "subs" / "bob", os.O_RDONLY)
-    for _ in range(1100):  # one level at a time (os.makedirs itself recurses)
-        os.mkdir("d", dir_fd=fd)
-        fd, old = os.open("d", os.O_RDONLY, dir_fd=fd), fd
-        os.close(old)
-    os.close(os.open("x.py", os.O_WRONLY | os.O_CREAT, 0o644, dir_fd=fd))
-    os.close(fd)
-    (tmp_path / "subs" / "carl").mkdir()
-    (tmp_path / "subs" / "carl" / os.path.join(*["d"] * (MAX_DEPTH - 2))).mkdir(parents=True)
-    (tmp_path / "subs" / "carl" / os.path.join(*["d"] * (MAX_DEPTH - 2)) / "a.py").write_text("x = 1\n")
-    got = {sid: (path, why) for sid, path, why in find_submissions(tmp_path / "subs")}
-    assert got["bob"] == (None, f"the submission folder is nested more than {MAX_DEPTH} levels deep"), got["bob"]
-    assert got["carl"][0] is not None and got["carl"][0].name == "a.py"
-    assert pick_submission_file(tmp_path / "subs" / "bob")[0] is None
+    subs = tmp_path / "subs"
+    levels = [os.path.join(subs, "bob", *["d"] * k) for k in range(1, 1101)]
+    (subs / "bob").mkdir(parents=True)
+    try:
+        for d in levels:  # one level at a time: os.makedirs and shutil.rmtree recurse
+            os.mkdir(d)
+        Path(levels[-1], "x.py").write_text("x = 1\n")
+        carl = subs / "carl" / os.path.join(*["d"] * (MAX_DEPTH - 2))
+        carl.mkdir(parents=True)
+        (carl / "a.py").write_text("x = 1\n")
+        got = {sid: (path, why) for sid, path, why in find_submissions(subs)}
+        assert got["bob"] == (None, f"the submission folder is nested more than {MAX_DEPTH} levels deep"), got["bob"]
+        assert got["carl"][0] is not None and got["carl"][0].name == "a.py"
+        assert pick_submission_file(subs / "bob")[0] is None
+    finally:  # pytest's own clean-up of tmp_path recurses too
+        Path(levels[-1], "x.py").unlink(missing_ok=True)
+        for d in reversed(levels):
+            if os.path.isdir(d):
+                os.rmdir(d)
 
 
 def test_a_file_name_that_is_not_utf8_is_its_own_row(tmp_path):
