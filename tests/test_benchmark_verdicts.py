@@ -10,12 +10,17 @@ from autograder.exercises import EXERCISES
 BENCH = Path(__file__).resolve().parents[1] / "benchmarks"
 
 
-@pytest.fixture(scope="module")
-def small_calls():
-    spec = importlib.util.spec_from_file_location("bench_small_calls_under_test", BENCH / "bench_small_calls.py")
+def _script(name):
+    """``benchmarks/<name>.py`` as a module (the scripts are not a package)."""
+    spec = importlib.util.spec_from_file_location(f"{name}_under_test", BENCH / f"{name}.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
+
+
+@pytest.fixture(scope="module")
+def small_calls():
+    return _script("bench_small_calls")
 
 
 def test_small_calls_goal_is_met_only_when_every_ratio_is_measured_and_meets_it(small_calls):
@@ -30,9 +35,7 @@ def test_small_calls_goal_is_met_only_when_every_ratio_is_measured_and_meets_it(
 
 
 def test_fastslam_size_goal_compares_the_time_per_observation():
-    spec = importlib.util.spec_from_file_location("bench_fastslam_under_test", BENCH / "bench_fastslam.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    mod = _script("bench_fastslam")
     small, big = mod.UNKNOWN_SIZES[0], mod.UNKNOWN_SIZES[-1]
     # twice the time per step for twice the observations per step: the same time per observation
     assert mod.unknown_ratio({(small, 2): (1.5, small, 4.0), (big, 2): (3.0, big, 8.0)}, 2) == pytest.approx(1.0)
@@ -41,10 +44,7 @@ def test_fastslam_size_goal_compares_the_time_per_observation():
 
 @pytest.fixture(scope="module")
 def bench_autograder():
-    spec = importlib.util.spec_from_file_location("bench_autograder_under_test", BENCH / "bench_autograder.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return _script("bench_autograder")
 
 
 def test_autograder_benchmark_times_every_registered_exercise(bench_autograder):
