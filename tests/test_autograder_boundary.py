@@ -909,7 +909,8 @@ class _SlowLoadingWorker:
 def test_a_worker_s_loading_is_given_back_once_per_function_and_never_to_the_submission():
     """A fresh worker loads the submission again, and that wait is no call's time. It is given back to the test's
     budget for the function's first worker only, and never to the submission's: a submission whose workers end
-    after every answer and load slowly again pays for it (it once stretched a grading 20 times past its budget)."""
+    after every answer and load slowly again pays for it (in the attack that found this, one test ran 232 s
+    against its 30 s budget, and the grading 406 s against 240 s, with full marks)."""
     box = _DeadBox()
     box.dead = False
     box.fork_worker = lambda: _SlowLoadingWorker()
