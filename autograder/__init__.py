@@ -15,7 +15,36 @@ filters), ``stats`` and ``calibrate`` (statistical tests), ``engine`` (grading),
 ``results`` (result types, reports, results.json), ``batch`` and ``bundle``.
 """
 
+import os as _os
+import sys as _sys
+
 __all__ = ["grade", "run_public_tests"]
+
+
+def _drop_working_directory():
+    """Take the working directory off ``sys.path`` unless the grader itself is there.
+
+    ``python -m autograder`` puts the working directory first on ``sys.path``, ahead of the standard
+    library and the installed packages. Started in a folder of students' files, the grader would then
+    import a student's ``numpy.py`` or ``json.py`` in its own process, outside every sandbox. The package is
+    loaded at this point (this module runs first), so the entry is only needed when it is the folder that
+    holds the package (a checkout used without installing it).
+    """
+    home = _os.path.dirname(_os.path.dirname(_os.path.abspath(__file__)))
+    try:
+        cwd = _os.getcwd()
+    except OSError:  # a working directory that was removed
+        cwd = None
+    keep = []
+    for entry in _sys.path:
+        where = _os.path.abspath(entry) if entry else cwd
+        if where is not None and where == cwd and _os.path.realpath(where) != _os.path.realpath(home):
+            continue
+        keep.append(entry)
+    _sys.path[:] = keep
+
+
+_drop_working_directory()
 
 
 def __getattr__(name):

@@ -91,7 +91,9 @@ def _cmd_grade(args):
         return 1
     if args.results:
         write_json_atomic(args.results, result.to_gradescope())
-    print(result.text_report(verbose=args.verbose))
+    from .wire import clean_text
+
+    print(clean_text(result.text_report(verbose=args.verbose)))  # no escape sequence reaches the terminal
     if args.results:
         print(f"\nresults written to {args.results}")
     return 0 if result.exercise else 2

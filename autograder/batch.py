@@ -127,6 +127,10 @@ def pick_submission_file(folder, notebook_name=None):
             return None, f"several {suffix} files ({names}); submit only the exercise notebook"
     if links:
         return None, f"{links[0].relative_to(folder)} is {_LINK_REASON}; no other .ipynb or .py file in the submission"
+    special = sorted(p for p in found if p.suffix.lower() in _SUFFIXES and not p.is_symlink() and not p.is_file()
+                     and not p.is_dir())
+    if special:  # a FIFO, a socket, a device named like a submission: never opened
+        return None, f"{special[0].relative_to(folder)}: not a regular file; no other .ipynb or .py file in the submission"
     return None, "no .ipynb or .py file in the submission"
 
 
@@ -154,6 +158,8 @@ def find_submissions(folder, notebook_name=None):
             continue
         if entry.is_file() and entry.suffix.lower() in _SUFFIXES:
             out.append((entry.stem, entry, None))
+        elif entry.suffix.lower() in _SUFFIXES and not entry.is_dir():  # a FIFO, a socket, a device: never opened
+            out.append((entry.stem, None, f"{entry.name}: not a regular file"))
         elif entry.is_dir():
             try:
                 path, why = pick_submission_file(entry, notebook_name)

@@ -480,10 +480,23 @@ def _grade_function(ex, fn, grading, ready, limits, seed, budget):
     return results
 
 
+#: Notes on the submission's cells kept in a result: a notebook of thousands of broken cells would otherwise
+#: make results.json (and every test's message) many times larger than the notebook.
+MAX_NOTES = 20
+
+
+def _first(items, n, what):
+    """The first `n` of `items`, and one more item that counts the rest."""
+    return list(items) if len(items) <= n else list(items[:n]) + [f"... and {len(items) - n} {what}"]
+
+
 def _in_blocked_tree(filename):
     from .sandbox import BLOCKED_PATHS
 
-    full = os.path.realpath(filename) if os.path.isabs(filename) else filename
+    try:
+        full = os.path.realpath(filename) if os.path.isabs(filename) else filename
+    except (ValueError, OSError):  # the submission's word (a code object's file name): NUL, odd characters
+        full = filename
     return any(full.startswith(p) for p in BLOCKED_PATHS)
 
 
@@ -580,7 +593,7 @@ def _grade(path, exercise, *, limits, workers, seed, functions, secret, final):
 
         seed = derive_seed(load_secret(secret), ex.name, sub.sha256)
     result.seed = int(seed)
-    result.notes.extend(sub.notes)
+    result.notes.extend(_first(sub.notes, MAX_NOTES, "more notes on the submission's cells"))
     if sub.exercise and sub.exercise != ex.name:
         msg = (f"This is the notebook of exercise {sub.exercise!r}, but it was submitted for {ex.name!r}: "
                f"submit {ex.notebook}.")
@@ -620,7 +633,7 @@ def _grade(path, exercise, *, limits, workers, seed, functions, secret, final):
                 todo.append(fn)
         if ready is not None:
             result.isolation = ready.get("isolation") or {}
-            for n in ready.get("notes") or []:
+            for n in _first(ready.get("notes") or [], MAX_NOTES, "more notes from loading the submission"):
                 result.notes.append(f"while loading: {n}")
         n_workers = workers or min(len(todo), os.cpu_count() or 2) or 1
 
@@ -628,8 +641,8 @@ def _grade(path, exercise, *, limits, workers, seed, functions, secret, final):
             budget = Budget(*budget_args, start=start)
             out = _grade_function(ex, fn, grading, ready, limits, seed, budget)
             if sub.syntax_errors and out and "is not defined in your submission" in out[0].output:
-                extra = (" (some cells could not be read: "
-                         + "; ".join(f"{k}: {v}" for k, v in sub.syntax_errors.items()) + ")")
+                extra = (" (some cells could not be read: " + "; ".join(_first(
+                    [f"{k}: {v}" for k, v in sub.syntax_errors.items()], 3, "more cells that could not be read")) + ")")
                 for r in out:
                     r.output = r.output.replace("is not defined in your submission",
                                                 "is not defined in your submission" + extra, 1)

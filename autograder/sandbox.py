@@ -111,7 +111,8 @@ from pathlib import Path
 import numpy as np
 
 from . import wire
-from .wire import ProtocolError, RngSeed, control_message, encode_args, pack_frame, parse_result_frame, read_reply
+from .wire import (ProtocolError, RngSeed, clean_text, control_message, encode_args, pack_frame, parse_result_frame,
+                   read_reply)
 
 __all__ = ["Limits", "Sandbox", "Worker", "CallOutcome", "ChildFailed", "RngSeed", "isolation_report",
            "describe_isolation", "protection_level", "check_sandbox", "require_sandbox", "SandboxBroken"]
@@ -599,7 +600,7 @@ class Sandbox:
 
     @property
     def _zout_text(self):
-        return bytes(getattr(self, "_zout", b"")[-4000:]).decode("utf-8", "replace")
+        return clean_text(bytes(getattr(self, "_zout", b"")[-4000:]).decode("utf-8", "replace"))
 
     @property
     def alive(self):
@@ -886,7 +887,7 @@ class Worker:
         return bool(self._res)
 
     def _output_text(self):
-        return bytes(self._out[-4000:]).decode("utf-8", "replace")
+        return clean_text(bytes(self._out[-4000:]).decode("utf-8", "replace"))
 
     def _exchange(self, request, deadline):
         """Write ``request``; read until one result frame arrives.

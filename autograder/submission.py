@@ -28,6 +28,10 @@ __all__ = ["Submission", "SubmissionError", "load_submission", "forbidden_usage"
 SKIP_TAG = "skip-grading"
 FORBIDDEN = ("slamlib", "autograder")
 _MAGIC_LINE = re.compile(r"^\s*[%!]")
+#: Most code the grader parses, summed over the cells it grades [characters]. Python's parser holds several
+#: hundred bytes per character of some code (a flat list of names: ~700), in the grader's own process, where no
+#: sandbox limit applies; an exercise's code is a few tens of kilobytes.
+MAX_CODE = 512 * 1024
 
 
 class SubmissionError(Exception):
@@ -185,6 +189,10 @@ def load_submission(path):
     from .seeds import content_hash
 
     sub.sha256 = content_hash(raw)
+    size = sum(len(unit["source"]) for unit in sub.units)
+    if size > MAX_CODE:
+        raise SubmissionError(f"{path.name}: {size // 1024} KB of code, more than the {MAX_CODE // 1024} KB the grader "
+                              "reads (keep data out of the code: load it from a file or generate it)")
     for unit in sub.units:
         try:
             ast.parse(unit["source"], filename=unit["filename"])
@@ -262,6 +270,8 @@ def _load_notebook(path, raw):
     meta = nb.get("metadata")
     meta = meta.get("slam_course") if isinstance(meta, dict) else None
     exercise = meta.get("exercise") if isinstance(meta, dict) else None
+    if isinstance(exercise, str) and len(exercise) > 100:  # no exercise has so long a name; it is quoted in messages
+        exercise = exercise[:97] + "..."
     sub = Submission(path, "notebook", units, exercise if isinstance(exercise, str) else None, notes)
     return sub
 
@@ -271,32 +281,38 @@ def _is_forbidden_module(name):
     return isinstance(name, str) and name.split(".")[0] in FORBIDDEN
 
 
-def _mentions_forbidden_string(node):
-    for n in ast.walk(node):
-        if isinstance(n, ast.Constant) and isinstance(n.value, str) and _is_forbidden_module(n.value.strip()):
-            return True
-    return False
-
-
-def _loaded_names(node):
-    return {n.id for n in ast.walk(node) if isinstance(n, ast.Name) and isinstance(n.ctx, ast.Load)}
-
-
 def _bound_names(target):
     return {n.id for n in ast.walk(target) if isinstance(n, ast.Name)}
 
 
-def _forbidden_imports(node):
-    """Import statements anywhere under ``node`` that reach a forbidden package."""
-    found = []
-    for n in ast.walk(node):
-        if isinstance(n, ast.Import):
-            for alias in n.names:
-                if _is_forbidden_module(alias.name):
-                    found.append((alias.name, n.lineno))
-        elif isinstance(n, ast.ImportFrom) and n.level == 0 and _is_forbidden_module(n.module):
-            found.append((n.module, n.lineno))
-    return found
+class _Facts:
+    """What one node's code does, found in one walk over it: linear in its size, whatever it holds."""
+
+    __slots__ = ("imports", "string", "names")
+
+    def __init__(self, node):
+        self.imports = []  # (module, line) of the imports that reach a forbidden package, in walk order
+        self.string = False  # names a forbidden package in a string (a dynamic import)
+        loaded, stored, declared = set(), set(), set()
+        for n in ast.walk(node):
+            if isinstance(n, ast.Name):
+                (loaded if isinstance(n.ctx, ast.Load) else stored).add(n.id)
+            elif isinstance(n, ast.Import):
+                self.imports += [(a.name, n.lineno) for a in n.names if _is_forbidden_module(a.name)]
+            elif isinstance(n, ast.ImportFrom):
+                if n.level == 0 and _is_forbidden_module(n.module):
+                    self.imports.append((n.module, n.lineno))
+            elif isinstance(n, ast.Constant):
+                self.string = self.string or (isinstance(n.value, str) and _is_forbidden_module(n.value.strip()))
+            elif isinstance(n, (ast.Global, ast.Nonlocal)):
+                declared.update(n.names)
+        local = set()
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
+            args = node.args
+            local = {a.arg for a in args.args + args.posonlyargs + args.kwonlyargs}
+            local |= {a.arg for a in (args.vararg, args.kwarg) if a is not None}
+            local |= stored - declared  # a parameter or a local assignment (not one declared global)
+        self.names = sorted(loaded - local)
 
 
 def _module_level(stmts):
@@ -350,28 +366,58 @@ def forbidden_usage(units, functions):
     defined = set(defs) | set(tainted)
     builtin_names = set(dir(builtins))
 
-    def reason(node, seen):
-        imps = _forbidden_imports(node)
-        if imps:
-            mod, line = imps[0]
-            return f"imports {mod} (line {line})"
-        if _mentions_forbidden_string(node):
-            return "names the slamlib/autograder package in a string (a dynamic import)"
-        names = sorted(n for n in _loaded_names(node) if not _locally_bound(node, n))
-        for name in names:
+    facts = {}  # id(node) -> _Facts, each node walked once
+
+    def direct(node):
+        """Why `node`'s own code depends on a forbidden package, without following the names it uses."""
+        f = facts.get(id(node))
+        if f is None:
+            f = facts[id(node)] = _Facts(node)
+        if f.imports:
+            mod, line = f.imports[0]
+            return f"imports {mod} (line {line})", f
+        if f.string:
+            return "names the slamlib/autograder package in a string (a dynamic import)", f
+        for name in f.names:
             if name in tainted:
-                return f"uses {tainted[name]}"
+                return f"uses {tainted[name]}", f
         if star:
-            for name in names:
+            for name in f.names:
                 if name not in defined and name not in builtin_names:
-                    return f"uses `{name}`, which can only come from {star[0]}"
-        for name in names:
-            if name in defs and name not in seen:
-                seen.add(name)
-                for sub in defs[name]:
-                    why = reason(sub, seen)
-                    if why:
-                        return f"calls `{name}`, which {why}"
+                    return f"uses `{name}`, which can only come from {star[0]}", f
+        return None, f
+
+    def reason(root, seen):
+        """Why `root` depends on a forbidden package, through the submission's names it uses (depth first).
+
+        Iterative, with every name followed once (`seen`): a chain of a thousand helpers neither
+        recurses past Python's limit nor costs more than one walk over each of them.
+        """
+        why, f = direct(root)
+        if why:
+            return why
+
+        def children(f):
+            for name in f.names:
+                if name in defs and name not in seen:
+                    seen.add(name)
+                    for sub in defs[name]:
+                        yield name, sub
+
+        chain, stack = [], [children(f)]
+        while stack:
+            step = next(stack[-1], None)
+            if step is None:
+                stack.pop()
+                if chain:
+                    chain.pop()
+                continue
+            name, sub = step
+            why, f = direct(sub)
+            if why:
+                return "".join(f"calls `{n}`, which " for n in chain + [name]) + why
+            chain.append(name)
+            stack.append(children(f))
         return None
 
     out = {}
@@ -385,28 +431,6 @@ def forbidden_usage(units, functions):
                 out[fn] = f"{fn} {why}"
                 break
     return out
-
-
-def _locally_bound(node, name):
-    """Whether ``name`` is a parameter or a local assignment inside function ``node``."""
-    if not isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
-        return False
-    args = node.args
-    params = {a.arg for a in args.args + args.posonlyargs + args.kwonlyargs}
-    if args.vararg:
-        params.add(args.vararg.arg)
-    if args.kwarg:
-        params.add(args.kwarg.arg)
-    if name in params:
-        return True
-    body = node.body if isinstance(node.body, list) else [node.body]
-    for stmt in body:
-        for n in ast.walk(stmt):
-            if isinstance(n, ast.Name) and isinstance(n.ctx, ast.Store) and n.id == name:
-                return True
-            if isinstance(n, (ast.Global, ast.Nonlocal)) and name in n.names:
-                return False
-    return False
 
 
 def _bindings(stmt):

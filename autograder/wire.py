@@ -36,7 +36,7 @@ import time as _time
 __all__ = ["MAGIC", "MAX_HEADER", "MAX_PAYLOAD", "MAX_ITEMS", "MAX_RESULT_BYTES", "ProtocolError", "pack_frame",
            "parse_frame", "encode_args", "RngSeed", "decode_args", "encode_result", "Value", "Returned",
            "describe_value", "decode_result", "shorten", "MAX_DEPTH", "MAX_JOB", "loads_untrusted",
-           "parse_result_frame", "read_reply", "control_message", "is_sparse"]
+           "parse_result_frame", "read_reply", "control_message", "is_sparse", "clean_text"]
 
 # this module's own references, taken when it is loaded, before any submission code runs (a submission that
 # monkeypatches json does not change what the wire format calls)
@@ -67,14 +67,14 @@ def pack_frame(header, payload=b""):
     return _HDR.pack(MAGIC, len(h), len(payload)) + h + payload
 
 
-def parse_frame(buf, *, max_header=MAX_HEADER, max_payload=MAX_PAYLOAD, finite=False):
+def parse_frame(buf, *, max_header=MAX_HEADER, max_payload=MAX_PAYLOAD, finite=False, clean=False):
     """Parse one frame at the start of ``buf`` (bytes-like).
 
     Returns ``(header, payload, consumed)`` or ``None`` when ``buf`` does not yet
     hold a whole frame. Raises :class:`ProtocolError` on malformed input: bad magic,
     lengths above ``max_header`` / ``max_payload``, a header that is not a JSON
     object or nests deeper than :data:`MAX_DEPTH`, and (``finite``) a non-finite
-    number in the header.
+    number in the header. ``clean``: every string of the header through :func:`clean_text`.
     """
     if len(buf) < _HDR.size:
         return None
@@ -86,7 +86,7 @@ def parse_frame(buf, *, max_header=MAX_HEADER, max_payload=MAX_PAYLOAD, finite=F
     end = _HDR.size + hl + pl
     if len(buf) < end:
         return None
-    header = loads_untrusted(bytes(buf[_HDR.size:_HDR.size + hl]), max_bytes=max_header, finite=finite)
+    header = loads_untrusted(bytes(buf[_HDR.size:_HDR.size + hl]), max_bytes=max_header, finite=finite, clean=clean)
     if not isinstance(header, dict):
         raise ProtocolError("frame header is not an object")
     return header, bytes(buf[_HDR.size + hl:end]), end
@@ -94,7 +94,7 @@ def parse_frame(buf, *, max_header=MAX_HEADER, max_payload=MAX_PAYLOAD, finite=F
 
 def parse_result_frame(buf):
     """A worker's result frame (child -> grader): :func:`parse_frame` with the result's caps, finite numbers only."""
-    return parse_frame(buf, max_header=MAX_HEADER, max_payload=MAX_RESULT_BYTES, finite=True)
+    return parse_frame(buf, max_header=MAX_HEADER, max_payload=MAX_RESULT_BYTES, finite=True, clean=True)
 
 
 # --------------------------------------------------------------------------- untrusted JSON
@@ -109,8 +109,40 @@ def _finite_float(text):
     return v
 
 
-def loads_untrusted(data, *, max_bytes, max_depth=MAX_DEPTH, finite=True):
+_UNSAFE = re.compile(r"[\x00-\x08\x0b-\x1f\x7f-\x9f\ud800-\udfff]")
+
+
+def clean_text(text):
+    """``text`` with control characters (but newline and tab) and lone surrogates written as escapes.
+
+    Text the submission chose (an exception's message, its output, a file name it set) is printed in
+    the grader's terminal and written to results.json and the CSV: an escape sequence could redraw the
+    terminal (a forged total), and a lone surrogate (valid in JSON's ``\\ud800``, not in UTF-8) fails
+    every write.
+    """
+    text = str(text)
+    if not _UNSAFE.search(text):
+        return text
+    return _UNSAFE.sub(lambda m: f"\\x{ord(m.group()):02x}" if ord(m.group()) < 0x100 else f"\\u{ord(m.group()):04x}",
+                       text)
+
+
+def _cleaned(obj):
+    """Every string (keys too) of a parsed JSON value through :func:`clean_text` (depth already checked)."""
+    if isinstance(obj, str):
+        return clean_text(obj)
+    if isinstance(obj, list):
+        return [_cleaned(v) for v in obj]
+    if isinstance(obj, dict):
+        return {clean_text(k): _cleaned(v) for k, v in obj.items()}
+    return obj
+
+
+def loads_untrusted(data, *, max_bytes, max_depth=MAX_DEPTH, finite=True, clean=False):
     """JSON text (bytes) from an untrusted side, checked: size, UTF-8, depth, and (``finite``) finite numbers.
+
+    ``clean``: every string through :func:`clean_text` (what the grader reads from the sandbox; not the
+    job the sandbox reads, whose strings are the submission's code).
 
     Raises :class:`ProtocolError` for anything else (never ``RecursionError``,
     ``ValueError`` or ``UnicodeDecodeError``).
@@ -126,11 +158,12 @@ def loads_untrusted(data, *, max_bytes, max_depth=MAX_DEPTH, finite=True):
         raise ProtocolError(f"message nested deeper than {max_depth} levels")
     kw = {"parse_constant": _no_constant, "parse_float": _finite_float} if finite else {}
     try:
-        return _loads(text, **kw)
+        value = _loads(text, **kw)
     except ProtocolError:
         raise
     except (ValueError, RecursionError, TypeError) as exc:
         raise ProtocolError(f"bad message: {shorten(exc, 120)}") from None
+    return _cleaned(value) if clean else value
 
 
 _STRINGS = re.compile(r'"(?:[^"\\]|\\.)*"', re.S)
@@ -566,7 +599,7 @@ def control_message(data):
     any other message is kept alone (its fields are dropped). Raises
     :class:`ProtocolError` on a message that breaks the schema.
     """
-    msg = loads_untrusted(data, max_bytes=MAX_CONTROL)
+    msg = loads_untrusted(data, max_bytes=MAX_CONTROL, clean=True)
     if not isinstance(msg, dict):
         raise ProtocolError("control message is not an object")
     ev = msg.get("ev")

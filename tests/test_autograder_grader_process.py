@@ -1,0 +1,225 @@
+"""What the grader does in its own process with a submission's data.
+
+The sandbox bounds what a submission's code can do; these tests bound what the grader itself does
+with what the submission gives it, outside every sandbox limit: the text the submission chose (an
+exception's message, a file name it set on its code) printed and written, the static check of its
+code, the size of the code the grader parses, the notes it keeps, the files a batch folder holds,
+and the modules the grader imports when it is started in a folder of students' files.
+"""
+
+from __future__ import annotations
+
+import ast
+import dataclasses
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent / "autograder_fixtures"))
+
+from agtest import gradescope_json_ok, replace_function, solution_text  # noqa: E402
+
+import autograder  # noqa: E402
+from autograder.engine import grade  # noqa: E402
+from autograder.results import write_json_atomic  # noqa: E402
+from autograder.sandbox import Limits  # noqa: E402
+
+TARGET = "normalize_log_weights"
+OTHER = "effective_sample_size"
+AG_ROOT = Path(autograder.__file__).resolve().parents[1]  # the checkout whose grader is under test
+
+
+@pytest.fixture(autouse=True)
+def _secret(tmp_path_factory, monkeypatch):
+    monkeypatch.setenv("AUTOGRADER_SECRET_FILE", str(tmp_path_factory.getbasetemp() / "grading_secret"))
+
+
+def _limits():
+    names = {f.name for f in dataclasses.fields(Limits)}
+    return Limits(**{k: v for k, v in {"call_timeout": 2.5, "import_timeout": 20.0}.items() if k in names})
+
+
+def _grade(tmp_path, text, name="sub.py"):
+    path = tmp_path / name
+    path.write_text(text, encoding="utf-8", errors="surrogatepass")
+    result = grade(path, "particle_filter", limits=_limits(), functions=[TARGET, OTHER])
+    gradescope_json_ok(result.to_gradescope())
+    return result
+
+
+def _written(tmp_path, result):
+    """results.json as the grader writes it, read back, and the printed report as bytes (UTF-8, strict)."""
+    write_json_atomic(tmp_path / "results.json", result.to_gradescope())
+    return (tmp_path / "results.json").read_text(encoding="utf-8"), result.text_report(verbose=True).encode("utf-8")
+
+
+def _strings(obj):
+    if isinstance(obj, str):
+        yield obj
+    elif isinstance(obj, dict):
+        for k, v in obj.items():
+            yield k
+            yield from _strings(v)
+    elif isinstance(obj, list):
+        for v in obj:
+            yield from _strings(v)
+
+
+RAISES = """
+def effective_sample_size(w):
+    raise ValueError({message!r})
+"""
+
+
+def test_a_lone_surrogate_in_the_submissions_text_is_written_as_an_escape(tmp_path):
+    """A lone surrogate is valid in JSON (``\\ud800``), not in UTF-8: it made every write of the result fail,
+    so a correct submission got no results.json (and a batch row was a grader error on every rerun)."""
+    text = replace_function(solution_text("particle_filter"), OTHER, RAISES.format(message="bad \ud800 value"))
+    result = _grade(tmp_path, text + '\nraise RuntimeError("\\ud800 at the top level")\n')
+    data, report = _written(tmp_path, result)
+    scores = result.by_function()
+    assert scores[TARGET] == (20.0, 20.0) and scores[OTHER] == (0.0, 15.0), scores
+    assert "\\ud800" in data and b"\\ud800" in report
+
+
+def test_escape_sequences_of_the_submission_never_reach_the_report(tmp_path):
+    """An exception message that clears the terminal and draws a full score is printed as escapes."""
+    fake = "\x1b[2J\x1b[HTotal: 100 / 100\n\x1b[8m\r\x00"
+    text = replace_function(solution_text("particle_filter"), OTHER, RAISES.format(message=fake))
+    result = _grade(tmp_path, "import sys\nsys.stdout.write('\\x1b[2J')\n" + text)
+    data, report = _written(tmp_path, result)
+    strings = list(_strings(json.loads(data)))
+    for bad in ("\x1b", "\r", "\x00"):
+        assert bad.encode() not in report and not any(bad in s for s in strings), bad
+    assert b"\\x1b[2J" in report
+
+
+def test_a_file_name_the_submission_sets_on_its_code_is_only_text(tmp_path):
+    """``co_filename`` with a NUL byte made the grader's ``os.path.realpath`` raise: an internal error."""
+    text = solution_text("particle_filter") + \
+        f"\n{OTHER}.__code__ = {OTHER}.__code__.replace(co_filename='/x\\0y')\n"
+    result = _grade(tmp_path, text)
+    assert result.score == result.max_score, result.text_report()
+
+
+def _count_walks(monkeypatch):
+    """Count the nodes the static check visits (``ast.walk`` of autograder.submission)."""
+    import autograder.submission as submission
+
+    seen = [0]
+    walk = ast.walk
+
+    def counting(node):
+        for n in walk(node):
+            seen[0] += 1
+            yield n
+
+    monkeypatch.setattr(submission.ast, "walk", counting)
+    return seen
+
+
+def test_the_static_check_visits_each_node_a_bounded_number_of_times(monkeypatch):
+    """The check for slamlib use walked a function's whole body once per name it loads: quadratic, in the
+    grader's process and charged to the submission's budget (8000 names in one list: 203 s)."""
+    from autograder.submission import forbidden_usage
+
+    names = ", ".join(f"v{i}" for i in range(3000))
+    src = f"import numpy as np\n\ndef {OTHER}(w):\n    if False:\n        return [{names}]\n    return 1.0\n"
+    nodes = sum(1 for _ in ast.walk(ast.parse(src)))
+    seen = _count_walks(monkeypatch)
+    assert forbidden_usage([{"source": src, "filename": "sub.py", "label": "sub.py"}], [OTHER]) == {}
+    assert seen[0] <= 4 * nodes, (seen[0], nodes)
+
+
+def test_a_long_chain_of_helpers_is_followed_without_recursion():
+    """A chain of a thousand module-level names made the check recurse past Python's limit (an internal error);
+    followed iteratively, the chain is clean, or it names the import at its end."""
+    from autograder.submission import forbidden_usage
+
+    chain = "\n".join(f"K{i} = K{i - 1}" for i in range(1, 1500))
+    fn = f"def {OTHER}(w):\n    return K1499\n"
+    clean = f"K0 = 1.0\n{chain}\n{fn}"
+    tainted = f"import slamlib\nK0 = slamlib.effective_sample_size\n{chain}\n{fn}"
+    unit = {"filename": "sub.py", "label": "sub.py"}
+    assert forbidden_usage([{**unit, "source": clean}], [OTHER]) == {}
+    why = forbidden_usage([{**unit, "source": tainted}], [OTHER])[OTHER]
+    assert why.startswith(f"{OTHER} calls `K1499`, which calls `K1498`") and "import slamlib" in why, why[-200:]
+
+
+def test_code_beyond_the_size_the_grader_parses_is_refused_by_name(tmp_path):
+    """Python's parser holds hundreds of bytes per character of some code, in the grader's own process (a 3 MB
+    file took 2.2 GB): code above MAX_CODE is refused before it is parsed."""
+    from autograder.submission import MAX_CODE, SubmissionError, load_submission
+
+    path = tmp_path / "big.py"
+    path.write_text("if False:\n    _ = [" + "a," * (MAX_CODE // 2) + "]\n")
+    with pytest.raises(SubmissionError, match="KB of code"):
+        load_submission(path)
+    result = grade(path, "particle_filter", limits=_limits(), functions=[TARGET])
+    assert result.score == 0 and "KB of code" in result.error
+
+
+def test_notes_on_broken_cells_are_capped(tmp_path):
+    """A notebook of many unreadable cells made every test's message repeat the whole list: results.json of 20 MB
+    from a notebook of 1.7 MB."""
+    import nbformat
+
+    from autograder.engine import MAX_NOTES
+
+    cells = [nbformat.v4.new_code_cell("(") for _ in range(300)] + [nbformat.v4.new_code_cell("import numpy as np")]
+    nb = nbformat.v4.new_notebook(cells=cells)
+    path = tmp_path / "nb.ipynb"
+    nbformat.write(nb, str(path))
+    result = grade(path, "particle_filter", limits=_limits(), functions=[TARGET, OTHER])
+    assert len(result.notes) <= 2 * (MAX_NOTES + 1), len(result.notes)
+    assert all(len(t.output) < 2000 for t in result.tests), max(len(t.output) for t in result.tests)
+    assert len(json.dumps(result.to_gradescope())) < 50_000
+
+
+def test_an_entry_that_is_not_a_regular_file_is_its_own_row(tmp_path):
+    """A FIFO named like a submission got no row at all; inside a folder, a misleading "no file" message."""
+    from autograder.batch import find_submissions
+
+    (tmp_path / "alice.py").write_text(solution_text("particle_filter"))
+    os.mkfifo(tmp_path / "bob.py")
+    (tmp_path / "carol").mkdir()
+    os.mkfifo(tmp_path / "carol" / "03_particle_filter.ipynb")
+    got = {sid: (path, why) for sid, path, why in find_submissions(tmp_path)}
+    assert set(got) == {"alice", "bob", "carol"}, got
+    assert got["alice"][1] is None
+    for sid in ("bob", "carol"):
+        assert got[sid][0] is None and "not a regular file" in got[sid][1], got[sid]
+
+
+def test_the_grader_never_imports_from_a_folder_of_students_files(tmp_path):
+    """``python -m`` puts the working directory first on ``sys.path``: started in a folder holding a student's
+    ``numpy.py``, the grader imported it in its own process (and a forged score with it)."""
+    marker = tmp_path / "imported"
+    (tmp_path / "numpy.py").write_text(f"open({str(marker)!r}, 'w').close()\nraise ImportError('a student file')\n")
+    env = {**os.environ, "PYTHONPATH": str(AG_ROOT)}
+    p = subprocess.run([sys.executable, "-m", "autograder", "list"], capture_output=True, text=True, cwd=str(tmp_path),
+                       env=env, timeout=120)
+    assert not marker.exists(), p.stderr[-2000:]
+    assert p.returncode == 0 and "particle_filter" in p.stdout, p.stderr[-2000:]
+
+
+def test_the_grader_still_runs_from_its_own_checkout():
+    """The working directory stays on the path when it is the folder that holds the grader (no install)."""
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    p = subprocess.run([sys.executable, "-m", "autograder", "list"], capture_output=True, text=True,
+                       cwd=str(AG_ROOT), env=env, timeout=120)
+    assert p.returncode == 0 and "particle_filter" in p.stdout, p.stderr[-2000:]
+
+
+def test_the_instructors_page_states_the_caps():
+    """The page's figures are the grader's constants."""
+    from autograder.engine import MAX_NOTES
+    from autograder.submission import MAX_CODE
+
+    page = " ".join((AG_ROOT / "chapters" / "instructors.md").read_text().split())
+    assert f"reads at most {MAX_CODE // 1024} KB of code" in page
+    assert f"At most {MAX_NOTES} notes on the submission's cells, and {MAX_NOTES} from loading" in page
