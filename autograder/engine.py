@@ -554,7 +554,7 @@ def _grade(path, exercise, *, limits, workers, seed, functions, secret, final):
     name = os.path.basename(str(path))
     result = GradeResult(name, None)
     try:
-        sub = load_submission(path)
+        sub = load_submission(path, max_code=limits.code)
     except SubmissionError as exc:
         sub = None
         load_error = str(exc)

@@ -111,6 +111,7 @@ from pathlib import Path
 import numpy as np
 
 from . import wire
+from .submission import MAX_CODE
 from .wire import (ProtocolError, RngSeed, clean_text, control_message, encode_args, pack_frame, parse_result_frame,
                    read_reply)
 
@@ -164,6 +165,9 @@ class Limits:
     seccomp : bool or "bpf"
         Install the system-call filters (zygote and workers): through libseccomp
         when it is installed, else (and with ``"bpf"``) as a BPF program built by the runner.
+    code : int
+        Characters of code the grader reads and parses, in its own process, where none of
+        these limits applies (:data:`autograder.submission.MAX_CODE`).
     """
 
     call_timeout: float | None = None
@@ -181,6 +185,7 @@ class Limits:
     audit: bool = True
     block_processes: bool = True
     seccomp: bool = True
+    code: int = MAX_CODE
 
 
 @dataclass
