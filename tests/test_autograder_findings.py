@@ -664,3 +664,31 @@ def test_a_line_that_starts_with_an_operator_inside_brackets_is_python_not_a_mag
     assert not load_submission(path).syntax_errors
     result = grade(path, "particle_filter", functions=["landmark_likelihood"])
     assert result.score == result.max_score, result.text_report()
+
+
+def test_cell_magics_that_run_python_and_help_lines_keep_their_functions(tmp_path):
+    """``%%time``/``%%capture`` cells run their body as Python in Jupyter, and ``obj?`` is a help line: the notebook
+    once scored 30/100 (both cells left out, the help line a syntax error) where IPython defined every function."""
+    from autograder.submission import _strip_magics
+
+    head, *defs = solution_text("particle_filter").split("\ndef ")
+    cells = [head + "\ndef " + defs[0], "def " + defs[1], "def " + defs[2], "def " + defs[3]]
+    nb = nbformat.v4.new_notebook(cells=[
+        nbformat.v4.new_code_cell("%%time\n" + cells[0]),
+        nbformat.v4.new_code_cell("%%capture out\n" + cells[1]),
+        nbformat.v4.new_code_cell("np.random.default_rng?\n" + cells[2] + "\n??np.linalg\n"),
+        nbformat.v4.new_code_cell("%%bash\necho def landmark_likelihood\n"),
+        nbformat.v4.new_code_cell("np.linalg.inv??\n" + cells[3]),
+    ])
+    path = tmp_path / "ipython.ipynb"
+    nbformat.write(nb, path)
+    result = grade(path, "particle_filter")
+    assert result.score == result.max_score == 100, result.text_report()
+    notes = "\n".join(result.notes)
+    assert "code cell 1: cell magic %%time -- its first line left out" in notes, notes
+    assert "code cell 2: cell magic %%capture -- its first line left out" in notes, notes
+    assert "code cell 3: 2 IPython magic/shell lines left out" in notes, notes
+    assert "code cell 4: cell magic %%bash -- the whole cell is left out" in notes, notes
+    # only where it is IPython syntax: not in a string, inside brackets, or after an operator
+    src = 's = """\nx?\n"""\nf(a,\n  b?\n  )\ny = a?\n'
+    assert _strip_magics(src, "c", []) == src
