@@ -692,3 +692,47 @@ def test_cell_magics_that_run_python_and_help_lines_keep_their_functions(tmp_pat
     # only where it is IPython syntax: not in a string, inside brackets, or after an operator
     src = 's = """\nx?\n"""\nf(a,\n  b?\n  )\ny = a?\n'
     assert _strip_magics(src, "c", []) == src
+
+
+def test_no_public_test_runs_after_a_hidden_one(tmp_path):
+    """One worker serves a function's tests in order: a submission counted the calls of the hidden test declared
+    between two public ones of ekf_predict and told the count in the later public test's error (shown before the
+    due date). Every public test now runs before any hidden one."""
+    text = solution_text("ekf_localization").replace("def ekf_predict(", "def _own_ekf_predict(")
+    text += '''
+
+_seen = []
+
+
+def ekf_predict(mu, Sigma, u, dt, M):
+    if float(u[1]) in (2e-6, -3e-5, 1.5e-3, -9e-3):  # the turn rates of the hidden test "small turn rates"
+        _seen.append(1)
+    elif _seen:
+        raise RuntimeError(f"ORACLE: the hidden test made {len(_seen)} calls before this one")
+    return _own_ekf_predict(mu, Sigma, u, dt, M)
+'''
+    path = tmp_path / "oracle.py"
+    path.write_text(text)
+    result = grade(path, "ekf_localization", limits=limits(), functions=["ekf_predict"])
+    data = gradescope_json_ok(result.to_gradescope())
+    shown = [t for t in data["tests"] if t["visibility"] == "visible"]
+    assert shown and all(t["status"] == "passed" for t in shown), result.text_report()
+    assert "ORACLE" not in json.dumps(shown)
+
+
+def test_the_always_visible_summary_counts_no_hidden_test():
+    """Gradescope shows the top-level ``output`` before the due date: it once said which function lost points in a
+    hidden test, and how many."""
+    from autograder.results import GradeResult, TestResult
+
+    tests = [TestResult("f: a", "f", 3.0, 3.0, "passed", "visible"),
+             TestResult("f: b", "f", 0.0, 2.0, "FAILED\nsecret inputs", "after_due_date"),
+             TestResult("g: a", "g", 0.0, 4.0, "FAILED", "visible")]
+    data = GradeResult("s.py", "ex", tests).to_gradescope()
+    assert data["output"].splitlines()[:2] == [
+        "Exercise ex: 3 / 7 points on the tests shown now; hidden tests worth 2 more points count in the score shown "
+        "after the due date", "Functions that lost points: g (0/4)"], data["output"]
+    data = GradeResult("s.py", "ex", tests[:2]).to_gradescope()
+    assert "Every test shown now passed." in data["output"] and "f (3/5)" not in data["output"]
+    # the staff's report still counts every test
+    assert GradeResult("s.py", "ex", tests[:2]).text_report().startswith("Exercise ex: 3 / 5 points\n")
