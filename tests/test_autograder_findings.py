@@ -477,6 +477,24 @@ def test_hanging_cell_is_skipped_and_the_other_cells_count(tmp_path):
     assert "code cell 4, line 1: did not finish within 1.5 s" in notes
 
 
+@pytest.mark.parametrize("sleep,n,lim", [(2.5, 3, dict(statement_timeout=1.0, import_timeout=4.0)),
+                                         (0.8, 4, dict(statement_timeout=1.5, import_timeout=2.5))],
+                         ids=["each-over-the-statement-limit", "together-over-the-loading-limit"])
+def test_slow_experiment_cells_after_the_functions_cost_nothing(tmp_path, sleep, n, lim):
+    """Cells that each ran over the statement limit (each skip cost a loading again), or that together ran over the
+    loading limit, once scored 0 ("loading the submission took longer than ..."): the statement under way when
+    the loading runs out of time is left out with the rest, as in an interrupted kernel, and the functions
+    defined before are graded."""
+    nb = nbformat.v4.new_notebook(cells=[nbformat.v4.new_code_cell(solution_text("particle_filter"))] + [
+        nbformat.v4.new_code_cell(f"import time\ntime.sleep({sleep})") for _ in range(n)])
+    path = tmp_path / "slow_cells.ipynb"
+    nbformat.write(nb, path)
+    result = grade(path, "particle_filter", limits=limits(**lim), functions=[TARGET, OTHER])
+    assert result.score == result.max_score == 35, result.text_report()
+    notes = "\n".join(result.notes)
+    assert f"reached its {lim['import_timeout']:g} s limit; this statement and every one after it were not run" in notes
+
+
 # --------------------------------------------------------------------------- 9. files a student controls
 def test_a_symbolic_link_is_never_graded_as_a_submission(tmp_path):
     """A link would make the grader (often root) read another student's work or its own secret as the submission,
