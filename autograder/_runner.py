@@ -1023,6 +1023,8 @@ def _load_submission(job, attempts, ctl):
     starts, so the grader can enforce a deadline per statement: a statement that
     hangs (an endless loop in a notebook cell) is skipped on the next load, as an
     interrupted cell would be, and the functions defined before and after it stay.
+    ``job["cut"]`` (unit, statement), where the whole loading once ran out of time:
+    that statement and every one after it are not run, as in a kernel interrupted there.
     """
     import ast
     import linecache
@@ -1033,7 +1035,11 @@ def _load_submission(job, attempts, ctl):
     sys.modules["submission"] = mod
     notes = []
     skip = {(int(u), int(s)) for u, s in job.get("skip", [])}
+    cut = job.get("cut")
+    cut = (int(cut[0]), int(cut[1])) if cut else None
     for k, unit in enumerate(job.get("units", [])):
+        if cut is not None and k > cut[0]:
+            break
         src, filename, label = unit["source"], unit["filename"], unit.get("label", unit["filename"])
         linecache.cache[filename] = (len(src), None, src.splitlines(True), filename)
         try:
@@ -1046,6 +1052,8 @@ def _load_submission(job, attempts, ctl):
             notes.append(f"{label}: too deeply nested for Python's parser (skipped)")
             continue
         for i, stmt in enumerate(tree.body):
+            if cut is not None and (k, i) >= cut:
+                break
             if (k, i) in skip:
                 continue
             _ctl_send(ctl, {"ev": "stmt", "unit": k, "stmt": i, "line": stmt.lineno})

@@ -7,7 +7,9 @@ end as failed tests with a message, and every function keeps its ``max_score``.
 The submission is loaded once, in one :class:`~autograder.sandbox.Sandbox`; each
 contract function is graded in a worker process forked from it (and forked again
 after a crash or a timeout), so slow top-level code runs once and one function's
-state never leaks into another's. Scenarios come from a seed derived from the
+state never leaks into another's. Every function's public tests run before any
+function's hidden test starts (a worker serves its function's tests in order, so
+nothing a student sees before the due date can depend on a hidden test). Scenarios come from a seed derived from the
 deployment's secret and the submission's content (:mod:`autograder.seeds`), and
 time is bounded per call, per test and per submission.
 
@@ -288,13 +290,19 @@ class _WorkerCaller:
             self.worker = None
 
 
-def run_tests(ex, fn, caller, *, seed=None, limits=None, budget=None):
-    """Run every test of ``fn`` through ``caller``; return TestResults and blocked attempts."""
+def run_tests(ex, fn, caller, *, seed=None, limits=None, budget=None, tests=None, state=None):
+    """Run every test of ``fn`` (or only ``tests``, in their order) through ``caller``; return TestResults and
+    blocked attempts.
+
+    ``state`` (a dict) carries what ends a function's grading from one run to the next of the same function's
+    other tests: a call that hung, a used-up budget or ``NotImplementedError`` leaves the tests after it not run.
+    """
     results = []
     blocked = []
-    skip_reason = None
+    state = {} if state is None else state
+    skip_reason = state.get("skip")
     cap = limits.call_timeout if (limits and limits.call_timeout) else None
-    for test in ex.tests_for(fn):
+    for test in (ex.tests_for(fn) if tests is None else tests):
         vis = VISIBILITY[test.visibility]
         if budget is not None and budget.exhausted and not skip_reason:
             skip_reason = "not run: " + budget.message("submission")
@@ -344,6 +352,7 @@ def run_tests(ex, fn, caller, *, seed=None, limits=None, budget=None):
             text += f"\nNote: {n}"
         blocked.extend(ctx.blocked)
         results.append(TestResult(test.name, fn, score, test.weight, text, vis))
+    state["skip"] = skip_reason
     return results, blocked
 
 
@@ -447,37 +456,68 @@ class _Grading:
         self.box.close()
 
 
-def _grade_function(ex, fn, grading, ready, limits, seed, budget):
-    tests = ex.tests_for(fn)
-    vis = {t.name: VISIBILITY[t.visibility] for t in tests}
+class _FunctionRun:
+    """One contract function's grading, in two phases on one worker and one set of budgets: its public tests, then,
+    once every function's public tests have run, its hidden ones (:func:`_grade`). Nothing a student sees before
+    the due date (the public tests' results) is made after a hidden test has started, so no hidden test's inputs
+    or outcome can be reported through a public test (the calls a worker received, counted and told in a later
+    public test's error, once did)."""
 
-    def zero(msg):
-        return [TestResult(t.name, fn, 0.0, t.weight, msg, vis[t.name]) for t in tests]
+    def __init__(self, ex, fn, grading, ready, limits, seed, budget):
+        self.ex, self.fn, self.grading, self.limits, self.seed, self.budget = ex, fn, grading, limits, seed, budget
+        self.tests = ex.tests_for(fn)
+        self.vis = {t.name: VISIBILITY[t.visibility] for t in self.tests}
+        self.out = {}  # test name -> TestResult
+        self.state = {}
+        self.caller = None
+        info = (ready.get("functions") or {}).get(fn) or {}
+        unit_files = {u["filename"] for u in grading.box.units}
+        module = info.get("module") or ""
+        filename = info.get("filename")
+        if not info.get("defined"):
+            self._zero(self.tests, f"FAILED\n{fn} is not defined in your submission")
+        elif not info.get("callable"):
+            self._zero(self.tests, f"FAILED\n{fn} is defined but is not a function")
+        elif (isinstance(module, str) and module.split(".")[0] in FORBIDDEN) or (
+                filename is not None and filename not in unit_files and _in_blocked_tree(filename)):
+            self._zero(self.tests,
+                       f"FAILED\nNo credit: {fn} is not defined by your code (it comes from {module or filename}).")
 
-    info = (ready.get("functions") or {}).get(fn) or {}
-    if not info.get("defined"):
-        return zero(f"FAILED\n{fn} is not defined in your submission")
-    if not info.get("callable"):
-        return zero(f"FAILED\n{fn} is defined but is not a function")
-    unit_files = {u["filename"] for u in grading.box.units}
-    module = info.get("module") or ""
-    filename = info.get("filename")
-    if (isinstance(module, str) and module.split(".")[0] in FORBIDDEN) or (
-            filename is not None and filename not in unit_files and _in_blocked_tree(filename)):
-        return zero(f"FAILED\nNo credit: {fn} is not defined by your code (it comes from {module or filename}).")
-    caller = _WorkerCaller(grading, fn, budget)
-    try:
-        results, blocked = run_tests(ex, fn, caller, seed=seed, limits=limits, budget=budget)
-    finally:
-        caller.close()
-    if blocked:
-        what = ", ".join(dict.fromkeys(blocked))
-        if any(b.startswith(("import ", "open ")) for b in blocked):
-            return zero(f"FAILED\nNo credit: while being graded, {fn} tried to use slamlib or the autograder ({what}). "
-                        "Graded functions must be your own code.")
-        for r in results:
-            r.output += f"\nNote: refused while running {fn}: {what} (no processes, network or ctypes while grading)"
-    return results
+    def _zero(self, tests, msg):
+        for t in tests:
+            self.out[t.name] = TestResult(t.name, self.fn, 0.0, t.weight, msg, self.vis[t.name])
+
+    def run(self, hidden):
+        """Run the public tests (``hidden`` False) or the hidden ones, each kind in its declared order."""
+        fn = self.fn
+        tests = [t for t in self.tests if (t.visibility == "hidden") == hidden and t.name not in self.out]
+        if not tests:
+            return
+        if self.caller is None:
+            self.caller = _WorkerCaller(self.grading, fn, self.budget)
+        results, blocked = run_tests(self.ex, fn, self.caller, seed=self.seed, limits=self.limits,
+                                     budget=self.budget, tests=tests, state=self.state)
+        self.out.update((r.name, r) for r in results)
+        if blocked:
+            what = ", ".join(dict.fromkeys(blocked))
+            if any(b.startswith(("import ", "open ")) for b in blocked):
+                # during the public tests: the whole function; during the hidden ones: those (the public tests'
+                # results, seen before the due date, must not tell what happened in a hidden test)
+                self._zero(self.tests if not hidden else tests,
+                           f"FAILED\nNo credit: while being graded, {fn} tried to use slamlib or the autograder "
+                           f"({what}). Graded functions must be your own code.")
+            else:
+                for r in results:
+                    r.output += (f"\nNote: refused while running {fn}: {what} (no processes, network or ctypes "
+                                 "while grading)")
+
+    def close(self):
+        if self.caller is not None:
+            self.caller.close()
+            self.caller = None
+
+    def results(self):
+        return [self.out[t.name] for t in self.tests if t.name in self.out]
 
 
 #: Notes on the submission's cells kept in a result: a notebook of thousands of broken cells would otherwise
@@ -637,24 +677,38 @@ def _grade(path, exercise, *, limits, workers, seed, functions, secret, final):
                 result.notes.append(f"while loading: {n}")
         n_workers = workers or min(len(todo), os.cpu_count() or 2) or 1
 
-        def one(fn):
-            budget = Budget(*budget_args, start=start)
-            out = _grade_function(ex, fn, grading, ready, limits, seed, budget)
+        runs = {fn: _FunctionRun(ex, fn, grading, ready, limits, seed, Budget(*budget_args, start=start))
+                for fn in todo}
+
+        def each(hidden):
+            # every function's public tests first, then every function's hidden tests: what a student sees before
+            # the due date is all made before the first hidden test starts
+            def one(fn):
+                runs[fn].run(hidden)
+
+            if n_workers <= 1:
+                for fn in todo:
+                    one(fn)
+            else:
+                with ThreadPoolExecutor(max_workers=n_workers) as pool:
+                    list(pool.map(one, todo))
+
+        try:
+            if todo:
+                each(False)
+                each(True)
+        finally:
+            for run in runs.values():
+                run.close()
+        for fn, run in runs.items():
+            out = run.results()
             if sub.syntax_errors and out and "is not defined in your submission" in out[0].output:
                 extra = (" (some cells could not be read: " + "; ".join(_first(
                     [f"{k}: {v}" for k, v in sub.syntax_errors.items()], 3, "more cells that could not be read")) + ")")
                 for r in out:
                     r.output = r.output.replace("is not defined in your submission",
                                                 "is not defined in your submission" + extra, 1)
-            return fn, out
-
-        if todo:
-            if n_workers <= 1:
-                got = [one(fn) for fn in todo]
-            else:
-                with ThreadPoolExecutor(max_workers=n_workers) as pool:
-                    got = list(pool.map(one, todo))
-            outs.update(dict(got))
+            outs[fn] = out
         result.loads = grading.box.loads
     except GraderFault as exc:
         exc.loads = grading.box.loads  # a second grading adds its own loadings to these (grade)

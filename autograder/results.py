@@ -69,7 +69,19 @@ class GradeResult:
             out[t.function] = (round(s + t.score, 6), round(m + t.max_score, 6))
         return out
 
-    def _headline(self):
+    def _headline(self, visible_only=False):
+        if visible_only:  # what a student may see before the due date: nothing counted from hidden tests
+            shown = [t for t in self.tests if t.visibility == "visible"]
+            later = round(sum(t.max_score for t in self.tests if t.visibility != "visible"), 6)
+            view = GradeResult(self.submission, self.exercise, shown, error=self.error)
+            lines = view._headline()
+            if later and lines and self.exercise:
+                lines[0] = (f"Exercise {self.exercise}: {view.score:g} / {view.max_score:g} points on the tests shown "
+                            f"now; hidden tests worth {later:g} more points count in the score shown after the due "
+                            "date")
+            if later and shown and lines[-1] == "Every test passed.":
+                lines[-1] = "Every test shown now passed."
+            return lines
         lines = []
         if self.exercise:
             lines.append(f"Exercise {self.exercise}: {self.score:g} / {self.max_score:g} points")
@@ -80,9 +92,10 @@ class GradeResult:
             lines.append("Functions that lost points: " + ", ".join(failed) if failed else "Every test passed.")
         return lines
 
-    def summary_text(self):
-        """What a student reads first: the score, what lost points, then notes about loading."""
-        lines = self._headline()
+    def summary_text(self, visible_only=False):
+        """What a student reads first: the score, what lost points, then notes about loading. ``visible_only``:
+        counting the always visible tests only (Gradescope's top-level ``output``, shown before the due date)."""
+        lines = self._headline(visible_only)
         for n in self.notes:
             lines.append(f"Note: {n}")
         return "\n".join(lines)
@@ -109,11 +122,14 @@ class GradeResult:
                 "isolation": self.isolation, "loads": self.loads}
 
     def to_gradescope(self):
-        """Gradescope's ``results.json`` content (``extra_data`` is for the course staff only)."""
+        """Gradescope's ``results.json`` content (``extra_data`` is for the course staff only).
+
+        The top-level ``output`` is always shown, so it counts the visible tests only; Gradescope itself hides the
+        total ``score`` from students while tests whose visibility is ``after_due_date`` are not shown yet."""
         return {
             "score": self.score,
             "execution_time": int(round(self.execution_time)),
-            "output": self.summary_text(),
+            "output": self.summary_text(visible_only=True),  # always shown: hidden tests' results are not in it
             "tests": [
                 {"name": t.name, "score": round(t.score, 6), "max_score": round(t.max_score, 6), "status": t.status,
                  "output": t.output, "visibility": t.visibility}

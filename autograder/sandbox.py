@@ -135,7 +135,9 @@ class Limits:
         Upper bound (seconds) on every call's wall time; a test's own timeout
         applies when smaller. ``None`` keeps the tests' timeouts.
     import_timeout : float
-        Wall time allowed to load the submission (all its top-level code).
+        Wall time allowed to load the submission (all its top-level code). When it runs out, the statement under
+        way and every one after it are left out, as in an interrupted kernel, and the submission is loaded once
+        more without them; that loading, and each worker's, may then take twice this time.
     statement_timeout : float
         Wall time allowed to one top-level statement (a notebook cell's loop); a
         statement over it is skipped and the submission loaded again without it.
@@ -437,6 +439,9 @@ class Sandbox:
         self.ready = None
         self.skip = []
         self.skip_notes = []
+        self.cut = None  # (unit, statement): where the loading ran out of time; it and what follows are not run
+        self._skipped_at = []  # (unit, statement, line) of the statements skipped
+        self.load_timeout = limits.import_timeout  # what one loading (the probe's, a worker's) may take
         self.loads = 0
         self._ctl = None
         self._out_r = None
@@ -456,11 +461,18 @@ class Sandbox:
         A top-level statement that runs longer than ``limits.statement_timeout`` is
         skipped (the submission is loaded again without it), as an interrupted cell
         of a notebook would be; the whole loading may take ``limits.import_timeout``.
+        When it runs out (or a 21st statement is over its deadline), the statement
+        under way and every statement after it are left out, as in a kernel
+        interrupted there, and the submission is loaded once more without them: the
+        functions defined before are graded. That last loading, and each worker's
+        from then on, may take twice ``limits.import_timeout`` (the statements kept
+        took up to that time once; the margin is for a busy machine); it is done
+        once per sandbox, and all of it counts in the submission's time budget.
         A loading whose process ended abruptly (killed, as by the kernel's
         out-of-memory killer) is tried once more.
         """
         lim = self.limits
-        deadline = time.monotonic() + lim.import_timeout
+        deadline = time.monotonic() + self.load_timeout
         killed = False
         while True:
             outcome = self._start_once(deadline)
@@ -478,15 +490,33 @@ class Sandbox:
             if status == "statement" and len(self.skip) < 20 and time.monotonic() < deadline:
                 unit, stmt, line = where
                 self.skip.append((unit, stmt))
+                self._skipped_at.append((unit, stmt, line))
                 self.skip_notes.append(f"{self._labels(unit, stmt, line)}: did not finish within "
                                        f"{lim.statement_timeout:g} s (statement skipped, as an interrupted cell)")
+                continue
+            # a statement under way, or one skipped earlier (the time may run out while a loading without it re-runs
+            # the statements before it, which all ran once): the latest of them
+            at = max(([tuple(where)] if status in ("timeout", "statement") and where is not None else [])
+                     + self._skipped_at, default=None, key=lambda w: w[:2])
+            if status in ("timeout", "statement") and at is not None and self.cut is None:
+                # out of time (or of skips) during a statement: it and the rest of the top-level code are left out,
+                # as in a kernel interrupted there, and the functions defined before it are graded
+                unit, stmt, line = at
+                self.cut = (unit, stmt)
+                self.load_timeout = 2 * lim.import_timeout
+                why = (f"loading the submission reached its {lim.import_timeout:g} s limit" if status == "timeout"
+                       or time.monotonic() >= deadline else "more than 20 statements were over the statement limit")
+                self.skip_notes.append(f"{self._labels(unit, stmt, line)}: {why}; this statement and every one after "
+                                       "it were not run, as in an interrupted kernel (the functions defined before it "
+                                       "are graded)")
+                deadline = time.monotonic() + self.load_timeout
                 continue
             out = self._zout_text
             self.kill()
             what = {
-                "timeout": f"loading the submission took longer than {lim.import_timeout:g} s (is there slow code at "
+                "timeout": f"loading the submission took longer than {self.load_timeout:g} s (is there slow code at "
                            "the top level? put experiments under `if __name__ == \"__main__\":`)",
-                "statement": f"loading the submission took longer than {lim.import_timeout:g} s",
+                "statement": f"loading the submission took longer than {self.load_timeout:g} s",
                 "output": f"the submission printed more than {lim.output} bytes while loading",
                 "protocol": f"the process loading the submission sent a malformed message ({where})",
             }.get(status, f"the process loading the submission ended unexpectedly ({where or status})")
@@ -513,6 +543,7 @@ class Sandbox:
             "block_processes": lim.block_processes,
             "seccomp": lim.seccomp,
             "skip": [list(s) for s in self.skip],
+            "cut": list(self.cut) if self.cut is not None else None,
             "max_workers": 8,
             "limits": {"cpu": lim.cpu, "as": lim.memory, "fsize": lim.file_size, "nproc": 0, "nofile": 256},
         }
@@ -552,7 +583,7 @@ class Sandbox:
             while True:
                 now = time.monotonic()
                 if now >= deadline:
-                    return ("timeout", None)
+                    return ("timeout", current[:3] if current is not None else None)
                 limit = deadline
                 if current is not None:
                     limit = min(limit, current[3] + lim.statement_timeout)
@@ -797,14 +828,15 @@ class Worker:
                            elapsed=r["elapsed"])
 
     def _await_loaded(self):
-        """Wait (up to ``limits.import_timeout``) for the worker's first frame, ``{"status": "loaded"}``.
+        """Wait (up to the sandbox's ``load_timeout``) for the worker's first frame, ``{"status": "loaded"}``.
 
         A worker loads the submission again after it is forked (its top-level code runs in every worker), and
         that time is no call's: the first call's deadline starts when the word has come. Returns None then,
         else the first call's outcome (the worker ended while loading, took too long, or sent something else).
         """
         t0 = time.monotonic()
-        deadline = t0 + self.limits.import_timeout
+        load_timeout = self.sandbox.load_timeout
+        deadline = t0 + load_timeout
         sel = selectors.DefaultSelector()
         try:
             sel.register(self._res_r, selectors.EVENT_READ, "res")
@@ -864,7 +896,7 @@ class Worker:
         if status == "timeout":
             return CallOutcome("timeout", output=out, error=(
                 f"the process for this function did not finish loading the submission within "
-                f"{self.limits.import_timeout:g} s (every function's process runs the top-level code again: "
+                f"{load_timeout:g} s (every function's process runs the top-level code again: "
                 "put experiments under `if __name__ == \"__main__\":`)"))
         if status == "eof":
             self.gone_before_call = True  # it ended before the call was sent: no call's doing

@@ -1,8 +1,11 @@
 """Reading a submission without running it: notebook or Python file to code units.
 
 A notebook's code cells are read with :mod:`nbformat` (no kernel). IPython
-syntax is dropped with a note: cells starting with a ``%%`` cell magic, and lines
-starting with ``%`` (line magics) or ``!`` (shell escapes). Cells tagged
+syntax is dropped with a note: cells starting with a ``%%`` cell magic (but the
+magics whose body IPython runs as Python, ``%%time``, ``%%timeit``, ``%%capture``
+and ``%%prun``, lose their first line only), lines starting with ``%`` (line
+magics) or ``!`` (shell escapes), and help lines (``name?``, ``name??``,
+``?name``). Cells tagged
 ``skip-grading`` are left out. Each remaining cell becomes one *unit* that the
 child executes statement by statement (a statement that raises is skipped, so a
 broken plotting cell does not cost the functions defined elsewhere).
@@ -27,7 +30,11 @@ __all__ = ["Submission", "SubmissionError", "load_submission", "forbidden_usage"
 
 SKIP_TAG = "skip-grading"
 FORBIDDEN = ("slamlib", "autograder")
-_MAGIC_LINE = re.compile(r"^\s*[%!]")
+#: a line magic, a shell escape, or a help line (``obj?``, ``obj.attr??``, ``?obj``: a ``?`` is never Python
+#: outside strings and comments, and the line holds nothing else)
+_MAGIC_LINE = re.compile(r"^\s*(?:[%!]|\?{1,2}\s*[A-Za-z_*][\w.*]*\s*$|[A-Za-z_*][\w.*]*\s*\?{1,2}\s*$)")
+#: cell magics whose body IPython runs as Python: the cell is graded without its first line
+PYTHON_CELL_MAGICS = ("%%time", "%%timeit", "%%capture", "%%prun")
 #: Most code the grader parses, summed over the cells it grades [characters]. Python's parser holds several
 #: hundred bytes per character of some code (a flat list of names: ~700), in the grader's own process, where no
 #: sandbox limit applies; an exercise's code is a few tens of kilobytes.
@@ -115,7 +122,9 @@ def _statement_starts(lines):
 
 
 def _strip_magics(source, label, notes):
-    """The cell with IPython's magic and shell lines (``%``, ``!`` at the start of a logical line) left out.
+    """The cell with IPython's magic, shell and help lines (``%``, ``!``, ``name?`` at the start of a logical line)
+    left out; a cell magic leaves the whole cell out, unless IPython runs its body as Python
+    (:data:`PYTHON_CELL_MAGICS`: then only its first line is left out).
 
     A line that begins with ``%`` or ``!`` inside brackets or after a backslash is Python (an operator carried
     over from the line before, as code formatters write it), not a magic: a cell that parses as Python is left
@@ -123,8 +132,13 @@ def _strip_magics(source, label, notes):
     """
     lines = source.splitlines(True)
     if lines and lines[0].lstrip().startswith("%%"):
-        notes.append(f"{label}: cell magic {lines[0].split()[0]} -- the whole cell is left out")
-        return ""
+        magic = lines[0].split()[0]
+        if magic not in PYTHON_CELL_MAGICS:
+            notes.append(f"{label}: cell magic {magic} -- the whole cell is left out")
+            return ""
+        notes.append(f"{label}: cell magic {magic} -- its first line left out, the rest graded as Python")
+        lines[0] = "\n"  # line numbers unchanged
+        source = "".join(lines)
     if not any(_MAGIC_LINE.match(line) for line in lines):
         return source
     try:

@@ -477,6 +477,24 @@ def test_hanging_cell_is_skipped_and_the_other_cells_count(tmp_path):
     assert "code cell 4, line 1: did not finish within 1.5 s" in notes
 
 
+@pytest.mark.parametrize("sleep,n,lim", [(2.5, 3, dict(statement_timeout=1.0, import_timeout=4.0)),
+                                         (0.8, 4, dict(statement_timeout=1.5, import_timeout=2.5))],
+                         ids=["each-over-the-statement-limit", "together-over-the-loading-limit"])
+def test_slow_experiment_cells_after_the_functions_cost_nothing(tmp_path, sleep, n, lim):
+    """Cells that each ran over the statement limit (each skip cost a loading again), or that together ran over the
+    loading limit, once scored 0 ("loading the submission took longer than ..."): the statement under way when
+    the loading runs out of time is left out with the rest, as in an interrupted kernel, and the functions
+    defined before are graded."""
+    nb = nbformat.v4.new_notebook(cells=[nbformat.v4.new_code_cell(solution_text("particle_filter"))] + [
+        nbformat.v4.new_code_cell(f"import time\ntime.sleep({sleep})") for _ in range(n)])
+    path = tmp_path / "slow_cells.ipynb"
+    nbformat.write(nb, path)
+    result = grade(path, "particle_filter", limits=limits(**lim), functions=[TARGET, OTHER])
+    assert result.score == result.max_score == 35, result.text_report()
+    notes = "\n".join(result.notes)
+    assert f"reached its {lim['import_timeout']:g} s limit; this statement and every one after it were not run" in notes
+
+
 # --------------------------------------------------------------------------- 9. files a student controls
 def test_a_symbolic_link_is_never_graded_as_a_submission(tmp_path):
     """A link would make the grader (often root) read another student's work or its own secret as the submission,
@@ -664,3 +682,75 @@ def test_a_line_that_starts_with_an_operator_inside_brackets_is_python_not_a_mag
     assert not load_submission(path).syntax_errors
     result = grade(path, "particle_filter", functions=["landmark_likelihood"])
     assert result.score == result.max_score, result.text_report()
+
+
+def test_cell_magics_that_run_python_and_help_lines_keep_their_functions(tmp_path):
+    """``%%time``/``%%capture`` cells run their body as Python in Jupyter, and ``obj?`` is a help line: the notebook
+    once scored 30/100 (both cells left out, the help line a syntax error) where IPython defined every function."""
+    from autograder.submission import _strip_magics
+
+    head, *defs = solution_text("particle_filter").split("\ndef ")
+    cells = [head + "\ndef " + defs[0], "def " + defs[1], "def " + defs[2], "def " + defs[3]]
+    nb = nbformat.v4.new_notebook(cells=[
+        nbformat.v4.new_code_cell("%%time\n" + cells[0]),
+        nbformat.v4.new_code_cell("%%capture out\n" + cells[1]),
+        nbformat.v4.new_code_cell("np.random.default_rng?\n" + cells[2] + "\n??np.linalg\n"),
+        nbformat.v4.new_code_cell("%%bash\necho def landmark_likelihood\n"),
+        nbformat.v4.new_code_cell("np.linalg.inv??\n" + cells[3]),
+    ])
+    path = tmp_path / "ipython.ipynb"
+    nbformat.write(nb, path)
+    result = grade(path, "particle_filter")
+    assert result.score == result.max_score == 100, result.text_report()
+    notes = "\n".join(result.notes)
+    assert "code cell 1: cell magic %%time -- its first line left out" in notes, notes
+    assert "code cell 2: cell magic %%capture -- its first line left out" in notes, notes
+    assert "code cell 3: 2 IPython magic/shell lines left out" in notes, notes
+    assert "code cell 4: cell magic %%bash -- the whole cell is left out" in notes, notes
+    # only where it is IPython syntax: not in a string, inside brackets, or after an operator
+    src = 's = """\nx?\n"""\nf(a,\n  b?\n  )\ny = a?\n'
+    assert _strip_magics(src, "c", []) == src
+
+
+def test_no_public_test_runs_after_a_hidden_one(tmp_path):
+    """One worker serves a function's tests in order: a submission counted the calls of the hidden test declared
+    between two public ones of ekf_predict and told the count in the later public test's error (shown before the
+    due date). Every public test now runs before any hidden one."""
+    text = solution_text("ekf_localization").replace("def ekf_predict(", "def _own_ekf_predict(")
+    text += '''
+
+_seen = []
+
+
+def ekf_predict(mu, Sigma, u, dt, M):
+    if float(u[1]) in (2e-6, -3e-5, 1.5e-3, -9e-3):  # the turn rates of the hidden test "small turn rates"
+        _seen.append(1)
+    elif _seen:
+        raise RuntimeError(f"ORACLE: the hidden test made {len(_seen)} calls before this one")
+    return _own_ekf_predict(mu, Sigma, u, dt, M)
+'''
+    path = tmp_path / "oracle.py"
+    path.write_text(text)
+    result = grade(path, "ekf_localization", limits=limits(), functions=["ekf_predict"])
+    data = gradescope_json_ok(result.to_gradescope())
+    shown = [t for t in data["tests"] if t["visibility"] == "visible"]
+    assert shown and all(t["status"] == "passed" for t in shown), result.text_report()
+    assert "ORACLE" not in json.dumps(shown)
+
+
+def test_the_always_visible_summary_counts_no_hidden_test():
+    """Gradescope shows the top-level ``output`` before the due date: it once said which function lost points in a
+    hidden test, and how many."""
+    from autograder.results import GradeResult, TestResult
+
+    tests = [TestResult("f: a", "f", 3.0, 3.0, "passed", "visible"),
+             TestResult("f: b", "f", 0.0, 2.0, "FAILED\nsecret inputs", "after_due_date"),
+             TestResult("g: a", "g", 0.0, 4.0, "FAILED", "visible")]
+    data = GradeResult("s.py", "ex", tests).to_gradescope()
+    assert data["output"].splitlines()[:2] == [
+        "Exercise ex: 3 / 7 points on the tests shown now; hidden tests worth 2 more points count in the score shown "
+        "after the due date", "Functions that lost points: g (0/4)"], data["output"]
+    data = GradeResult("s.py", "ex", tests[:2]).to_gradescope()
+    assert "Every test shown now passed." in data["output"] and "f (3/5)" not in data["output"]
+    # the staff's report still counts every test
+    assert GradeResult("s.py", "ex", tests[:2]).text_report().startswith("Exercise ex: 3 / 5 points\n")
