@@ -69,14 +69,16 @@ def _sandbox_ok(limits):
     try:
         require_sandbox(limits)
     except SandboxBroken as exc:
-        print(str(exc), file=sys.stderr)
+        from .results import safe_print
+
+        safe_print(str(exc), file=sys.stderr)
         return False
     return True
 
 
 def _cmd_grade(args):
     from .engine import grade
-    from .results import fallback_results, write_json_atomic
+    from .results import fallback_results, safe_print, write_json_atomic
 
     if not _sandbox_ok(_limits(args)):
         return SANDBOX_BROKEN
@@ -85,17 +87,15 @@ def _cmd_grade(args):
                        secret=_secret(args))
     except Exception:  # noqa: BLE001 - a grader bug still leaves a valid results.json
         msg = "The autograder failed internally while grading this submission:\n" + traceback.format_exc(limit=5)
-        print(msg, file=sys.stderr)
         if args.results:
             write_json_atomic(args.results, fallback_results(msg))
+        safe_print(msg, file=sys.stderr)
         return 1
     if args.results:
         write_json_atomic(args.results, result.to_gradescope())
-    from .wire import clean_text
-
-    print(clean_text(result.text_report(verbose=args.verbose)))  # no escape sequence reaches the terminal
+    safe_print(result.text_report(verbose=args.verbose))  # no escape sequence reaches the terminal
     if args.results:
-        print(f"\nresults written to {args.results}")
+        safe_print(f"\nresults written to {args.results}")
     return 0 if result.exercise else 2
 
 

@@ -1543,6 +1543,7 @@ def main(argv):
     ctl_fd = int(argv[1])
     _libc_early = _libc()
     _libc_early.prctl(1, 9, 0, 0, 0)  # PR_SET_PDEATHSIG: die with the grader
+    os.umask(0o022)  # the grader's umask (027, 077) would make the minimal root's folders unreadable after the uid drop
     buf = bytearray()
     got = _recv(0, buf)
     if got is None:

@@ -238,6 +238,8 @@ def _grade_one(sid, path, problem, exercise, results_path, limits, fingerprint, 
         data["extra_data"] = {**data.get("extra_data", {}), **extra, "batch_row": row}
         write_json_atomic(results_path, data)
     except Exception as exc:  # noqa: BLE001 - one bad submission must not stop the batch
+        # the grader's failure is no grade: the row has no score (never a zero, nor a score its JSON does not hold)
+        row.update({"score": "", **{fn: "" for fn in ex.functions}})
         row["status"] = "grader-error"
         row["message"] = f"{type(exc).__name__}: {exc}"
         write_json_atomic(results_path, {**fallback_results("The autograder failed internally:\n"
@@ -253,7 +255,10 @@ def _write_csv(out_csv, rows, ex):
     writer = csv.DictWriter(buf, fieldnames=fields, extrasaction="ignore")
     writer.writeheader()
     for r in rows:
-        r["percent"] = round(100.0 * float(r["score"]) / float(r["max_score"]), 2) if float(r["max_score"]) else 0.0
+        if r["score"] == "":  # the grader failed on it: no score, no percentage
+            r["percent"] = ""
+        else:
+            r["percent"] = round(100.0 * float(r["score"]) / float(r["max_score"]), 2) if float(r["max_score"]) else 0.0
         writer.writerow({k: _cell(v) for k, v in r.items()})
     write_text_atomic(out_csv, buf.getvalue())
     return rows
@@ -372,9 +377,9 @@ def run_batch(folder, exercise, *, out_csv="grades.csv", jobs=2, results_dir=Non
                     try:
                         rows.append(fut.result())
                     except Exception as exc:  # noqa: BLE001 - a worker that died
-                        row = {"submission": sid, "file": "", "score": 0.0, "max_score": ex.max_score(),
+                        row = {"submission": sid, "file": "", "score": "", "max_score": ex.max_score(),
                                "status": "grader-error", "message": f"{type(exc).__name__}: {exc}"}
-                        row.update({fn: 0.0 for fn in ex.functions})
+                        row.update({fn: "" for fn in ex.functions})  # no grade: no score
                         rows.append(row)
                         try:  # the row above is what counts: a file that cannot be written does not stop the batch
                             write_json_atomic(results_file(results_dir, sid),

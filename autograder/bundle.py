@@ -31,7 +31,7 @@ import stat
 import zipfile
 from pathlib import Path
 
-from .results import fallback_results, write_json_atomic
+from .results import fallback_results, safe_print, write_json_atomic
 from .spec import VISIBILITY
 
 __all__ = ["build_bundle", "build_wheel", "run_gradescope", "project_root"]
@@ -76,18 +76,16 @@ chmod -R go-rwx "$SITE/slamlib" "$SITE/autograder" "$SITE"/slamlib-*.dist-info "
 
 RUN_AUTOGRADER = r"""#!/usr/bin/env bash
 # Gradescope entry point: grade $AUTOGRADER_ROOT/submission into $AUTOGRADER_ROOT/results/results.json.
-ROOT="${AUTOGRADER_ROOT:-/autograder}"
+# When the grader writes no results.json (its self-check failed, or Python could not start it), none is made up
+# here: Gradescope then reports that the autograder failed, which is the staff's to fix, not a student's zero.
+ROOT="$(cd "${AUTOGRADER_ROOT:-/autograder}" && pwd)" || exit 1
 PY="${AUTOGRADER_PYTHON:-$ROOT/venv/bin/python}"
+case "$PY" in /*) ;; */*) PY="$(cd "$(dirname "$PY")" && pwd)/$(basename "$PY")" ;; esac
 if [ ! -x "$PY" ]; then PY=python3; fi
 mkdir -p "$ROOT/results"
-cd "$ROOT" || exit 0
+cd "$ROOT" || exit 1
 AUTOGRADER_SECRET_FILE="${AUTOGRADER_SECRET_FILE:-$ROOT/grading_secret}" \
-  "$PY" -m autograder gradescope --root "$ROOT" --exercise "@EXERCISE@"
-status=$?
-if [ ! -s "$ROOT/results/results.json" ]; then
-  printf '{"score": 0.0, "execution_time": 0, "output": "The autograder could not run (exit status %s); please tell the course staff.", "tests": []}\n' "$status" > "$ROOT/results/results.json"
-fi
-exit 0
+  "$PY" -P -m autograder gradescope --root "$ROOT" --exercise "@EXERCISE@"
 """
 
 
@@ -262,7 +260,7 @@ def run_gradescope(root, exercise, *, limits=None, secret=None):
     try:
         require_sandbox(limits)
     except SandboxBroken as exc:  # the grader's fault: no results.json, so Gradescope reports an autograder failure
-        print(str(exc))
+        safe_print(str(exc))
         return 3
     try:
         ex = get_exercise(exercise)
@@ -272,16 +270,16 @@ def run_gradescope(root, exercise, *, limits=None, secret=None):
             tests = [{"name": t.name, "score": 0.0, "max_score": t.weight, "status": "failed", "output": msg,
                       "visibility": VISIBILITY[t.visibility]} for t in ex.tests]
             write_json_atomic(results, {**fallback_results(msg), "tests": tests})
-            print(msg)
+            safe_print(msg)
             return 0
         result = grade(path, ex.name, limits=limits, secret=_gradescope_secret(root, secret))
         write_json_atomic(results, result.to_gradescope())
-        print(result.text_report())
-        return 0
     except Exception:  # noqa: BLE001 - always leave a valid results.json
         import traceback
 
         msg = "The autograder failed internally; please tell the course staff.\n" + traceback.format_exc(limit=5)
         write_json_atomic(results, fallback_results(msg))
-        print(msg)
+        safe_print(msg)
         return 1
+    safe_print(result.text_report())  # after the results are written: a log that cannot be printed changes nothing
+    return 0

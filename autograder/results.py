@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+import sys
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -168,6 +169,32 @@ class GradeResult:
                 lines.append("For the course staff:")
                 lines.extend(f"  {ln}" for ln in extra)
         return "\n".join(lines)
+
+
+def safe_print(text, file=None):
+    """Print ``text`` whatever the stream: its control characters escaped (:func:`autograder.wire.clean_text`),
+    characters the stream's encoding lacks written as escapes (``LC_ALL=C``, ``PYTHONIOENCODING=ascii``), and a
+    closed or broken stream ignored (``grade ... | head -1``). The grading is done when this runs: a log that
+    cannot be printed must not turn it into a failure.
+    """
+    from .wire import clean_text
+
+    stream = sys.stdout if file is None else file
+    text = clean_text(text) + "\n"
+    try:
+        try:
+            stream.write(text)
+        except UnicodeEncodeError:
+            enc = getattr(stream, "encoding", None) or "ascii"
+            stream.write(text.encode(enc, "backslashreplace").decode(enc, "replace"))
+        stream.flush()
+    except (OSError, ValueError):  # a closed stream, a broken pipe
+        try:  # nothing more reaches it; and the interpreter's own flush at exit must not fail either
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, stream.fileno())
+            os.close(devnull)
+        except (OSError, ValueError, AttributeError):
+            pass
 
 
 def write_json_atomic(path, data):

@@ -1162,6 +1162,12 @@ def _probe_expected():
     return np.concatenate([x, _PROBE_A @ x, [0.5, 1.0]])
 
 
+def failed_limits(isolation):
+    """The resource limits the sandbox could not set (``"RLIMIT_AS: failed: ..."``), from its isolation report."""
+    applied = (isolation or {}).get("rlimits") or {}
+    return [f"{k}: {v}" for k, v in applied.items() if isinstance(v, str) and v.startswith("failed")]
+
+
 def check_sandbox(limits=None, *, refresh=False):
     """Run one known-correct function in a sandbox, as a submission's would run; report what happened.
 
@@ -1197,6 +1203,10 @@ def check_sandbox(limits=None, *, refresh=False):
             notes = [str(n) for n in ready.get("notes") or []]
             if notes:
                 problem = "loading NumPy and SciPy in the sandbox failed: " + "; ".join(notes)[:1500]
+            elif failed_limits(iso):
+                problem = ("the sandbox could not set its resource limits (" + "; ".join(failed_limits(iso)) + "): the "
+                           "grader was started with lower hard limits (ulimit -v / -t / -f / -n); a submission would be "
+                           "held to them and lose points for the machine's limits. Start it without them.")
             elif not (ready.get("functions") or {}).get("probe", {}).get("defined"):
                 problem = "the probe function was not defined in the sandbox"
             else:

@@ -223,3 +223,92 @@ def test_the_instructors_page_states_the_caps():
     page = " ".join((AG_ROOT / "chapters" / "instructors.md").read_text().split())
     assert f"reads at most {MAX_CODE // 1024} KB of code" in page
     assert f"At most {MAX_NOTES} notes on the submission's cells, and {MAX_NOTES} from loading" in page
+
+
+# --------------------------------------------------------------------------- the environment's failures are the grader's
+def _run_autograder_script(tmp_path, python_body, root="gs"):
+    """Gradescope's ``run_autograder`` of a bundle, with a stand-in for the grader's Python (``python_body``)."""
+    from autograder.bundle import RUN_AUTOGRADER
+
+    script = tmp_path / "run_autograder"
+    script.write_text(RUN_AUTOGRADER.replace("@EXERCISE@", "particle_filter"))
+    fake = tmp_path / "fakepython"
+    fake.write_text("#!/bin/sh\n" + python_body)
+    fake.chmod(0o755)
+    (tmp_path / root / "submission").mkdir(parents=True)
+    env = {**os.environ, "AUTOGRADER_ROOT": root, "AUTOGRADER_PYTHON": str(fake)}
+    subprocess.run(["bash", str(script)], cwd=str(tmp_path), env=env, timeout=60)
+    return tmp_path / root / "results" / "results.json"
+
+
+def test_a_grader_that_declines_leaves_no_score_on_gradescope(tmp_path):
+    """The grader's self-check failed (exit 3, "nobody is charged"), and the bundle's script then wrote a results
+    file scoring 0: the machine's fault became every student's zero."""
+    results = _run_autograder_script(tmp_path, "exit 3\n")
+    assert not results.exists(), results.read_text()
+
+
+def test_a_relative_gradescope_root_is_the_same_folder_after_the_script_enters_it(tmp_path):
+    """The script entered the root and passed the relative root on: the grader looked for ROOT/ROOT/submission and
+    told the student to submit the notebook."""
+    results = _run_autograder_script(
+        tmp_path, 'for a; do [ "$prev" = --root ] && root="$a"; prev="$a"; done\n'
+                  'test -d "$root/submission" && echo "{}" > "$root/results/results.json"\n', root="gs root")
+    assert results.exists()
+
+
+def test_the_report_of_a_finished_grading_never_replaces_its_results(tmp_path):
+    """Printing the report failed (a closed pipe, an ASCII-only stream) after results.json was written, and the
+    fallback of a failed grading overwrote a score of 100 with 0."""
+    import io
+
+    from autograder.results import safe_print
+
+    class Ascii(io.TextIOWrapper):
+        pass
+
+    raw = io.BytesIO()
+    ascii_out = io.TextIOWrapper(raw, encoding="ascii")
+    safe_print("caf\u00e9 \x1b[2J done", file=ascii_out)
+    assert raw.getvalue() == b"caf\\xe9 \\x1b[2J done\n"
+    closed = io.StringIO()
+    closed.close()
+    safe_print("anything", file=closed)  # no exception
+
+    root = tmp_path / "gs"
+    (root / "submission").mkdir(parents=True)
+    (root / "submission" / "particle_filter.py").write_text(
+        solution_text("particle_filter") + "\nprint('caf\u00e9')\nraise RuntimeError('\u00e9t\u00e9')\n")
+    env = {**os.environ, "PYTHONPATH": str(AG_ROOT), "PYTHONIOENCODING": "ascii"}
+    p = subprocess.run([sys.executable, "-m", "autograder", "gradescope", "--root", str(root), "-e", "particle_filter"],
+                       capture_output=True, cwd=str(tmp_path), env=env, timeout=300)
+    data = json.loads((root / "results" / "results.json").read_text())
+    assert p.returncode == 0 and data["score"] == 100, (p.stderr[-2000:], data.get("output"))
+
+
+def test_limits_the_sandbox_cannot_set_stop_the_grading_before_anyone_is_graded(tmp_path):
+    """Started under a lower hard limit (``ulimit -v``), the sandbox could not raise RLIMIT_AS to its 2 GiB: a correct
+    submission that needs 1.5 GB scored 80, with the MemoryError shown as the student's."""
+    from autograder.sandbox import failed_limits
+
+    assert failed_limits({"rlimits": {"RLIMIT_AS": "failed: not allowed to raise maximum limit", "RLIMIT_CPU": 600}}) \
+        == ["RLIMIT_AS: failed: not allowed to raise maximum limit"]
+    code = ("import resource, runpy, sys\n"
+            "resource.setrlimit(resource.RLIMIT_AS, (1536 << 20, 1536 << 20))\n"
+            "sys.argv = ['autograder', 'selfcheck']\n"
+            "runpy.run_module('autograder', run_name='__main__')\n")
+    env = {**os.environ, "PYTHONPATH": str(AG_ROOT)}
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=str(tmp_path), env=env,
+                       timeout=300)
+    assert p.returncode == 3 and "could not set its resource limits" in p.stdout + p.stderr, p.stdout[-2000:]
+
+
+def test_the_minimal_root_is_readable_whatever_the_graders_umask(tmp_path):
+    """With umask 027 (or 077) the minimal root's folders were made unreadable for the sandbox's uid: every grading
+    stopped at the self-check."""
+    code = ("import os, runpy, sys\nos.umask(0o077)\nsys.argv = ['autograder', 'selfcheck']\n"
+            "runpy.run_module('autograder', run_name='__main__')\n")
+    env = {**os.environ, "PYTHONPATH": str(AG_ROOT)}
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=str(tmp_path), env=env,
+                       timeout=300)
+    assert p.returncode == 0 and "sandbox self-check: ok" in p.stdout, (p.stdout + p.stderr)[-2000:]
