@@ -235,7 +235,7 @@ def _run_autograder_script(tmp_path, python_body, root="gs"):
     fake = tmp_path / "fakepython"
     fake.write_text("#!/bin/sh\n" + python_body)
     fake.chmod(0o755)
-    (tmp_path / root / "submission").mkdir(parents=True)
+    (tmp_path / root / "submission").mkdir(parents=True)  # root: relative to tmp_path, or absolute
     env = {**os.environ, "AUTOGRADER_ROOT": root, "AUTOGRADER_PYTHON": str(fake)}
     subprocess.run(["bash", str(script)], cwd=str(tmp_path), env=env, timeout=60)
     return tmp_path / root / "results" / "results.json"
@@ -244,7 +244,7 @@ def _run_autograder_script(tmp_path, python_body, root="gs"):
 def test_a_grader_that_declines_leaves_no_score_on_gradescope(tmp_path):
     """The grader's self-check failed (exit 3, "nobody is charged"), and the bundle's script then wrote a results
     file scoring 0: the machine's fault became every student's zero."""
-    results = _run_autograder_script(tmp_path, "exit 3\n")
+    results = _run_autograder_script(tmp_path, "exit 3\n", root=str(tmp_path / "gs"))
     assert not results.exists(), results.read_text()
 
 
@@ -263,9 +263,6 @@ def test_the_report_of_a_finished_grading_never_replaces_its_results(tmp_path):
     import io
 
     from autograder.results import safe_print
-
-    class Ascii(io.TextIOWrapper):
-        pass
 
     raw = io.BytesIO()
     ascii_out = io.TextIOWrapper(raw, encoding="ascii")
