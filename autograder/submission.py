@@ -30,9 +30,11 @@ __all__ = ["Submission", "SubmissionError", "load_submission", "forbidden_usage"
 
 SKIP_TAG = "skip-grading"
 FORBIDDEN = ("slamlib", "autograder")
-#: a line magic, a shell escape, or a help line (``obj?``, ``obj.attr??``, ``?obj``: a ``?`` is never Python
-#: outside strings and comments, and the line holds nothing else)
-_MAGIC_LINE = re.compile(r"^\s*(?:[%!]|\?{1,2}\s*[A-Za-z_*][\w.*]*\s*$|[A-Za-z_*][\w.*]*\s*\?{1,2}\s*$)")
+#: a line magic, a shell escape, a help line (``obj?``, ``obj.attr??``, ``?obj``: a ``?`` is never Python
+#: outside strings and comments, and the line holds nothing else), or a magic or shell escape assigned to a name
+#: (``files = !ls``, ``t = %timeit -o f()``: ``= !`` and ``= %`` are never Python)
+_MAGIC_LINE = re.compile(r"^\s*(?:[%!]|\?{1,2}\s*[A-Za-z_*][\w.*]*\s*$|[A-Za-z_*][\w.*]*\s*\?{1,2}\s*$"
+                         r"|[A-Za-z_][\w.]*\s*=\s*[%!])")
 #: cell magics whose body IPython runs as Python: the cell is graded without its first line
 PYTHON_CELL_MAGICS = ("%%time", "%%timeit", "%%capture", "%%prun")
 #: Most code the grader parses, summed over the cells it grades [characters]. Python's parser holds several

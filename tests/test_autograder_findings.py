@@ -710,6 +710,11 @@ def test_cell_magics_that_run_python_and_help_lines_keep_their_functions(tmp_pat
     # only where it is IPython syntax: not in a string, inside brackets, or after an operator
     src = 's = """\nx?\n"""\nf(a,\n  b?\n  )\ny = a?\n'
     assert _strip_magics(src, "c", []) == src
+    # a magic or a shell escape assigned to a name is IPython too (and never Python)
+    notes = []
+    kept = _strip_magics("files = !ls\nt = %timeit -o f()\ndef f():\n    return 1\nx = (1 %\n     2)\n", "c", notes)
+    assert kept.splitlines()[2:] == ["def f():", "    return 1", "x = (1 %", "     2)"], kept
+    assert "!ls" not in kept and "%timeit" not in kept and notes == ["c: 2 IPython magic/shell lines left out"], notes
 
 
 def test_no_public_test_runs_after_a_hidden_one(tmp_path):
