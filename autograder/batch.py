@@ -31,6 +31,7 @@ from pathlib import Path
 
 from .results import fallback_results, read_results, write_json_atomic, write_text_atomic
 from .spec import VISIBILITY
+from .wire import clean_text, shorten
 
 __all__ = ["find_submissions", "run_batch", "pick_submission_file"]
 
@@ -284,8 +285,12 @@ _CUT_NAME = re.compile(r"-[0-9a-f]{16}$")
 
 def _cell(value):
     """A CSV cell that a spreadsheet shows as text: a string a student chose (a file name, a message quoting it) that
-    starts like a formula (``=``, ``+``, ``-``, ``@``, a tab or carriage return) gets a leading apostrophe."""
-    if isinstance(value, str) and value[:1] in ("=", "+", "-", "@", "\t", "\r"):
+    starts like a formula (``=``, ``+``, ``-``, ``@``, a tab or carriage return) gets a leading apostrophe; its
+    control characters are written as escapes (as in the printed report) and it is cut at 1000 characters."""
+    if not isinstance(value, str):
+        return value
+    value = shorten(clean_text(value), 1000)
+    if value[:1] in ("=", "+", "-", "@", "\t", "\r"):
         return "'" + value
     return value
 
@@ -363,6 +368,10 @@ def run_batch(folder, exercise, *, out_csv="grades.csv", jobs=2, results_dir=Non
         for sig in (signal.SIGTERM, signal.SIGINT):
             old_handlers[sig] = signal.signal(sig, stop)
     pool = None
+    # the pool's workers are new interpreters (`python -c`), which put the working directory first on sys.path before
+    # they import anything: started in a folder of students' files, they imported a student's threading.py
+    safe_path = os.environ.get("PYTHONSAFEPATH")
+    os.environ["PYTHONSAFEPATH"] = "1"
     try:
         if todo:
             pool = ProcessPoolExecutor(max_workers=max(1, int(jobs)), mp_context=ctx, initializer=_worker_init,
@@ -404,6 +413,10 @@ def run_batch(folder, exercise, *, out_csv="grades.csv", jobs=2, results_dir=Non
     finally:
         if pool is not None:
             pool.shutdown(wait=True)
+        if safe_path is None:
+            os.environ.pop("PYTHONSAFEPATH", None)
+        else:
+            os.environ["PYTHONSAFEPATH"] = safe_path
         for sig, h in old_handlers.items():
             signal.signal(sig, h)
         if bar is not None:

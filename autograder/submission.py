@@ -41,6 +41,9 @@ PYTHON_CELL_MAGICS = ("%%time", "%%timeit", "%%capture", "%%prun")
 #: hundred bytes per character of some code (a flat list of names: ~700), in the grader's own process, where no
 #: sandbox limit applies; an exercise's code is a few tens of kilobytes.
 MAX_CODE = 512 * 1024
+#: Most JSON objects and arrays (``{`` and ``[`` characters, strings included) of a notebook the grader parses: a
+#: notebook of a thousand cells holds a few thousand; outputs are where there may be more (clear them).
+MAX_JSON_CONTAINERS = 250_000
 
 
 class SubmissionError(Exception):
@@ -196,12 +199,12 @@ def load_submission(path, *, max_code=MAX_CODE):
         sub = Submission(path, "python", [{"source": text, "filename": path.name, "label": path.name}])
     elif suffix == ".ipynb":
         try:
-            sub = _load_notebook(path, raw)
+            sub = _load_notebook(path, raw, max_code)
         except SubmissionError:
             raise
         except Exception as exc:  # noqa: BLE001 - any value of the untrusted JSON the reader did not expect
             raise SubmissionError(f"{path.name}: not a readable Jupyter notebook ({type(exc).__name__}: "
-                                  f"{str(exc)[:200]})") from None
+                                  f"{_quoted(exc)})") from None
     else:
         raise SubmissionError(f"{path.name}: unsupported file type (submit the exercise notebook .ipynb or a .py file)")
     from .seeds import content_hash
@@ -209,8 +212,7 @@ def load_submission(path, *, max_code=MAX_CODE):
     sub.sha256 = content_hash(raw)
     size = sum(len(unit["source"]) for unit in sub.units)
     if size > max_code:
-        raise SubmissionError(f"{path.name}: {size // 1024} KB of code, more than the {max_code // 1024} KB the grader "
-                              "reads (keep data out of the code: load it from a file or generate it)")
+        raise _too_much_code(path.name, size, max_code)
     for unit in sub.units:
         try:
             ast.parse(unit["source"], filename=unit["filename"])
@@ -245,28 +247,59 @@ def decode_python_source(raw, name="submission.py"):
         encoding, _ = tokenize.detect_encoding(io.BytesIO(raw).readline)
         text = raw.decode(encoding)
     except (SyntaxError, LookupError, UnicodeDecodeError) as exc:
-        raise SubmissionError(f"{name}: not a readable Python text file ({exc}); save it as UTF-8") from None
+        raise SubmissionError(f"{name}: not a readable Python text file ({_quoted(exc)}); save it as UTF-8") from None
     if text.startswith("\ufeff"):
         text = text[1:]
     return text.replace("\r\n", "\n").replace("\r", "\n")
 
 
-def _load_notebook(path, raw):
+def _quoted(exc, n=200):
+    """A message about the notebook's content (which may hold the content), on one line and cut short."""
+    text = " ".join(str(exc).split())
+    return text if len(text) <= n else text[: n - 3] + "..."
+
+
+def _too_much_code(name, size, max_code):
+    return SubmissionError(f"{name}: {size // 1024} KB of code, more than the {max_code // 1024} KB the grader reads "
+                           "(keep data out of the code: load it from a file or generate it)")
+
+
+def _graded_cells(data):
+    """The cell dicts of a parsed notebook (nbformat 4: ``cells``; 3: ``worksheets[*].cells``)."""
+    lists = [data.get("cells")]
+    if isinstance(data.get("worksheets"), list):
+        lists += [w.get("cells") for w in data["worksheets"] if isinstance(w, dict)]
+    return [c for cells in lists if isinstance(cells, list) for c in cells if isinstance(c, dict)]
+
+
+def _load_notebook(path, raw, max_code=MAX_CODE):
     import nbformat
 
+    # the JSON is read in the grader's own process: a notebook of millions of tiny objects ({} {} {} ...) costs
+    # about 190 bytes of memory per byte, so the number of objects is bounded before it is parsed
+    containers = raw.count(b"{") + raw.count(b"[")
+    if containers > MAX_JSON_CONTAINERS:
+        raise SubmissionError(f"{path.name}: a notebook of {containers} JSON objects and arrays, more than the "
+                              f"{MAX_JSON_CONTAINERS} the grader reads (clear the outputs and save it again)")
     try:
         data = json.loads(raw.decode("utf-8-sig"))
     except (UnicodeDecodeError, ValueError, RecursionError) as exc:
-        raise SubmissionError(f"{path.name}: not a Jupyter notebook (invalid JSON: {exc})") from None
+        raise SubmissionError(f"{path.name}: not a Jupyter notebook (invalid JSON: {_quoted(exc)})") from None
     if not isinstance(data, dict) or not ("cells" in data or "worksheets" in data):
         raise SubmissionError(f"{path.name}: not a Jupyter notebook (no cells)")
+    for cell in _graded_cells(data):  # outputs are not graded: nbformat never sees (nor validates) them
+        if "outputs" in cell:
+            cell["outputs"] = []
+        cell.pop("attachments", None)
     try:
         nb = nbformat.reads(json.dumps(data), as_version=4)
     except Exception as exc:  # noqa: BLE001 - nbformat raises many kinds
-        raise SubmissionError(f"{path.name}: not a readable Jupyter notebook ({type(exc).__name__}: {exc})") from None
+        raise SubmissionError(f"{path.name}: not a readable Jupyter notebook ({type(exc).__name__}: {_quoted(exc)})") \
+            from None
     notes = []
     units = []
     code_index = 0
+    size = 0
     for cell in nb.cells:
         if not isinstance(cell, dict) or cell.get("cell_type") != "code":
             continue
@@ -281,6 +314,9 @@ def _load_notebook(path, raw):
             source = "".join(source)
         if not isinstance(source, str):
             continue
+        size += len(source)
+        if size > max_code:  # before any parse (a cell with a magic line is parsed to find it)
+            raise _too_much_code(path.name, size, max_code)
         source = _strip_magics(source.replace("\r\n", "\n").replace("\r", "\n"), label, notes)
         if not source.strip():
             continue
@@ -360,6 +396,7 @@ def forbidden_usage(units, functions):
     tainted = {}  # module-level name -> description of the import that bound it
     defs = {}  # module-level name -> nodes whose code runs when the name is used
     star = []
+    imported = set()  # module-level names bound by an import (numpy's np): defined, whatever a star import brings
     for unit in units:
         try:
             tree = ast.parse(unit["source"], filename=unit["filename"])
@@ -367,6 +404,8 @@ def forbidden_usage(units, functions):
             continue
         for stmt in _module_level(tree.body):
             where = f"{unit['label']} line {stmt.lineno}"
+            if isinstance(stmt, (ast.Import, ast.ImportFrom)):  # names an import binds are defined, not a star's
+                imported.update(a.asname or a.name.split(".")[0] for a in stmt.names if a.name != "*")
             if isinstance(stmt, ast.Import):
                 for alias in stmt.names:
                     if _is_forbidden_module(alias.name):
@@ -381,7 +420,7 @@ def forbidden_usage(units, functions):
                         tainted[bound] = f"`{bound}` (from {stmt.module} import {alias.name}, {where})"
             for name, node in _bindings(stmt):
                 defs.setdefault(name, []).append(node)
-    defined = set(defs) | set(tainted)
+    defined = set(defs) | set(tainted) | imported
     builtin_names = set(dir(builtins))
 
     facts = {}  # id(node) -> _Facts, each node walked once

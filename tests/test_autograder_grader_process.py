@@ -223,6 +223,9 @@ def test_the_instructors_page_states_the_caps():
     page = " ".join((AG_ROOT / "chapters" / "instructors.md").read_text().split())
     assert f"reads at most {MAX_CODE // 1024} KB of code" in page
     assert f"At most {MAX_NOTES} notes on the submission's cells, and {MAX_NOTES} from loading" in page
+    from autograder.submission import MAX_JSON_CONTAINERS
+
+    assert f"more than {MAX_JSON_CONTAINERS:,} JSON objects".replace(",", " ") in page
 
 
 # --------------------------------------------------------------------------- the environment's failures are the grader's
@@ -309,3 +312,105 @@ def test_the_minimal_root_is_readable_whatever_the_graders_umask(tmp_path):
     p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=str(tmp_path), env=env,
                        timeout=300)
     assert p.returncode == 0 and "sandbox self-check: ok" in p.stdout, (p.stdout + p.stderr)[-2000:]
+
+
+# --------------------------------------------------------------------------- the notebook reader's own costs
+def _notebook(tmp_path, cells, **top):
+    nb = {"cells": cells, "metadata": {}, "nbformat": 4, "nbformat_minor": 5, **top}
+    path = tmp_path / "nb.ipynb"
+    path.write_text(json.dumps(nb))
+    return path
+
+
+def _code(source, **extra):
+    return {"cell_type": "code", "execution_count": None, "metadata": {}, "outputs": [], "source": source, **extra}
+
+
+def test_outputs_never_reach_the_notebook_validator(tmp_path, monkeypatch):
+    """nbformat validated every output in the grader's process: 33 000 invalid outputs in a 100 KB notebook took
+    1.6 GB and 36 s. Outputs are not graded; they are dropped before nbformat reads the notebook."""
+    import nbformat
+
+    from autograder.submission import load_submission
+
+    seen = []
+    reads = nbformat.reads
+    monkeypatch.setattr(nbformat, "reads", lambda text, *a, **k: (seen.append(text), reads(text, *a, **k))[1])
+    path = _notebook(tmp_path, [_code(solution_text("particle_filter"), outputs=[{}] * 5000,
+                                      attachments={"a.png": {"image/png": "x" * 100}})])
+    sub = load_submission(path)
+    assert len(sub.units) == 1 and len(seen) == 1
+    cell = json.loads(seen[0])["cells"][0]
+    assert cell["outputs"] == [] and "attachments" not in cell
+
+
+def test_the_code_cap_comes_before_any_parse(tmp_path, monkeypatch):
+    """A cell with one magic-looking line is parsed to find it: 3 MB of code in a notebook took 4.3 GB before the
+    cap refused it."""
+    import autograder.submission as submission
+
+    calls = []
+    parse = ast.parse
+    monkeypatch.setattr(submission.ast, "parse", lambda *a, **k: (calls.append(1), parse(*a, **k))[1])
+    big = "if False:\n    _ = [" + "a," * (submission.MAX_CODE // 2) + "]\n%time 1\n"
+    with pytest.raises(submission.SubmissionError, match="KB of code"):
+        submission.load_submission(_notebook(tmp_path, [_code(big)]))
+    assert calls == []
+
+
+def test_a_notebook_of_too_many_json_objects_is_refused_before_it_is_parsed(tmp_path):
+    """Millions of tiny objects (``{}``) in metadata or outputs cost the grader ~190 bytes of memory per byte."""
+    from autograder.submission import MAX_JSON_CONTAINERS, SubmissionError, load_submission
+
+    path = _notebook(tmp_path, [_code(solution_text("particle_filter"))],
+                     metadata={"pad": [{}] * (MAX_JSON_CONTAINERS + 1)})
+    with pytest.raises(SubmissionError, match="JSON objects and arrays"):
+        load_submission(path)
+
+
+def test_a_message_about_the_notebook_is_one_short_line(tmp_path):
+    """nbformat's error quoted a 1 MB "nbformat" value, with fake report lines, in every test: 16 MB of results."""
+    from autograder.submission import SubmissionError, load_submission
+
+    path = _notebook(tmp_path, [_code(solution_text("particle_filter"))],
+                     nbformat="\n\nExercise particle_filter: 100 / 100 points\n" + "x" * 100_000)
+    with pytest.raises(SubmissionError) as err:
+        load_submission(path)
+    assert len(str(err.value)) < 400 and "\n" not in str(err.value), str(err.value)[:500]
+
+
+def test_names_an_import_binds_are_not_blamed_on_a_star_import():
+    """``from autograder.selfcheck import *`` (a self-check cell written with a star) made every use of ``np`` "come
+    from" the star: correct code scored 0. A name no import binds still does."""
+    from autograder.submission import forbidden_usage
+
+    unit = {"filename": "sub.py", "label": "sub.py"}
+    ok = "import numpy as np\nfrom autograder.selfcheck import *\ndef f(w):\n    return float(np.sum(w))\n"
+    assert forbidden_usage([{**unit, "source": ok}], ["f"]) == {}
+    bad = "from slamlib import *\ndef f(w):\n    return particle_summary(w)\n"
+    assert "can only come from from slamlib import *" in forbidden_usage([{**unit, "source": bad}], ["f"])["f"]
+
+
+def test_csv_cells_carry_no_control_characters_and_are_cut_short():
+    from autograder.batch import _cell
+
+    got = _cell("eve\x1b[2J\x1b[H\rTotal: 100" + "x" * 5000)
+    assert "\x1b" not in got and "\r" not in got and len(got) <= 1000 and got.startswith("eve\\x1b[2J")
+    assert _cell("\rx").startswith("\\x0d") and _cell(42.0) == 42.0
+
+
+def test_batch_workers_never_import_from_the_working_directory(tmp_path):
+    """The batch's pool workers are new interpreters, which put the working directory first on sys.path: started
+    in the submissions folder, they imported a student's ``threading.py`` (and rewrote every score to 100)."""
+    subs = tmp_path / "subs"
+    subs.mkdir()
+    marker = tmp_path / "imported"
+    (subs / "threading.py").write_text(f"open({str(marker)!r}, 'w').close()\nraise ImportError('a student file')\n")
+    (subs / "alice.py").write_text(solution_text("particle_filter"))
+    env = {**os.environ, "PYTHONPATH": str(AG_ROOT)}
+    p = subprocess.run([sys.executable, "-m", "autograder", "batch", ".", "--exercise", "particle_filter",
+                        "--out", str(tmp_path / "g.csv"), "--quiet", "--jobs", "1"], capture_output=True, text=True,
+                       cwd=str(subs), env=env, timeout=600)
+    assert not marker.exists(), p.stderr[-2000:]
+    rows = {r.split(",")[0]: r for r in (tmp_path / "g.csv").read_text().splitlines()[1:]}
+    assert rows["alice"].split(",")[2] == "100.0", rows
