@@ -624,15 +624,29 @@ class Sandbox:
                         return ("protocol", str(exc))
                     if msg.get("ev") == "stmt":
                         try:
-                            current = (int(msg["unit"]), int(msg["stmt"]), int(msg.get("line", 0)), time.monotonic())
+                            at = (int(msg["unit"]), int(msg["stmt"]))
                         except (KeyError, TypeError, ValueError):
-                            current = None
+                            continue
+                        # the loader runs each statement once, in order: an event for a statement that does not exist,
+                        # or not after the last one, is the submission's (it would reset the statement's deadline)
+                        if not self._statement_exists(at) or (current is not None and at <= current[:2]):
+                            return ("protocol", f"a statement event out of order or for no statement {at}")
+                        current = (*at, int(msg.get("line", 0)), time.monotonic())
                     elif msg.get("ev") == "ready":
                         msg["notes"] = list(self.skip_notes) + [str(n)[:300] for n in (msg.get("notes") or [])][:200]
                         self.ready = msg
                         return None
         finally:
             sel.close()
+
+    def _statement_exists(self, at):
+        """Whether ``(unit, statement)`` names a top-level statement of the submission (its count, when the units
+        carry it: :func:`autograder.submission.load_submission` records it)."""
+        unit, stmt = at
+        if not 0 <= unit < len(self.units) or stmt < 0:
+            return False
+        count = self.units[unit].get("statements")
+        return count is None or stmt < count
 
     @property
     def _zout_text(self):

@@ -414,3 +414,33 @@ def test_batch_workers_never_import_from_the_working_directory(tmp_path):
     assert not marker.exists(), p.stderr[-2000:]
     rows = {r.split(",")[0]: r for r in (tmp_path / "g.csv").read_text().splitlines()[1:]}
     assert rows["alice"].split(",")[2] == "100.0", rows
+
+
+FORGED_EVENTS = '''
+import os, stat, time
+
+
+def _forge(event):
+    for fd in range(3, 256):  # the loader's control socket: the only socket among its descriptors
+        try:
+            if stat.S_ISSOCK(os.fstat(fd).st_mode):
+                os.write(fd, event)
+        except OSError:
+            pass
+
+
+_forge(b'{"ev":"stmt","unit":0,"stmt":%d,"line":1}')
+time.sleep(%s)
+'''
+
+
+@pytest.mark.parametrize("stmt", [9999, 0])
+def test_a_forged_statement_event_is_the_submissions_malformed_message(tmp_path, stmt):
+    """Top-level code that told the sandbox "statement 9999 (or an earlier one) is running" restarted the statement's
+    clock: a statement over the statement limit ran in full, in the loader and in every worker."""
+    text = solution_text("particle_filter") + FORGED_EVENTS % (stmt, 0.1)
+    path = tmp_path / "sub.py"
+    path.write_text(text)
+    result = grade(path, "particle_filter", limits=_limits(), functions=[TARGET])
+    assert result.score == 0 and "statement event out of order or for no statement" in result.tests[0].output, \
+        result.tests[0].output
