@@ -444,3 +444,30 @@ def test_a_forged_statement_event_is_the_submissions_malformed_message(tmp_path,
     result = grade(path, "particle_filter", limits=_limits(), functions=[TARGET])
     assert result.score == 0 and "statement event out of order or for no statement" in result.tests[0].output, \
         result.tests[0].output
+
+
+def test_a_grader_error_row_holds_no_score(tmp_path, monkeypatch):
+    """When writing a graded submission's results failed, its row said "grader-error" with the score the grading
+    had reached (100 in the CSV, 0 in the fallback JSON): the grader's failure is no grade, so the row has none."""
+    import csv
+
+    import autograder.batch as batch
+    from autograder.exercises import get_exercise
+
+    writes = []
+
+    def failing_once(path, data):
+        writes.append(path)
+        if len(writes) == 1:
+            raise OSError(28, "No space left on device")
+        return write_json_atomic(path, data)
+
+    monkeypatch.setattr(batch, "write_json_atomic", failing_once)
+    path = tmp_path / "alice.py"
+    path.write_text(solution_text("particle_filter"))
+    row = batch._grade_one("alice", path, None, "particle_filter", tmp_path / "alice.json", _limits(), "fp")
+    ex = get_exercise("particle_filter")
+    assert row["status"] == "grader-error" and row["score"] == "" and all(row[fn] == "" for fn in ex.functions), row
+    batch._write_csv(tmp_path / "g.csv", [row], ex)
+    got = next(csv.DictReader((tmp_path / "g.csv").open()))
+    assert got["score"] == got["percent"] == "" and got["status"] == "grader-error", got
