@@ -82,17 +82,33 @@ def _walk(folder):
 
 
 def _utf8(name):
-    """True when a file name (as the file system gave it) is valid UTF-8."""
+    """True when a file name (as the file system gave it) is valid UTF-8 on disk.
+
+    The name's bytes are checked, not the string: under a locale whose file-system encoding is not UTF-8
+    (``LC_ALL=C`` with ``PYTHONUTF8=0``), Python hands ``josé.py`` over as ``jos\\udcc3\\udca9.py``.
+    """
     try:
-        name.encode("utf-8")
+        os.fsencode(name).decode("utf-8")
         return True
-    except UnicodeEncodeError:
+    except UnicodeError:
         return False
 
 
 def _printable(name):
-    """A file name that is not valid UTF-8, with its odd bytes written as escapes (``caf\\xe9``)."""
-    return name.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+    """A file name as text: its bytes read as UTF-8, any that are not written as escapes (``caf\\xe9``).
+
+    The id of a row and the names in its message, whatever the grader's locale (see :func:`_fs_name`).
+    """
+    return os.fsencode(name).decode("utf-8", "backslashreplace")
+
+
+def _fs_name(text):
+    """The file name whose bytes on disk are ``text`` in UTF-8, as this interpreter's ``os`` functions take it.
+
+    The inverse of :func:`_printable`: under a file-system encoding that is not UTF-8, ``josé.json`` is passed as
+    ``jos\\udcc3\\udca9.json`` (the same bytes), where the plain string cannot be encoded and the write fails.
+    """
+    return os.fsdecode(text.encode("utf-8", "surrogateescape"))
 
 
 def pick_submission_file(folder, notebook_name=None):
@@ -102,7 +118,7 @@ def pick_submission_file(folder, notebook_name=None):
     the files in its folder.
     """
     if Path(folder).is_symlink():
-        return None, f"the submission folder {Path(folder).name} is {_LINK_REASON}"
+        return None, f"the submission folder {_printable(Path(folder).name)} is {_LINK_REASON}"
     try:
         found = _walk(Path(folder))
     except _TooMuch as exc:
@@ -124,14 +140,14 @@ def pick_submission_file(folder, notebook_name=None):
         if len(cand) == 1:
             return cand[0], None
         if len(cand) > 1:
-            names = ", ".join(p.name for p in cand)
+            names = ", ".join(_printable(p.name) for p in cand)
             return None, f"several {suffix} files ({names}); submit only the exercise notebook"
     if links:
-        return None, f"{links[0].relative_to(folder)} is {_LINK_REASON}; no other .ipynb or .py file in the submission"
+        return None, f"{_printable(str(links[0].relative_to(folder)))} is {_LINK_REASON}; no other .ipynb or .py file in the submission"
     special = sorted(p for p in found if p.suffix.lower() in _SUFFIXES and not p.is_symlink() and not p.is_file()
                      and not p.is_dir())
     if special:  # a FIFO, a socket, a device named like a submission: never opened
-        return None, f"{special[0].relative_to(folder)}: not a regular file; no other .ipynb or .py file in the submission"
+        return None, f"{_printable(str(special[0].relative_to(folder)))}: not a regular file; no other .ipynb or .py file in the submission"
     return None, "no .ipynb or .py file in the submission"
 
 
@@ -154,19 +170,19 @@ def find_submissions(folder, notebook_name=None):
             continue
         if entry.is_symlink():
             if entry.is_dir() or entry.suffix.lower() in _SUFFIXES:
-                out.append((entry.stem if entry.suffix.lower() in _SUFFIXES else entry.name, None,
-                            f"{entry.name} is {_LINK_REASON}"))
+                out.append((_printable(entry.stem if entry.suffix.lower() in _SUFFIXES else entry.name), None,
+                            f"{_printable(entry.name)} is {_LINK_REASON}"))
             continue
         if entry.is_file() and entry.suffix.lower() in _SUFFIXES:
-            out.append((entry.stem, entry, None))
+            out.append((_printable(entry.stem), entry, None))
         elif entry.suffix.lower() in _SUFFIXES and not entry.is_dir():  # a FIFO, a socket, a device: never opened
-            out.append((entry.stem, None, f"{entry.name}: not a regular file"))
+            out.append((_printable(entry.stem), None, f"{_printable(entry.name)}: not a regular file"))
         elif entry.is_dir():
             try:
                 path, why = pick_submission_file(entry, notebook_name)
             except Exception as exc:  # noqa: BLE001 - a student's folder: its own row, never the batch's end
                 path, why = None, f"the submission folder cannot be read ({type(exc).__name__}: {exc})"[:300]
-            out.append((entry.name, path, why))
+            out.append((_printable(entry.name), path, why))
     names = {}
     for sid, path, _ in out:
         names.setdefault(sid, []).append(path)
@@ -214,7 +230,7 @@ def _grade_one(sid, path, problem, exercise, results_path, limits, fingerprint, 
     from .exercises import get_exercise
 
     ex = get_exercise(exercise)
-    row = {"submission": sid, "file": str(path) if path else "", "score": 0.0, "max_score": ex.max_score(),
+    row = {"submission": sid, "file": _printable(str(path)) if path else "", "score": 0.0, "max_score": ex.max_score(),
            "status": "ok", "message": ""}
     for fn in ex.functions:
         row[fn] = 0.0
@@ -277,7 +293,7 @@ def results_file(results_dir, sid):
         while len(name.encode("utf-8", "surrogateescape")) > 180:
             name = name[:-1]
         name = f"{name}-{hashlib.sha256(sid.encode('utf-8', 'surrogateescape')).hexdigest()[:16]}"
-    return Path(results_dir) / f"{name}.json"
+    return Path(results_dir) / _fs_name(f"{name}.json")
 
 
 _CUT_NAME = re.compile(r"-[0-9a-f]{16}$")

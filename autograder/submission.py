@@ -80,7 +80,8 @@ class Submission:
 
     @property
     def display_name(self):
-        return self.path.name
+        # the name's bytes as UTF-8, whatever the grader's locale (``jos\udcc3\udca9.py`` is ``josé.py``)
+        return os.fsencode(self.path.name).decode("utf-8", "backslashreplace")
 
 
 def _statement_starts(lines):

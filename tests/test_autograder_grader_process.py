@@ -471,3 +471,27 @@ def test_a_grader_error_row_holds_no_score(tmp_path, monkeypatch):
     batch._write_csv(tmp_path / "g.csv", [row], ex)
     got = next(csv.DictReader((tmp_path / "g.csv").open()))
     assert got["score"] == got["percent"] == "" and got["status"] == "grader-error", got
+
+
+def test_a_batch_under_a_locale_that_is_not_utf8_grades_non_ascii_names(tmp_path):
+    """Under ``LC_ALL=C`` with ``PYTHONUTF8=0`` (file names decoded as ASCII), ``josé.py`` was called "not UTF-8"
+    and not graded, and writing another name's results stopped the whole batch (UnicodeEncodeError)."""
+    subs = tmp_path / "subs"
+    (subs / "zoë").mkdir(parents=True)
+    (subs / "josé.py").write_text(solution_text("particle_filter"))
+    (subs / "zoë" / "answer.py").write_text(solution_text("particle_filter"))
+    (subs / "ann.py").write_text(solution_text("particle_filter"))
+    env = {**os.environ, "PYTHONPATH": str(AG_ROOT), "LC_ALL": "C", "LANG": "C", "PYTHONUTF8": "0",
+           "PYTHONIOENCODING": ""}
+    check = subprocess.run([sys.executable, "-c", "import sys; print(sys.getfilesystemencoding())"], env=env,
+                           capture_output=True, text=True)
+    assert check.stdout.strip() == "ascii", check.stdout  # the locale the test is about
+    p = subprocess.run([sys.executable, "-P", "-m", "autograder", "batch", str(subs), "--exercise", "particle_filter",
+                        "--out", str(tmp_path / "g.csv"), "--quiet", "--jobs", "1"], capture_output=True,
+                       env=env, timeout=600)
+    assert p.returncode == 0, p.stderr[-2000:]
+    rows = {r.split(",")[0]: r.split(",") for r in (tmp_path / "g.csv").read_text(encoding="utf-8").splitlines()[1:]}
+    assert set(rows) == {"ann", "josé", "zoë"}, rows
+    assert all(r[2] == "100.0" and r[-2] == "ok" for r in rows.values()), rows
+    assert rows["josé"][1].endswith("josé.py"), rows
+    assert sorted(os.listdir(tmp_path / "g_results")) == ["ann.json", "josé.json", "zoë.json"]
