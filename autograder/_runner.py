@@ -1505,8 +1505,13 @@ def _zygote(job, ctl, mod, attempts, npx, hook_busy):
                     pid = _fork()
                 finally:
                     hook_busy[0] = False
-            except OSError:
+            except OSError as exc:
                 pid = -1
+                try:  # the machine's doing (a process limit, memory): the grader is told so, never a worker's end
+                    os.set_blocking(fds[1], False)
+                    _write(fds[1], pack_frame({"status": "fork-failed", "error": str(exc.strerror or exc)[:100]}))
+                except OSError:
+                    pass
             if pid == 0:
                 hook_busy[0] = False
                 for _, pfd, rfd in workers.values():

@@ -116,7 +116,8 @@ from .wire import (ProtocolError, RngSeed, clean_text, control_message, encode_a
                    read_reply)
 
 __all__ = ["Limits", "Sandbox", "Worker", "CallOutcome", "ChildFailed", "RngSeed", "isolation_report",
-           "describe_isolation", "protection_level", "check_sandbox", "require_sandbox", "SandboxBroken"]
+           "describe_isolation", "protection_level", "check_sandbox", "require_sandbox", "SandboxBroken",
+           "WorkerNotStarted"]
 
 _PKG_DIR = Path(__file__).resolve().parent
 #: The child's script; it loads ``wire.py`` from the same folder before it isolates itself.
@@ -430,6 +431,10 @@ class Sandbox:
         Name of the submission shown in messages.
     """
 
+    #: Workers alive at once (the grader runs one per function, at most 7): as root with a fresh uid the zygote's
+    #: ``RLIMIT_NPROC`` is one more; a fork it refuses is :class:`WorkerNotStarted`.
+    max_workers = 8
+
     def __init__(self, units, functions, limits, display_name="submission"):
         self.units = units
         self.functions = list(functions)
@@ -544,7 +549,7 @@ class Sandbox:
             "seccomp": lim.seccomp,
             "skip": [list(s) for s in self.skip],
             "cut": list(self.cut) if self.cut is not None else None,
-            "max_workers": 8,
+            "max_workers": self.max_workers,
             "limits": {"cpu": lim.cpu, "as": lim.memory, "fsize": lim.file_size, "nproc": 0, "nofile": 256},
         }
         parent_ctl, child_ctl = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
@@ -866,6 +871,8 @@ class Worker:
                     del self._res[:used]
                     if header == {"status": "loaded"}:
                         status, err = "ok", None
+                    elif header.get("status") == "fork-failed":  # written by the zygote: no worker was started
+                        status, err = "fork-failed", wire.clean_text(str(header.get("error")))[:100]
                     elif header.get("status") == "exited":  # written by the zygote: the worker ended while loading
                         self._drain_output()
                         status, err = "eof", str(header.get("exit"))[:100]
@@ -907,6 +914,9 @@ class Worker:
             return None
         out = self._output_text()
         self.close()
+        if status == "fork-failed":  # the machine's limits, not the submission: the grader's fault, never a score
+            raise WorkerNotStarted(f"the sandbox could not start a process for the function ({err}): the machine's "
+                                   "limit on processes (ulimit -u) or memory")
         if status == "timeout":
             return CallOutcome("timeout", output=out, error=(
                 f"the process for this function did not finish loading the submission within "
@@ -1147,6 +1157,14 @@ def describe_isolation(iso):
 
 
 # --------------------------------------------------------------------------- the grader's self-check
+class WorkerNotStarted(RuntimeError):
+    """The zygote could not fork a worker (``EAGAIN``, ``ENOMEM``): the machine's limits, never the submission's.
+
+    Workers may start no process or thread (``RLIMIT_NPROC`` 0) and the zygote forks at most ``max_workers`` of them,
+    so the submission cannot cause it; raised out of :meth:`Worker.call`, the grader's fault.
+    """
+
+
 class SandboxBroken(RuntimeError):
     """The sandbox cannot run a known-correct function on this machine: grading must not start."""
 

@@ -495,3 +495,42 @@ def test_a_batch_under_a_locale_that_is_not_utf8_grades_non_ascii_names(tmp_path
     assert all(r[2] == "100.0" and r[-2] == "ok" for r in rows.values()), rows
     assert rows["josé"][1].endswith("josé.py"), rows
     assert sorted(os.listdir(tmp_path / "g_results")) == ["ann.json", "josé.json", "zoë.json"]
+
+
+ROOT_ONLY = pytest.mark.skipif(os.geteuid() != 0, reason="the zygote's process limit is its own only under a fresh uid")
+
+
+@ROOT_ONLY
+def test_a_worker_the_machine_cannot_start_is_the_graders_fault_not_a_crash():
+    """A fork the zygote was refused (a non-root grader under ``ulimit -u 11``) closed the worker's pipes: the
+    function's tests failed with "ended while loading the submission" and a correct submission scored 70."""
+    from autograder.sandbox import Sandbox, WorkerNotStarted
+
+    box = Sandbox([{"source": "def f():\n    return 1.0\n", "filename": "p.py", "label": "p"}], ["f"], Limits())
+    box.max_workers = 1  # the zygote's RLIMIT_NPROC: itself and one worker
+    try:
+        box.start()
+        first = box.fork_worker()
+        assert first.call("f", [], timeout=10).status == "ok"
+        second = box.fork_worker()
+        with pytest.raises(WorkerNotStarted, match="could not start a process"):
+            second.call("f", [], timeout=10)
+        first.close()
+        second.close()
+        third = box.fork_worker()  # the sandbox itself is fine: a worker starts once there is room
+        assert third.call("f", [], timeout=10).status == "ok"
+        third.close()
+    finally:
+        box.close()
+
+
+@ROOT_ONLY
+def test_a_grading_the_machine_cannot_give_processes_to_is_no_score(tmp_path, monkeypatch):
+    from autograder.engine import GraderFault
+    from autograder.sandbox import Sandbox
+
+    monkeypatch.setattr(Sandbox, "max_workers", 1)
+    path = tmp_path / "sub.py"
+    path.write_text(solution_text("particle_filter"))
+    with pytest.raises(GraderFault, match="WorkerNotStarted"):
+        grade(path, "particle_filter", limits=_limits(), workers=2)
