@@ -28,8 +28,15 @@ for a broken grader).
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import traceback
+
+# One BLAS thread in the grader's own process, set before NumPy loads: its linear algebra is small, a batch runs
+# several graders at once, and OpenBLAS's start-up spins forever when its per-thread buffers do not fit an
+# address-space limit (`ulimit -v 200000`: `import scipy.linalg` never returned). The sandbox sets the same.
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
 
 __all__ = ["main"]
 

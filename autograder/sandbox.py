@@ -1260,8 +1260,11 @@ def check_sandbox(limits=None, *, refresh=False):
             problem = f"the sandbox could not start or load the probe: {exc}"
             if exc.outcome.output:
                 problem += f" (output: {exc.outcome.output[-1000:]})"
-        except OSError as exc:
-            problem = f"the sandbox could not start: {exc}"
+        except Exception as exc:  # noqa: BLE001 - whatever the machine refused (OSError, MemoryError under ulimit -v, a
+            # worker it would not start): the check fails with it, it never ends the grader with a traceback
+            problem = f"the sandbox could not start: {type(exc).__name__}" + (f": {exc}" if str(exc) else "")
+            if isinstance(exc, MemoryError):
+                problem += " (the grader's own memory: was it started under a low ulimit -v?)"
         finally:
             box.close()
         report = {"ok": problem is None, "problem": problem, "isolation": iso,

@@ -534,3 +534,22 @@ def test_a_grading_the_machine_cannot_give_processes_to_is_no_score(tmp_path, mo
     path.write_text(solution_text("particle_filter"))
     with pytest.raises(GraderFault, match="WorkerNotStarted"):
         grade(path, "particle_filter", limits=_limits(), workers=2)
+
+
+def test_a_grader_under_a_small_address_space_stops_at_its_self_check(tmp_path):
+    """Under ``ulimit -v 200000`` the self-check spun forever in OpenBLAS's start-up (the grader's own
+    ``import scipy.linalg``), and with that fixed it ended in a MemoryError traceback: exit 3 and a message."""
+    import resource
+
+    def small():
+        resource.setrlimit(resource.RLIMIT_AS, (200_000 * 1024, 200_000 * 1024))
+
+    env = {k: v for k, v in os.environ.items() if k not in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS")}
+    env["PYTHONPATH"] = str(AG_ROOT)
+    try:
+        p = subprocess.run([sys.executable, "-P", "-m", "autograder", "selfcheck"], capture_output=True, text=True,
+                           env=env, cwd=str(tmp_path), timeout=120, preexec_fn=small)
+    except subprocess.TimeoutExpired:
+        pytest.fail("the self-check did not end within 120 s under a 200 MB address space")
+    assert p.returncode == 3, (p.returncode, p.stdout[-1500:], p.stderr[-1500:])
+    assert "FAILED" in p.stdout and "Traceback" not in p.stderr, p.stdout[-1500:]
