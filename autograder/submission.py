@@ -23,6 +23,7 @@ import json
 import os
 import re
 import stat
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -294,7 +295,9 @@ def _load_notebook(path, raw, max_code=MAX_CODE):
             cell["outputs"] = []
         cell.pop("attachments", None)
     try:
-        nb = nbformat.reads(json.dumps(data), as_version=4)
+        with warnings.catch_warnings():  # nbformat's warnings (a missing cell id) are no grader's output
+            warnings.simplefilter("ignore")
+            nb = nbformat.reads(json.dumps(data), as_version=4)
     except Exception as exc:  # noqa: BLE001 - nbformat raises many kinds
         raise SubmissionError(f"{path.name}: not a readable Jupyter notebook ({type(exc).__name__}: {_quoted(exc)})") \
             from None

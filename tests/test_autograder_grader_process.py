@@ -553,3 +553,27 @@ def test_a_grader_under_a_small_address_space_stops_at_its_self_check(tmp_path):
         pytest.fail("the self-check did not end within 120 s under a 200 MB address space")
     assert p.returncode == 3, (p.returncode, p.stdout[-1500:], p.stderr[-1500:])
     assert "FAILED" in p.stdout and "Traceback" not in p.stderr, p.stdout[-1500:]
+
+
+def test_printing_a_lot_while_loading_costs_nothing(tmp_path):
+    """Top-level code that printed more than the 1 MB output cap (a check loop at the end of a file, a cell showing a
+    large array) failed the whole loading: a correct submission scored 0 on every test."""
+    result = _grade(tmp_path, solution_text("particle_filter") + '\nprint("x" * 1_100_000)\n')
+    assert result.score == result.max_score, result.text_report(verbose=True)[-2000:]
+    assert any("printed 1100001 bytes while loading" in n for n in result.notes), result.notes
+
+
+def test_the_notebook_validators_warnings_are_not_the_graders_output(tmp_path):
+    import warnings
+
+    from autograder.submission import load_submission
+
+    cell = {"cell_type": "code", "metadata": {}, "execution_count": None, "outputs": [],
+            "source": solution_text("particle_filter")}
+    nb = {"nbformat": 4, "nbformat_minor": 5, "metadata": {}, "cells": [cell]}  # 4.5 without cell ids
+    path = tmp_path / "sub.ipynb"
+    path.write_text(json.dumps(nb))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        load_submission(path)
+    assert not caught, [str(w.message)[:200] for w in caught]
