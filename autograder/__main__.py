@@ -28,6 +28,7 @@ for a broken grader).
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 import traceback
@@ -41,17 +42,48 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 __all__ = ["main"]
 
 
+def _seconds(text):
+    """An option's number of seconds: finite and positive (argparse reports anything else as a usage error)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of seconds, got {text!r}") from None
+    if not math.isfinite(value) or value <= 0:
+        raise argparse.ArgumentTypeError(f"expected a positive, finite number of seconds, got {text!r}")
+    return value
+
+
+def _count(text):
+    """An option's count: an integer of at least 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer of at least 1, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer of at least 1, got {text!r}")
+    return value
+
+
+def _seed(text):
+    """A base seed: an integer of at least 0 (NumPy's seeds are non-negative)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer of at least 0, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer of at least 0, got {text!r}")
+    return value
+
+
 def _limits(args):
     from .sandbox import Limits
 
     kw = {}
-    if getattr(args, "timeout", None):
-        kw["call_timeout"] = float(args.timeout)
-    if getattr(args, "import_timeout", None):
-        kw["import_timeout"] = float(args.import_timeout)
-    for name in ("statement_timeout", "test_budget", "submission_budget"):
-        if getattr(args, name, None):
-            kw[name] = float(getattr(args, name))
+    for option, name in (("timeout", "call_timeout"), ("import_timeout", "import_timeout"),
+                         ("statement_timeout", "statement_timeout"), ("test_budget", "test_budget"),
+                         ("submission_budget", "submission_budget")):
+        if getattr(args, option, None) is not None:
+            kw[name] = float(getattr(args, option))
     return Limits(**kw)
 
 
@@ -85,8 +117,19 @@ def _sandbox_ok(limits):
 
 def _cmd_grade(args):
     from .engine import grade
-    from .results import fallback_results, safe_print, write_json_atomic
+    from .results import fallback_results, safe_print
 
+    if args.results:  # before the grading: a folder that cannot hold the results costs no grading
+        folder = os.path.dirname(os.path.abspath(args.results))
+        try:
+            os.makedirs(folder, exist_ok=True)
+            usable = os.access(folder, os.W_OK | os.X_OK)
+        except OSError:
+            usable = False
+        if not usable:
+            safe_print(f"python -m autograder grade: error: argument --results: cannot write to {args.results} "
+                       f"(the folder {folder} cannot be made or written)", file=sys.stderr)
+            return 2
     if not _sandbox_ok(_limits(args)):
         return SANDBOX_BROKEN
     try:
@@ -95,15 +138,29 @@ def _cmd_grade(args):
     except Exception:  # noqa: BLE001 - a grader bug still leaves a valid results.json
         msg = "The autograder failed internally while grading this submission:\n" + traceback.format_exc(limit=5)
         if args.results:
-            write_json_atomic(args.results, fallback_results(msg))
+            _write_results(args.results, fallback_results(msg))
         safe_print(msg, file=sys.stderr)
         return 1
-    if args.results:
-        write_json_atomic(args.results, result.to_gradescope())
+    written = _write_results(args.results, result.to_gradescope()) if args.results else None
     safe_print(result.text_report(verbose=args.verbose))  # no escape sequence reaches the terminal
-    if args.results:
+    if written:
         safe_print(f"\nresults written to {args.results}")
+    elif args.results:  # the grade is printed above; the failure is the machine's (a full disk), not a score
+        return 1
     return 0 if result.exercise else 2
+
+
+def _write_results(path, data):
+    """Write ``data`` to ``path``; on failure (a full disk, a folder gone) say so on stderr and return False."""
+    from .results import safe_print, write_json_atomic
+
+    try:
+        write_json_atomic(path, data)
+        return True
+    except OSError as exc:
+        safe_print(f"python -m autograder: could not write the results to {path} ({exc.strerror or exc}); nothing "
+                   "was written there", file=sys.stderr)
+        return False
 
 
 def _cmd_batch(args):
@@ -112,8 +169,15 @@ def _cmd_batch(args):
     _secret(args)
     if not _sandbox_ok(_limits(args)):
         return SANDBOX_BROKEN
-    run_batch(args.folder, args.exercise, out_csv=args.out, jobs=args.jobs, results_dir=args.results_dir,
-              limits=_limits(args), progress=not args.quiet, restart=args.restart, seed=args.seed)
+    try:
+        run_batch(args.folder, args.exercise, out_csv=args.out, jobs=args.jobs, results_dir=args.results_dir,
+                  limits=_limits(args), progress=not args.quiet, restart=args.restart, seed=args.seed)
+    except OSError as exc:  # the grades CSV or the results folder cannot be written (permissions, a full disk)
+        from .results import safe_print
+
+        safe_print(f"python -m autograder batch: {exc.strerror or exc}: {exc.filename or args.out} (the grades "
+                   "written so far are kept: run the same command again to finish)", file=sys.stderr)
+        return 1
     return 0
 
 
@@ -164,12 +228,12 @@ def _cmd_list(args):
 
 
 def _budget_options(p):
-    p.add_argument("--timeout", type=float, help="cap on every call's wall-clock timeout (seconds)")
-    p.add_argument("--import-timeout", type=float, help="time allowed to load a submission (seconds, default 30)")
-    p.add_argument("--statement-timeout", type=float,
+    p.add_argument("--timeout", type=_seconds, help="cap on every call's wall-clock timeout (seconds)")
+    p.add_argument("--import-timeout", type=_seconds, help="time allowed to load a submission (seconds, default 30)")
+    p.add_argument("--statement-timeout", type=_seconds,
                    help="time allowed to one top-level statement while loading; longer ones are skipped (default 10)")
-    p.add_argument("--test-budget", type=float, help="wall time of one test, all its calls (default: the exercise's)")
-    p.add_argument("--submission-budget", type=float,
+    p.add_argument("--test-budget", type=_seconds, help="wall time of one test, all its calls (default: the exercise's)")
+    p.add_argument("--submission-budget", type=_seconds,
                    help="wall time of one whole grading (default: the exercise's)")
     p.add_argument("--secret-file", help="the deployment's grading secret (default: $AUTOGRADER_SECRET_FILE, else "
                                          "~/.config/slam-autograder/secret, created on first use)")
@@ -183,8 +247,8 @@ def build_parser():
     g.add_argument("submission", help="the student's .ipynb or .py")
     g.add_argument("--exercise", "-e", help="exercise name (default: from the notebook's metadata)")
     g.add_argument("--results", "-r", help="write Gradescope's results.json here")
-    g.add_argument("--workers", type=int, default=None, help="functions graded in parallel (default: CPU count)")
-    g.add_argument("--seed", type=int, help="base seed of the scenarios (default: from the secret and the submission; "
+    g.add_argument("--workers", type=_count, default=None, help="functions graded in parallel (default: CPU count)")
+    g.add_argument("--seed", type=_seed, help="base seed of the scenarios (default: from the secret and the submission; "
                                             "the one used is in results.json, extra_data.seed)")
     _budget_options(g)
     g.add_argument("--verbose", "-v", action="store_true", help="show the output of passed tests too")
@@ -195,10 +259,10 @@ def build_parser():
     b.add_argument("--exercise", "-e", required=True)
     b.add_argument("--out", "-o", default="grades.csv", help="CSV file (default grades.csv)")
     b.add_argument("--results-dir", help="folder of per-submission results JSON (default: <out stem>_results/)")
-    b.add_argument("--jobs", "-j", type=int, default=2, help="submissions graded in parallel")
+    b.add_argument("--jobs", "-j", type=_count, default=2, help="submissions graded in parallel")
     b.add_argument("--restart", action="store_true",
                    help="grade every submission again (default: keep results whose submission did not change)")
-    b.add_argument("--seed", type=int, help="one base seed for every submission (default: derived per submission)")
+    b.add_argument("--seed", type=_seed, help="one base seed for every submission (default: derived per submission)")
     _budget_options(b)
     b.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
     b.set_defaults(func=_cmd_batch)
@@ -215,7 +279,7 @@ def build_parser():
     s.set_defaults(func=_cmd_gradescope)
 
     c = sub.add_parser("calibrate", help="false-failure calibration of the statistical checks")
-    c.add_argument("--seeds", type=int, default=2000)
+    c.add_argument("--seeds", type=_count, default=2000)
     c.add_argument("--out", help="write the p-values (CSV)")
     c.set_defaults(func=_cmd_calibrate)
 

@@ -573,6 +573,12 @@ def grade(path, exercise=None, *, limits=None, workers=None, seed=None, function
         When the grader's own machinery failed twice (the first fault is followed
         by a second grading, one function at a time, noted in the result).
     """
+    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0):
+        raise ValueError(f"seed: expected None or an integer of at least 0, got {seed!r}")
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1):
+        raise ValueError(f"workers: expected None or an integer of at least 1, got {workers!r}")
+    if limits is not None and not isinstance(limits, Limits):
+        raise TypeError(f"limits: expected an autograder.sandbox.Limits, got {type(limits).__name__}")
     t0 = time.perf_counter()
     kw = dict(limits=limits, seed=seed, functions=functions, secret=secret)
     try:

@@ -95,6 +95,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import math
 import os
 import selectors
 import signal
@@ -189,6 +190,21 @@ class Limits:
     block_processes: bool = True
     seccomp: bool = True
     code: int = MAX_CODE
+
+    def __post_init__(self):
+        # a limit of the wrong kind or sign would be coerced into a grading of the wrong strictness
+        for name in ("call_timeout", "test_budget", "submission_budget", "import_timeout", "statement_timeout"):
+            value = getattr(self, name)
+            if value is None and name in ("call_timeout", "test_budget", "submission_budget"):
+                continue
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+                raise ValueError(f"Limits.{name}: expected a positive, finite number of seconds"
+                                 f"{' or None' if name not in ('import_timeout', 'statement_timeout') else ''}, "
+                                 f"got {value!r}")
+        for name in ("memory", "output", "file_size", "cpu", "code"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"Limits.{name}: expected a positive integer, got {value!r}")
 
 
 @dataclass

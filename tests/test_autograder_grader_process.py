@@ -577,3 +577,97 @@ def test_the_notebook_validators_warnings_are_not_the_graders_output(tmp_path):
         warnings.simplefilter("always")
         load_submission(path)
     assert not caught, [str(w.message)[:200] for w in caught]
+
+
+def _numeric_options():
+    """(command, option) for every option of the command line that takes a number."""
+    from autograder.__main__ import build_parser
+
+    parser = build_parser()
+    sub = next(a for a in parser._actions if a.__class__.__name__ == "_SubParsersAction")
+    for cmd, p in sub.choices.items():
+        for action in p._actions:
+            if action.type is not None and action.option_strings:
+                yield cmd, max(action.option_strings, key=len)
+
+
+@pytest.mark.parametrize("value", ["-1", "0", "nan", "inf", "x"])
+def test_every_numeric_option_refuses_what_it_cannot_mean(value, capsys):
+    """``grade --seed -1`` was taken, then failed inside the grading: an internal error and a results.json scoring 0
+    (``batch --seed -1`` made every row a grader error); ``--timeout 0`` was silently ignored."""
+    from autograder.__main__ import main
+
+    options = list(_numeric_options())
+    assert {("grade", "--seed"), ("batch", "--jobs"), ("grade", "--timeout"), ("calibrate", "--seeds")} <= set(options)
+    for cmd, option in options:
+        if value == "0" and option == "--seed":
+            continue  # 0 is a seed
+        required = {"grade": ["sub.py"], "batch": ["folder", "-e", "particle_filter"], "gradescope": ["-e", "x"]}
+        with pytest.raises(SystemExit) as stop:
+            main([cmd, *required.get(cmd, []), option, value])
+        assert stop.value.code == 2, (cmd, option, value)
+        assert f"argument {option}" in capsys.readouterr().err, (cmd, option)
+
+
+def test_the_python_interface_refuses_what_it_cannot_mean(tmp_path):
+    from autograder.batch import run_batch
+
+    path = tmp_path / "sub.py"
+    path.write_text(solution_text("particle_filter"))
+    for kw, name in ((dict(seed=-1), "seed"), (dict(seed=1.5), "seed"), (dict(workers=0), "workers"),
+                     (dict(workers=True), "workers")):
+        with pytest.raises(ValueError, match=f"^{name}:"):
+            grade(path, "particle_filter", **kw)
+    with pytest.raises(TypeError, match="^limits:"):
+        grade(path, "particle_filter", limits={"call_timeout": 1.0})
+    for kw, name in ((dict(jobs=0), "jobs"), (dict(seed=-3), "seed")):
+        with pytest.raises(ValueError, match=f"^{name}:"):
+            run_batch(tmp_path, "particle_filter", out_csv=tmp_path / "g.csv", **kw)
+    for field, value in (("call_timeout", 0.0), ("import_timeout", float("nan")), ("statement_timeout", -1),
+                         ("test_budget", float("inf")), ("memory", 0), ("output", 1.5), ("code", True)):
+        with pytest.raises(ValueError, match=f"^Limits.{field}:"):
+            Limits(**{field: value})
+
+
+def test_a_results_file_that_cannot_be_written_is_said_so_before_or_after_grading(tmp_path, monkeypatch, capsys):
+    """``grade -r`` into a folder that cannot be made, or onto a full disk, ended in a raw traceback."""
+    import errno
+
+    from autograder import __main__ as cli
+
+    sub = tmp_path / "sub.py"
+    sub.write_text(solution_text("particle_filter"))
+    (tmp_path / "file").write_text("")
+    assert cli.main(["grade", str(sub), "-e", "particle_filter", "-r", str(tmp_path / "file" / "r.json")]) == 2
+    err = capsys.readouterr().err
+    assert "argument --results" in err and "Traceback" not in err, err
+
+    def full(path, data):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr("autograder.results.write_json_atomic", full)
+    assert cli.main(["grade", str(sub), "-e", "particle_filter", "-r", str(tmp_path / "r.json"),
+                     "--timeout", "2.5"]) == 1
+    out, err = capsys.readouterr()
+    assert "100 / 100" in out, out[:500]  # the grade is shown; the machine's failure is no score
+    assert "could not write the results" in err and "No space left" in err and "Traceback" not in err, err
+
+
+def test_a_grades_file_that_cannot_be_written_ends_the_batch_with_a_message(tmp_path, monkeypatch, capsys):
+    import errno
+
+    from autograder import __main__ as cli
+
+    subs = tmp_path / "subs"
+    subs.mkdir()
+    (subs / "ann.py").write_text(solution_text("particle_filter"))
+
+    def full(path, text):
+        raise OSError(errno.ENOSPC, "No space left on device", str(path))
+
+    monkeypatch.setattr("autograder.batch.write_text_atomic", full)
+    assert cli.main(["batch", str(subs), "-e", "particle_filter", "-o", str(tmp_path / "g.csv"), "-q",
+                     "--timeout", "2.5"]) == 1
+    err = capsys.readouterr().err
+    assert "No space left on device" in err and "g.csv" in err and "Traceback" not in err, err
+    assert (tmp_path / "g_results" / "ann.json").exists()  # what was graded is kept for the next run
