@@ -198,6 +198,15 @@ def find_submissions(folder, notebook_name=None):
     return unique
 
 
+def _settings(limits):
+    """The limits a batch grades with, as its results record them (``extra_data.batch_settings``)."""
+    import dataclasses
+
+    from .sandbox import Limits
+
+    return {k: v for k, v in dataclasses.asdict(limits or Limits()).items()}
+
+
 def _fingerprint(path, problem):
     from .seeds import content_hash
 
@@ -234,7 +243,7 @@ def _grade_one(sid, path, problem, exercise, results_path, limits, fingerprint, 
            "status": "ok", "message": ""}
     for fn in ex.functions:
         row[fn] = 0.0
-    extra = {"exercise": exercise, "submission_sha256": fingerprint}
+    extra = {"exercise": exercise, "submission_sha256": fingerprint, "batch_settings": _settings(limits)}
     try:
         if path is None:
             row["status"] = "error"
@@ -345,7 +354,7 @@ def run_batch(folder, exercise, *, out_csv="grades.csv", jobs=2, results_dir=Non
     """
     from .exercises import get_exercise
     from .sandbox import require_sandbox
-    from .seeds import load_secret
+    from .seeds import derive_seed, load_secret
 
     if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
         raise ValueError(f"jobs: expected an integer of at least 1, got {jobs!r}")
@@ -358,17 +367,20 @@ def run_batch(folder, exercise, *, out_csv="grades.csv", jobs=2, results_dir=Non
     results_dir = Path(results_dir) if results_dir else out_csv.with_name(out_csv.stem + "_results")
     results_dir.mkdir(parents=True, exist_ok=True)
     _remove_stale_temporaries(results_dir, out_csv.parent)
-    if seed is None:
-        load_secret()  # created here once, not by two workers at the same time
+    secret = load_secret() if seed is None else None  # created here once, not by two workers at the same time
+    settings = _settings(limits)
     subs = find_submissions(folder, ex.notebook)
     rows, todo = [], []
     for sid, path, why in subs:
         fp = _fingerprint(path, why)
         old = None if restart else read_results(results_file(results_dir, sid))
         extra = (old or {}).get("extra_data") or {}
+        # a result is kept only when this run would grade the same way: same file, exercise, seed (a new secret
+        # changes every derived seed) and limits (--timeout, the budgets)
+        same_seed = extra.get("seed") == (seed if seed is not None else derive_seed(secret, exercise, fp))
         if (old and extra.get("submission_sha256") == fp and extra.get("exercise") == exercise
                 and isinstance(extra.get("batch_row"), dict) and extra["batch_row"].get("submission") == sid
-                and (seed is None or extra.get("seed") == seed)
+                and (same_seed or path is None) and extra.get("batch_settings") == settings
                 and extra["batch_row"].get("status") != "grader-error"):  # the grader's failure is graded again
             rows.append(extra["batch_row"])
         else:

@@ -671,3 +671,28 @@ def test_a_grades_file_that_cannot_be_written_ends_the_batch_with_a_message(tmp_
     err = capsys.readouterr().err
     assert "No space left on device" in err and "g.csv" in err and "Traceback" not in err, err
     assert (tmp_path / "g_results" / "ann.json").exists()  # what was graded is kept for the next run
+
+
+def test_a_batch_run_again_keeps_only_results_graded_the_same_way(tmp_path, monkeypatch):
+    """A rerun kept every earlier result whose file had not changed, even when it was asked to grade with another
+    --timeout or budget, or under a new secret (every derived seed changes): the CSV mixed two gradings."""
+    from autograder.batch import run_batch
+
+    subs = tmp_path / "subs"
+    subs.mkdir()
+    (subs / "ann.py").write_text(solution_text("particle_filter"))
+    out, res = tmp_path / "g.csv", tmp_path / "g_results" / "ann.json"
+
+    def run(limits):
+        run_batch(subs, "particle_filter", out_csv=out, jobs=1, limits=limits, progress=False)
+        data = json.loads(res.read_text())
+        return res.stat().st_mtime_ns, data["extra_data"]["seed"], data["extra_data"]["batch_settings"]
+
+    first = run(Limits(call_timeout=2.5))
+    assert first[2]["call_timeout"] == 2.5
+    assert run(Limits(call_timeout=2.5)) == first  # the same settings: kept, not graded again
+    other = run(Limits(call_timeout=3.0))
+    assert other[0] != first[0] and other[2]["call_timeout"] == 3.0 and other[1] == first[1]
+    monkeypatch.setenv("AUTOGRADER_SECRET_FILE", str(tmp_path / "another_secret"))
+    renewed = run(Limits(call_timeout=3.0))
+    assert renewed[0] != other[0] and renewed[1] != other[1]
