@@ -229,6 +229,10 @@ class _WorkerCaller:
                         # workers end and load again and again pays for it from its budgets
                         self.budget.forgive(self.worker.load_seconds - waited)
                         self.load_forgiven = True
+                    if self.budget is not None and getattr(out, "waited", 0.0) > 0:
+                        # the time a loaded machine kept the worker waiting for a processor is no one's: the
+                        # call's deadline was stretched by it, and so are the test's and the submission's budgets
+                        self.budget.extend(out.waited)
                     if out.status == "crashed" and self.worker.gone_before_call:
                         blame = "before"
                     elif out.status == "crashed" and self.worker.zygote_gone:

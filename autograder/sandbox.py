@@ -118,7 +118,7 @@ from .wire import (ProtocolError, RngSeed, clean_text, control_message, encode_a
 
 __all__ = ["Limits", "Sandbox", "Worker", "CallOutcome", "ChildFailed", "RngSeed", "isolation_report",
            "describe_isolation", "protection_level", "check_sandbox", "require_sandbox", "SandboxBroken",
-           "WorkerNotStarted"]
+           "WorkerNotStarted", "run_delay"]
 
 _PKG_DIR = Path(__file__).resolve().parent
 #: The child's script; it loads ``wire.py`` from the same folder before it isolates itself.
@@ -226,6 +226,7 @@ class CallOutcome:
     output: str = ""
     elapsed: float = 0.0
     budget: str | None = None  # "test" or "submission" when a time budget, not the call's limit, ran out
+    waited: float = 0.0  # seconds the machine kept the worker waiting for a processor during the call (no one's time)
 
 
 class ChildFailed(Exception):
@@ -432,6 +433,40 @@ def _exit_text(code):
 
 
 # --------------------------------------------------------------------------- the sandbox (zygote)
+# --------------------------------------------------------------------------- time the machine kept a process waiting
+#: A call may run this many times its limit longer when the machine kept its worker waiting for a processor.
+MAX_STRETCH = 3.0
+
+
+def _descendants(pid):
+    """Host process ids below ``pid`` (its children, theirs, ...), from ``/proc``; empty when it cannot tell."""
+    out, todo = [], [int(pid)]
+    while todo and len(out) < 64:
+        p = todo.pop()
+        try:
+            with open(f"/proc/{p}/task/{p}/children", "rb") as fh:
+                kids = [int(k) for k in fh.read().split()]
+        except (OSError, ValueError):
+            continue
+        out.extend(kids)
+        todo.extend(kids)
+    return out
+
+
+def run_delay(pids):
+    """Seconds the processes ``pids`` have spent runnable but waiting for a processor (``/proc/<pid>/schedstat``,
+    the kernel's scheduler accounting: no process can write it), or None when the kernel does not say."""
+    total, seen = 0, False
+    for p in pids:
+        try:
+            with open(f"/proc/{p}/schedstat", "rb") as fh:
+                total += int(fh.read().split()[1])
+            seen = True
+        except (OSError, ValueError, IndexError):
+            continue
+    return total / 1e9 if seen else None
+
+
 class Sandbox:
     """One submission, loaded once in an isolated process that forks a worker per function.
 
@@ -806,6 +841,28 @@ class Worker:
         self.load_seconds = 0.0  # how long the grader waited for that word (no call's time)
         self.zygote_gone = False  # set when the result pipe closed without the zygote's word on the worker's end
         self.gone_before_call = False  # set when not a byte of the request could be written: the worker had ended
+        self._pids = None  # the host process ids whose waiting for a processor is this worker's (see _waited)
+
+    def _own_pids(self):
+        """The worker's host process id (the one process below the sandbox that reads this worker's request pipe),
+        else every process of the sandbox (their waiting then counts for each call: only ever more lenient)."""
+        if self._pids is not None:
+            return self._pids
+        proc = self.sandbox.proc
+        tree = _descendants(proc.pid) if proc is not None else []
+        try:
+            want = f"pipe:[{os.fstat(self._req_w).st_ino}]"
+        except (OSError, TypeError):
+            want = None
+        for p in tree:
+            try:
+                if want and any(os.readlink(f"/proc/{p}/fd/{fd}") == want for fd in os.listdir(f"/proc/{p}/fd")):
+                    self._pids = [p]
+                    return self._pids
+            except OSError:
+                continue
+        self._pids = ([proc.pid] if proc is not None else []) + tree
+        return self._pids
 
     def close(self, kill=True):
         if kill and not self.dead:
@@ -836,13 +893,28 @@ class Worker:
             if failed is not None:
                 return failed
         del self._res[:]  # bytes left over from an earlier call are no answer to this one
+        pids = self._own_pids()
+        waited0 = run_delay(pids)
         deadline = time.monotonic() + timeout
-        reply, rpayload, status, err = self._exchange(pack_frame(header, payload), deadline)
+
+        def stretched():
+            # the call's deadline counts the worker's own time, not the time a loaded machine kept it waiting for a
+            # processor (the kernel's accounting), up to MAX_STRETCH times the limit more
+            now = run_delay(pids)
+            return deadline + (min(max(0.0, now - waited0), MAX_STRETCH * timeout) if now is not None
+                               and waited0 is not None else 0.0)
+
+        reply, rpayload, status, err = self._exchange(pack_frame(header, payload), deadline, stretched)
+        after = run_delay(pids)
+        waited = max(0.0, after - waited0) if after is not None and waited0 is not None else 0.0
         out = self._output_text()
         if reply is None:
             self.close()
             if status == "timeout":
-                return CallOutcome("timeout", error=f"the call did not finish within {timeout:g} s", output=out)
+                extra = (f" (and {waited:.1f} s more while the machine kept it waiting for a processor)"
+                         if waited >= 0.1 else "")
+                return CallOutcome("timeout", error=f"the call did not finish within {timeout:g} s{extra}", output=out,
+                                   waited=waited)
             if status == "output":
                 return CallOutcome("output", error=f"the function printed more than {self.limits.output} bytes",
                                    output=out)
@@ -852,7 +924,8 @@ class Worker:
             return CallOutcome("crashed", error=f"the process running the function ended during the call ({err})",
                                output=out)
         try:
-            r = read_reply(reply, rpayload, np, deadline=deadline + 1.0)  # untrusted: schema, extents, byte cap
+            # untrusted: schema, extents, byte cap; decoded by the call's deadline (stretched as the wait was)
+            r = read_reply(reply, rpayload, np, deadline=max(deadline, stretched()) + 1.0)
             if r["status"] == "protocol":
                 raise ProtocolError(r["error"][:200])
         except Exception as exc:  # anything a forged reply raises is a protocol error, never a result
@@ -861,9 +934,9 @@ class Worker:
             return CallOutcome("protocol", error=f"the grader could not read the function's result ({msg})", output=out)
         if r["status"] == "error":
             return CallOutcome("error", error=r["error"], where=r["where"], mutated=r["mutated"], blocked=r["blocked"],
-                               output=out, elapsed=r["elapsed"])
+                               output=out, elapsed=r["elapsed"], waited=waited)
         return CallOutcome("ok", returned=r["returned"], mutated=r["mutated"], blocked=r["blocked"], output=out,
-                           elapsed=r["elapsed"])
+                           elapsed=r["elapsed"], waited=waited)
 
     def _await_loaded(self):
         """Wait (up to the sandbox's ``load_timeout``) for the worker's first frame, ``{"status": "loaded"}``.
@@ -969,7 +1042,7 @@ class Worker:
     def _output_text(self):
         return clean_text(bytes(self._out[-4000:]).decode("utf-8", "replace"))
 
-    def _exchange(self, request, deadline):
+    def _exchange(self, request, deadline, stretched=None):
         """Write ``request``; read until one result frame arrives.
 
         Returns ``(header, payload, status, error)``; ``header`` is None when no
@@ -1004,6 +1077,9 @@ class Worker:
                     self._drain_output()
                     return None, None, "eof", "the process ended"
                 left = deadline - time.monotonic()
+                if left <= 0 and stretched is not None:
+                    deadline = max(deadline, stretched())
+                    left = deadline - time.monotonic()
                 if left <= 0:
                     return None, None, "timeout", None
                 for key, _ in sel.select(timeout=min(left, 1.0)):

@@ -696,3 +696,64 @@ def test_a_batch_run_again_keeps_only_results_graded_the_same_way(tmp_path, monk
     monkeypatch.setenv("AUTOGRADER_SECRET_FILE", str(tmp_path / "another_secret"))
     renewed = run(Limits(call_timeout=3.0))
     assert renewed[0] != other[0] and renewed[1] != other[1]
+
+
+SLEEPER = "import time\n\ndef f(s):\n    time.sleep(s)\n    return 1.0\n"
+
+
+def _fake_waiting(monkeypatch, share):
+    """The kernel's accounting replaced by a machine that keeps the worker waiting ``share`` of the wall time."""
+    import time as _time
+
+    from autograder import sandbox
+
+    t0 = _time.monotonic()
+    monkeypatch.setattr(sandbox, "run_delay", lambda pids: share * (_time.monotonic() - t0))
+
+
+def test_a_call_is_not_charged_the_time_the_machine_kept_it_waiting(monkeypatch):
+    """On a loaded machine (6 busy processes on 2 cores) a correct submission whose calls take 2 s of processor
+    lost a test's budget (95/100): the call's deadline counted the time its worker waited for a processor."""
+    from autograder.sandbox import Sandbox
+
+    box = Sandbox([{"source": SLEEPER, "filename": "p.py", "label": "p"}], ["f"], Limits())
+    try:
+        box.start()
+        _fake_waiting(monkeypatch, 0.8)
+        worker = box.fork_worker()
+        out = worker.call("f", [1.5], timeout=1.0)
+        assert out.status == "ok", out.error
+        assert out.waited >= 0.8, out.waited  # handed to the budgets, which stretch by it too
+        worker.close()
+    finally:
+        box.close()
+
+
+def test_the_stretch_of_a_call_is_capped(monkeypatch):
+    from autograder.sandbox import MAX_STRETCH, Sandbox
+
+    box = Sandbox([{"source": SLEEPER, "filename": "p.py", "label": "p"}], ["f"], Limits())
+    try:
+        box.start()
+        _fake_waiting(monkeypatch, 100.0)  # a lie no kernel tells: the cap still ends the call
+        worker = box.fork_worker()
+        import time as _time
+
+        t0 = _time.monotonic()
+        out = worker.call("f", [60.0], timeout=0.5)
+        assert out.status == "timeout" and "waiting for a processor" in out.error, out.error
+        assert _time.monotonic() - t0 < 30.0  # (1 + MAX_STRETCH) x 0.5 s, not the minute the call sleeps
+        assert MAX_STRETCH <= 5
+    finally:
+        box.close()
+
+
+def test_the_kernel_says_how_long_a_process_waited_for_a_processor():
+    from autograder.sandbox import run_delay
+
+    got = run_delay([os.getpid()])
+    if not os.path.exists(f"/proc/{os.getpid()}/schedstat"):
+        assert got is None
+    else:
+        assert isinstance(got, float) and got >= 0.0
+    assert run_delay([]) is None and run_delay([2 ** 30]) is None
