@@ -453,18 +453,36 @@ def _descendants(pid):
     return out
 
 
-def run_delay(pids):
-    """Seconds the processes ``pids`` have spent runnable but waiting for a processor (``/proc/<pid>/schedstat``,
-    the kernel's scheduler accounting: no process can write it), or None when the kernel does not say."""
-    total, seen = 0, False
+def _delays(pids):
+    """``{pid: seconds}`` each process has spent runnable but waiting for a processor, for those the kernel says."""
+    out = {}
     for p in pids:
         try:
             with open(f"/proc/{p}/schedstat", "rb") as fh:
-                total += int(fh.read().split()[1])
-            seen = True
+                out[p] = int(fh.read().split()[1]) / 1e9
         except (OSError, ValueError, IndexError):
             continue
-    return total / 1e9 if seen else None
+    return out
+
+
+def run_delay(pids):
+    """Seconds the processes ``pids`` have spent runnable but waiting for a processor (``/proc/<pid>/schedstat``,
+    the kernel's scheduler accounting: no process can write it), or None when the kernel does not say."""
+    got = _delays(pids)
+    return sum(got.values()) if got else None
+
+
+class _Waiting:
+    """The time processes spent waiting for a processor since this was made; ``pids()`` may name processes
+    that started since (all their waiting counts) or have ended (theirs no longer does)."""
+
+    def __init__(self, pids):
+        self.pids = pids
+        self.base = _delays(pids())
+
+    def since(self):
+        now = _delays(self.pids())
+        return sum(max(0.0, v - self.base.get(p, 0.0)) for p, v in now.items())
 
 
 class Sandbox:
@@ -630,19 +648,34 @@ class Sandbox:
             pass
         os.set_blocking(out_r, False)
         parent_ctl.setblocking(False)
-        current = None  # (unit, stmt, line, started)
+        current = None  # (unit, stmt, line, started, the sandbox's waiting for a processor then)
+
+        def tree():  # the loading processes (leniency only: see Worker.call)
+            return [proc.pid] + _descendants(proc.pid)
+
+        def stretch(waiting, allowed):
+            """Seconds the loading waited for a processor since ``waiting`` began, capped."""
+            return min(waiting.since(), MAX_STRETCH * allowed)
+
+        base, waited0 = deadline, _Waiting(tree)
+        allowed = max(0.0, deadline - time.monotonic())
         sel = selectors.DefaultSelector()
         sel.register(parent_ctl, selectors.EVENT_READ, "ctl")
         sel.register(out_r, selectors.EVENT_READ, "out")
         try:
             while True:
                 now = time.monotonic()
-                if now >= deadline:
-                    return ("timeout", current[:3] if current is not None else None)
+                if now >= deadline:  # a loaded machine's waiting is no loading's time: the deadlines stretch by it
+                    deadline = max(deadline, base + stretch(waited0, allowed))
+                    if now >= deadline:
+                        return ("timeout", current[:3] if current is not None else None)
                 limit = deadline
                 if current is not None:
-                    limit = min(limit, current[3] + lim.statement_timeout)
-                    if now >= current[3] + lim.statement_timeout:
+                    ends = current[3] + lim.statement_timeout
+                    if now >= ends:
+                        ends += stretch(current[4], lim.statement_timeout)
+                    limit = min(limit, ends)
+                    if now >= ends:
                         return ("statement", current[:3])
                 for key, _ in sel.select(timeout=max(0.01, min(limit - now, 1.0))):
                     if key.data == "out":
@@ -686,7 +719,7 @@ class Sandbox:
                         # or not after the last one, is the submission's (it would reset the statement's deadline)
                         if not self._statement_exists(at) or (current is not None and at <= current[:2]):
                             return ("protocol", f"a statement event out of order or for no statement {at}")
-                        current = (*at, int(msg.get("line", 0)), time.monotonic())
+                        current = (*at, int(msg.get("line", 0)), time.monotonic(), _Waiting(tree))
                     elif msg.get("ev") == "ready":
                         printed = ([f"the top-level code printed {self._zout_total} bytes while loading; beyond "
                                     f"{lim.output} bytes its output was not kept"] if self._zout_total > lim.output
@@ -861,8 +894,7 @@ class Worker:
                     return self._pids
             except OSError:
                 continue
-        self._pids = ([proc.pid] if proc is not None else []) + tree
-        return self._pids
+        return ([proc.pid] if proc is not None else []) + tree  # not kept: the worker may not be forked yet
 
     def close(self, kill=True):
         if kill and not self.dead:
@@ -893,20 +925,16 @@ class Worker:
             if failed is not None:
                 return failed
         del self._res[:]  # bytes left over from an earlier call are no answer to this one
-        pids = self._own_pids()
-        waited0 = run_delay(pids)
+        waiting = _Waiting(self._own_pids)
         deadline = time.monotonic() + timeout
 
         def stretched():
             # the call's deadline counts the worker's own time, not the time a loaded machine kept it waiting for a
             # processor (the kernel's accounting), up to MAX_STRETCH times the limit more
-            now = run_delay(pids)
-            return deadline + (min(max(0.0, now - waited0), MAX_STRETCH * timeout) if now is not None
-                               and waited0 is not None else 0.0)
+            return deadline + min(waiting.since(), MAX_STRETCH * timeout)
 
         reply, rpayload, status, err = self._exchange(pack_frame(header, payload), deadline, stretched)
-        after = run_delay(pids)
-        waited = max(0.0, after - waited0) if after is not None and waited0 is not None else 0.0
+        waited = waiting.since()
         out = self._output_text()
         if reply is None:
             self.close()
@@ -947,7 +975,8 @@ class Worker:
         """
         t0 = time.monotonic()
         load_timeout = self.sandbox.load_timeout
-        deadline = t0 + load_timeout
+        deadline = base = t0 + load_timeout
+        waited0 = _Waiting(self._own_pids)
         sel = selectors.DefaultSelector()
         try:
             sel.register(self._res_r, selectors.EVENT_READ, "res")
@@ -972,6 +1001,9 @@ class Worker:
                         status, err = "protocol", "a result arrived before the request was sent"
                     break
                 left = deadline - time.monotonic()
+                if left <= 0:  # as in call(): the time a loaded machine kept the loading waiting is no one's
+                    deadline = max(deadline, base + min(waited0.since(), MAX_STRETCH * load_timeout))
+                    left = deadline - time.monotonic()
                 if left <= 0:
                     status, err = "timeout", None
                     break

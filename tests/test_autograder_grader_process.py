@@ -708,7 +708,7 @@ def _fake_waiting(monkeypatch, share):
     from autograder import sandbox
 
     t0 = _time.monotonic()
-    monkeypatch.setattr(sandbox, "run_delay", lambda pids: share * (_time.monotonic() - t0))
+    monkeypatch.setattr(sandbox, "_delays", lambda pids: {0: share * (_time.monotonic() - t0)}, raising=False)
 
 
 def test_a_call_is_not_charged_the_time_the_machine_kept_it_waiting(monkeypatch):
@@ -757,3 +757,23 @@ def test_the_kernel_says_how_long_a_process_waited_for_a_processor():
     else:
         assert isinstance(got, float) and got >= 0.0
     assert run_delay([]) is None and run_delay([2 ** 30]) is None
+
+
+def test_loading_is_not_charged_the_time_the_machine_kept_it_waiting(monkeypatch):
+    """The same for the top-level code: on a loaded machine a statement within --statement-timeout on an idle one
+    was skipped (and a long loading cut), with the functions after it."""
+    from autograder.sandbox import Sandbox
+
+    src = "import time\ntime.sleep(1.5)\nX = 2.0\n\ndef f():\n    return X\n"
+    box = Sandbox([{"source": src, "filename": "p.py", "label": "p"}], ["f"],
+                  Limits(statement_timeout=1.0, import_timeout=20.0))
+    try:
+        _fake_waiting(monkeypatch, 0.8)
+        ready = box.start()
+        assert not ready.get("notes"), ready.get("notes")  # the sleeping statement was not skipped
+        worker = box.fork_worker()
+        out = worker.call("f", [], timeout=5.0)
+        assert out.status == "ok", (out.status, out.error)
+        worker.close()
+    finally:
+        box.close()
