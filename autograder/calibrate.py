@@ -2,7 +2,9 @@
 
 The grader's statistical tests (KS tests of the odometry sampler's three noises
 in two scenarios and on independent poses; the chi-square test of low-variance
-resampling's offspring counts) are run here on ``slamlib``'s own samplers over
+resampling's offspring counts), and the correlation bounds of the odometry
+sampler's "three independent noises per pose" test (as p-values: a bound is
+crossed when its p-value falls below ``MOMENT_P = 1e-12``), are run here on ``slamlib``'s own samplers over
 many grader seeds, exactly as the tests build their inputs. For a correct
 sampler each p-value should be uniform on ``[0, 1]`` (the chi-square one is
 conservative, i.e. stochastically larger), so:
@@ -29,10 +31,12 @@ from scipy import stats as sstats
 import slamlib as sl
 
 from .exercises.common import random_pose
-from .exercises.motion_sensor_models import _KS_SCENARIOS
-from .stats import MAX_STAT_TESTS, P_THRESHOLD, odometry_ks_pvalues, offspring_chi2_pvalue
+from .exercises.motion_sensor_models import _INDEPENDENCE_SCENARIO, _KS_SCENARIOS
+from .stats import (MAX_STAT_TESTS, MOMENT_P, P_THRESHOLD, odometry_correlations, odometry_ks_pvalues,
+                    offspring_chi2_pvalue)
 
-__all__ = ["odometry_pvalues", "independent_poses_pvalues", "offspring_pvalue", "calibrate", "summarize", "main"]
+__all__ = ["odometry_pvalues", "independent_poses_pvalues", "independent_noises_pvalues", "offspring_pvalue",
+           "calibrate", "summarize", "main"]
 
 
 def odometry_pvalues(seed, M=20000):
@@ -56,6 +60,15 @@ def independent_poses_pvalues(seed, M=20000):
     return list(odometry_ks_pvalues(x, samples, u, alpha))
 
 
+def independent_noises_pvalues(seed, M=20000):
+    """The three correlation p-values (pairs of noises) of the "three independent noises per pose" test."""
+    rng = np.random.default_rng([seed, 7])
+    u, alpha = _INDEPENDENCE_SCENARIO
+    x = np.tile(random_pose(rng), (M, 1))
+    samples = sl.sample_motion_model_odometry(x, u, alpha, rng=np.random.default_rng([seed, 8]))
+    return [p for *_, p in odometry_correlations(x, samples, u, alpha)]
+
+
 def offspring_pvalue(seed, M=20, R=300):
     """The chi-square p-value of the "offspring counts unbiased" test."""
     rng = np.random.default_rng([seed, 5])
@@ -70,6 +83,7 @@ def offspring_pvalue(seed, M=20, R=300):
 CHECKS = {
     "odometry KS (2 scenarios x 3 noises)": odometry_pvalues,
     "odometry KS, independent poses (3 noises)": independent_poses_pvalues,
+    "odometry noise correlations (3 pairs; bound at MOMENT_P)": independent_noises_pvalues,
     "resampling chi-square (conservative)": lambda s: [offspring_pvalue(s)],
 }
 
@@ -98,7 +112,8 @@ def main(n_seeds=2000, out=None):
     res = calibrate(n_seeds)
     print(f"Statistical checks on the reference implementation, {n_seeds} grader seeds")
     print(f"threshold p < {P_THRESHOLD:g}; at most {MAX_STAT_TESTS} statistical tests per submission -> "
-          f"false failure <= {MAX_STAT_TESTS * P_THRESHOLD:g} per submission (Bonferroni)\n")
+          f"false failure <= {MAX_STAT_TESTS * P_THRESHOLD:g} per submission (Bonferroni); the correlation bounds "
+          f"fail at p < {MOMENT_P:g} each\n")
     ok = True
     for name, p in res.items():
         s = summarize(p)

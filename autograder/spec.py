@@ -37,7 +37,8 @@ follows four rules:
    the single draw of low-variance resampling, and for samplers the moments
    (:func:`~autograder.stats.odometry_moment_problem`) or the distribution (KS)
    of the sampled noise in every test, including the tests of shape and of the
-   use of ``rng``.
+   use of ``rng``, and the independence of a pose's noises
+   (:func:`~autograder.stats.odometry_independence_problem`) in a test of its own.
 4. Functions returning an index are asked, in every test, at least one case whose
    answer is neither 0 nor the "none" answer (``-1``, ``n_seen``), so that a
    constant cannot pass; thresholds are probed just below and just above the exact

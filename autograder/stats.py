@@ -12,10 +12,15 @@ empirically on the reference implementation over many seeds.
 
 Besides these, :func:`odometry_moment_problem` checks the mean and variance of
 sampled noise against bounds that a correct sampler crosses with probability
-below ``1e-12`` per check (a z-bound of 7.5 on the mean, chi-square quantiles of
+below ``1e-12`` per check (a z-bound of 7.13 on the mean, chi-square quantiles of
 ``1e-12`` on the variance); they make a property test (shape, wrapped headings,
 use of ``rng``) pay only for samples with the right distribution, and add
 nothing noticeable to the false-failure budget above.
+:func:`odometry_independence_problem` bounds the pairwise correlations of the
+three noises of a pose in the same way: each of its three bounds is crossed by
+a correct sampler with probability exactly ``MOMENT_P = 1e-12`` (the normal
+scores it correlates are exactly standard normal and independent, so the sample
+correlation follows Student's t law), again nothing noticeable in the budget.
 
 A grading is deterministic given its seed.
 """
@@ -26,7 +31,8 @@ import numpy as np
 from scipy import special, stats
 
 __all__ = ["P_THRESHOLD", "MAX_STAT_TESTS", "MOMENT_P", "wrapped_normal_cdf", "ks_pvalue", "odometry_noise",
-           "odometry_ks_pvalues", "odometry_moment_problem", "offspring_chi2_pvalue"]
+           "odometry_ks_pvalues", "odometry_moment_problem", "odometry_normal_scores", "correlation_bound",
+           "odometry_correlations", "odometry_independence_problem", "offspring_chi2_pvalue"]
 
 #: p-value below which a statistical test fails.
 P_THRESHOLD = 1e-5
@@ -140,4 +146,80 @@ def odometry_moment_problem(x, x_next, u, alpha):
             return (f"the {name} noise recovered from your samples has mean {mean:.4g} and variance {var:.4g}; "
                     f"expected mean 0 and variance {v:.4g} (Table 5.6: the variance is "
                     f"{'a1 rot1^2 + a2 trans^2' if name != 'trans' else 'a3 trans^2 + a4 (rot1^2 + rot2^2)'})")
+    return None
+
+
+_NOISE_NAMES = ("rot1", "trans", "rot2")
+
+
+def odometry_normal_scores(x, x_next, u, alpha):
+    """The three recovered noises mapped to standard normal scores through their contract distributions.
+
+    Each noise ``d`` with contract CDF ``F`` (a wrapped normal for the rotations, a
+    normal for the translation) becomes ``Phi^-1(F(d))``: for a correct sampler the
+    scores are exactly standard normal, and the three of a pose are independent
+    because Table 5.6 draws the three noises independently. A noise whose variance
+    is 0 gives ``None`` (it has no distribution to score).
+    """
+    out = []
+    for d, v, rot in zip(odometry_noise(x, x_next, u), odometry_variances(u, alpha), (True, False, True)):
+        if v <= 0:
+            out.append(None)
+            continue
+        s = float(np.sqrt(v))
+        q = wrapped_normal_cdf(d, s) if rot else special.ndtr(np.asarray(d, dtype=float) / s)
+        out.append(special.ndtri(np.clip(q, 1e-300, 1.0 - 2.0**-53)))
+    return out
+
+
+def correlation_bound(n, p=MOMENT_P):
+    """The bound ``r_max`` with ``P(|r| > r_max) = p`` for the sample correlation of ``n`` independent normal pairs.
+
+    Under independence ``t = r sqrt((n - 2) / (1 - r^2))`` follows Student's t with
+    ``n - 2`` degrees of freedom, so ``r_max = t_p / sqrt(n - 2 + t_p^2)`` with
+    ``t_p`` its ``1 - p / 2`` quantile (``r_max`` is about ``7.14 / sqrt(n)`` for
+    ``p = 1e-12`` and large ``n``).
+    """
+    t = float(stats.t.isf(p / 2, n - 2))
+    return t / np.sqrt(n - 2 + t * t)
+
+
+def odometry_correlations(x, x_next, u, alpha):
+    """Pairwise correlations of the normal scores of the noises: ``[(name_a, name_b, r, p_value), ...]``.
+
+    Pairs involving a zero-variance noise are left out. The two-sided p-value is
+    exact for a correct sampler (see :func:`correlation_bound`).
+    """
+    scores = odometry_normal_scores(x, x_next, u, alpha)
+    n = x.shape[0]
+    out = []
+    for i, j in ((0, 1), (0, 2), (1, 2)):
+        a, b = scores[i], scores[j]
+        if a is None or b is None:
+            continue
+        if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))) or np.std(a) == 0 or np.std(b) == 0:
+            r = float("nan")
+            p = 0.0
+        else:
+            r = float(np.corrcoef(a, b)[0, 1])
+            r = min(max(r, -1.0), 1.0)
+            t = abs(r) * np.sqrt((n - 2) / max(1.0 - r * r, 1e-300))
+            p = float(2 * stats.t.sf(t, n - 2))
+        out.append((_NOISE_NAMES[i], _NOISE_NAMES[j], r, p))
+    return out
+
+
+def odometry_independence_problem(x, x_next, u, alpha):
+    """Why the three noises recovered from odometry samples are not independent, or ``None``.
+
+    Each pair's correlation of normal scores (:func:`odometry_correlations`) must
+    satisfy ``|r| <= correlation_bound(n)``: a correct sampler crosses each of the
+    three bounds with probability ``MOMENT_P``.
+    """
+    bound = correlation_bound(x.shape[0])
+    for a, b, r, _ in odometry_correlations(x, x_next, u, alpha):
+        if not abs(r) <= bound:
+            return (f"the {a} and {b} noises recovered from your samples are correlated: correlation {r:.3g} "
+                    f"(of their normal scores), expected |correlation| <= {bound:.3g} for independent draws "
+                    f"(Table 5.6 draws the three noises of a pose independently)")
     return None

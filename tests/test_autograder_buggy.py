@@ -19,6 +19,19 @@ from agtest import variant  # noqa: E402
 from autograder.engine import grade  # noqa: E402
 from autograder.exercises import EXERCISES, get_exercise  # noqa: E402
 
+_R1 = "    r1 = rot1 - rng.normal(0.0, np.sqrt(a1 * rot1**2 + a2 * trans**2), size=M)\n"
+_TR = "    tr = trans - rng.normal(0.0, np.sqrt(a3 * trans**2 + a4 * (rot1**2 + rot2**2)), size=M)\n"
+_R2 = "    r2 = rot2 - rng.normal(0.0, np.sqrt(a1 * rot2**2 + a2 * trans**2), size=M)\n"
+#: Right marginals, wrong joint law: every noise is a multiple of one draw (F5 of the 31st attack report) ...
+_ODO_SHARED_DRAW = [
+    (_R1, "    e = rng.standard_normal(M)\n    r1 = rot1 - np.sqrt(a1 * rot1**2 + a2 * trans**2) * e\n"),
+    (_TR, "    tr = trans - np.sqrt(a3 * trans**2 + a4 * (rot1**2 + rot2**2)) * e\n"),
+    (_R2, "    r2 = rot2 - np.sqrt(a1 * rot2**2 + a2 * trans**2) * e\n")]
+#: ... or only the two rotations share one (a copy-paste slip).
+_ODO_ROT2_REUSES_ROT1 = [
+    (_R1, "    e1 = rng.standard_normal(M)\n    r1 = rot1 - np.sqrt(a1 * rot1**2 + a2 * trans**2) * e1\n"),
+    (_R2, "    r2 = rot2 - np.sqrt(a1 * rot2**2 + a2 * trans**2) * e1\n")]
+
 VARIANTS = [
     # ---------------------------------------------------------------- exercise 1
     ("motion_sensor_models", "velocity_motion", "sign error in the Jacobian G",
@@ -28,6 +41,10 @@ VARIANTS = [
     ("motion_sensor_models", "sample_motion_model_odometry", "standard deviation used as the variance",
      [("rng.normal(0.0, np.sqrt(a1 * rot1**2 + a2 * trans**2), size=M)",
        "rng.normal(0.0, a1 * rot1**2 + a2 * trans**2, size=M)")]),
+    ("motion_sensor_models", "sample_motion_model_odometry", "one standard normal shared by the three noises",
+     _ODO_SHARED_DRAW),
+    ("motion_sensor_models", "sample_motion_model_odometry", "the rot2 noise reuses the rot1 noise's draw",
+     _ODO_ROT2_REUSES_ROT1),
     ("motion_sensor_models", "motion_model_odometry", "variances evaluated at the control, not the hypothesis",
      [("p1 = _normal(wrap(u[0] - rot1_h), a1 * rot1_h**2 + a2 * trans_h**2)",
        "p1 = _normal(wrap(u[0] - rot1_h), a1 * u[0]**2 + a2 * u[1]**2)")]),
@@ -152,3 +169,16 @@ def test_buggy_variant_loses_points_only_on_its_function(exercise, function, bug
             assert got == top, f"{bug}: {fn} lost points\n{result.text_report()}"
     failed = [t for t in result.tests if t.status == "failed"]
     assert all("Hint:" in t.output and "grader could not complete" not in t.output for t in failed)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("replacements", [_ODO_SHARED_DRAW, _ODO_ROT2_REUSES_ROT1], ids=["shared draw", "rot2 = rot1"])
+def test_correlated_odometry_noises_fail_the_independence_test(replacements, tmp_path):
+    """Noises with the right marginals but drawn from one standard normal fail "three independent noises per pose"."""
+    result = grade(variant("motion_sensor_models", replacements, tmp_path / "msm.py"), "motion_sensor_models")
+    odo = {t.name: t for t in result.tests if t.function == "sample_motion_model_odometry"}
+    failed = {name for name, t in odo.items() if t.status == "failed"}
+    name = "sample_motion_model_odometry: three independent noises per pose"
+    assert failed == {name}, result.text_report()
+    out = odo[name].output
+    assert "are correlated: correlation" in out and "expected |correlation| <= 0.05" in out, out

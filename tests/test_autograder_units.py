@@ -192,6 +192,38 @@ def test_wrapped_normal_cdf():
     assert wrapped_normal_cdf(np.array([np.pi]), 1.0)[0] == pytest.approx(1.0, abs=1e-12)
 
 
+def test_correlation_bound_of_the_odometry_noises():
+    """The bound on each pair's correlation is the exact MOMENT_P quantile (t law), and it catches shared draws."""
+    from scipy import stats as sstats
+
+    from autograder.stats import (MOMENT_P, correlation_bound, odometry_correlations,
+                                  odometry_independence_problem)
+
+    n = 20000
+    r = correlation_bound(n)
+    t = r * np.sqrt((n - 2) / (1 - r * r))
+    assert 2 * sstats.t.sf(t, n - 2) == pytest.approx(MOMENT_P, rel=1e-6)
+    assert r == pytest.approx(7.13 / np.sqrt(n), rel=0.01)
+    u, alpha = np.array([2.5, 0.5, 3.0]), np.array([0.2, 0.1, 0.004, 0.0002])  # rotations wrap
+    x = np.tile([1.0, -2.0, 3.0], (n, 1))
+    good = sl.sample_motion_model_odometry(x, u, alpha, rng=np.random.default_rng(5))
+    assert odometry_independence_problem(x, good, u, alpha) is None
+    assert [(a, b) for a, b, *_ in odometry_correlations(x, good, u, alpha)] == [
+        ("rot1", "trans"), ("rot1", "rot2"), ("trans", "rot2")]
+    # rot2's noise a multiple of rot1's: right marginals, correlated (below 1 once both wrap)
+    e = np.random.default_rng(6).standard_normal((n, 2))
+    sd = np.sqrt([0.2 * 2.5**2 + 0.1 * 0.5**2, 0.004 * 0.5**2 + 0.0002 * (2.5**2 + 3.0**2),
+                  0.2 * 3.0**2 + 0.1 * 0.5**2])
+    r1, tr, r2 = 2.5 - sd[0] * e[:, 0], 0.5 - sd[1] * e[:, 1], 3.0 - sd[2] * e[:, 0]
+    bad = np.column_stack([x[:, 0] + tr * np.cos(x[:, 2] + r1), x[:, 1] + tr * np.sin(x[:, 2] + r1),
+                           np.mod(x[:, 2] + r1 + r2 + np.pi, 2 * np.pi) - np.pi])
+    msg = odometry_independence_problem(x, bad, u, alpha)
+    assert msg.startswith("the rot1 and rot2 noises recovered from your samples are correlated"), msg
+    assert odometry_correlations(x, bad, u, alpha)[1][2] > 0.5
+    # a zero-variance noise has no pair
+    assert len(odometry_correlations(x, x, np.array([0.0, 0.0, 0.0]), np.zeros(4))) == 0
+
+
 @pytest.mark.slow
 def test_statistical_checks_calibrated_on_the_reference():
     """Reduced calibration (the full one: python -m autograder calibrate --seeds 2000)."""

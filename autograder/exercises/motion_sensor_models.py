@@ -8,7 +8,8 @@ import slamlib as sl
 
 from ..context import Out, RngSeed
 from ..spec import Exercise
-from ..stats import P_THRESHOLD, odometry_ks_pvalues, odometry_moment_problem, odometry_noise, odometry_variances
+from ..stats import (P_THRESHOLD, odometry_independence_problem, odometry_ks_pvalues, odometry_moment_problem,
+                     odometry_noise, odometry_variances)
 from .common import check_fd, fd_jacobian, random_pose
 
 EX = Exercise(
@@ -200,7 +201,7 @@ _KS_SCENARIOS = (
 )
 
 
-@EX.test("sample_motion_model_odometry", "noise distribution of Table 5.6 (KS tests)", weight=8,
+@EX.test("sample_motion_model_odometry", "noise distribution of Table 5.6 (KS tests)", weight=5,
          hint="Each increment gets Gaussian noise whose VARIANCE is a1 rot1^2 + a2 trans^2 (rot1), "
               "a3 trans^2 + a4 (rot1^2 + rot2^2) (trans), a1 rot2^2 + a2 trans^2 (rot2): "
               "pass its square root as the standard deviation.")
@@ -210,6 +211,24 @@ def _(ctx):
         x = np.tile(random_pose(ctx.rng), (M, 1))
         out = _odo_sample(ctx, x, u, alpha, 1000 + k)
         _ks_check(ctx, x, out, u, alpha)
+
+
+#: The "three independent noises" scenario: standard deviations 0.24, 0.22, 0.27 (no wrap; trans 2.0 is 8.9 sd from 0).
+_INDEPENDENCE_SCENARIO = (np.array([0.6, 2.0, -0.8]), np.array([0.05, 0.01, 0.01, 0.01]))
+
+
+@EX.test("sample_motion_model_odometry", "three independent noises per pose", weight=3,
+         hint="Draw the three noises of a pose independently (Table 5.6 samples each one on its own): three "
+              "separate rng draws, never one standard normal scaled by the three standard deviations.")
+def _(ctx):
+    M = 20000
+    u, alpha = _INDEPENDENCE_SCENARIO
+    x = np.tile(random_pose(ctx.rng), (M, 1))
+    out = _odo_sample(ctx, x, u, alpha, 3000)
+    _moment_check(ctx, x, out, u, alpha)
+    problem = odometry_independence_problem(x, out, u, alpha)
+    if problem:
+        ctx.fail(problem)
 
 
 @EX.test("sample_motion_model_odometry", "each pose moves with its own noise", weight=3, visibility="hidden",
