@@ -832,7 +832,7 @@ def _landlock_abi():
     return int(v) if v > 0 else 0
 
 
-def _private_scratch(wid, fs_paths):
+def _private_scratch(wid, fs_paths, prefix=None):
     """Give this worker its own ``/tmp`` and ``/dev/shm`` folders and restrict it to them (Landlock).
 
     The worker makes ``/tmp/w<id>-<random>`` and ``/dev/shm/w<id>-<random>``, then
@@ -850,7 +850,10 @@ def _private_scratch(wid, fs_paths):
 
     abi = _landlock_abi()
     # an unguessable name: another worker can neither list /tmp nor find the folder to stat() what is in it
-    tag = f"w{int(wid) if isinstance(wid, int) else 0}-{os.urandom(16).hex()}"
+    # the sandbox's prefix first: without a mount namespace these folders are the host's, and the grader removes
+    # them by it when the sandbox ends
+    lead = f"{prefix}-" if isinstance(prefix, str) and prefix.isalnum() else ""
+    tag = f"{lead}w{int(wid) if isinstance(wid, int) else 0}-{os.urandom(16).hex()}"
     tmp, shm = f"/tmp/{tag}", f"/dev/shm/{tag}"
     made = []
     for d in (tmp, shm):
@@ -1217,7 +1220,7 @@ def _worker(job, ctl, fds, mod, attempts, npx, hook_busy, wid=0):
         fs = job.get("fs") or {}
         paths = list(fs.get("python", [])) + list(fs.get("allow", [])) + list(sys.path)
         paths += [sys.prefix, sys.base_prefix, sys.exec_prefix]
-        _private_scratch(wid, paths)
+        _private_scratch(wid, paths, job.get("scratch_prefix"))
     if job.get("seccomp", True) and _SECCOMP_ON[0]:
         _seccomp(_worker_rules(_getpid()))
     if mod is None:  # fork, isolate, then load: nothing the submission does at load time outlives this worker
@@ -1285,7 +1288,7 @@ def _probe(job, ctl, attempts, npx, hook_busy):
         fs = job.get("fs") or {}
         paths = list(fs.get("python", [])) + list(fs.get("allow", [])) + list(sys.path)
         paths += [sys.prefix, sys.base_prefix, sys.exec_prefix]
-        _private_scratch(0, paths)
+        _private_scratch(0, paths, job.get("scratch_prefix"))
     if job.get("seccomp", True) and _SECCOMP_ON[0]:
         _seccomp(_worker_rules(_getpid()))
     _close_fds_but(ctl.fileno())

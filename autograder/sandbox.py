@@ -101,6 +101,7 @@ import selectors
 import signal
 import site
 import socket
+import stat
 import subprocess
 import sys
 import sysconfig
@@ -433,6 +434,25 @@ def _exit_text(code):
 
 
 # --------------------------------------------------------------------------- the sandbox (zygote)
+def _remove_scratch(prefix):
+    """Remove the scratch folders a sandbox's processes made in the host's ``/tmp`` and ``/dev/shm`` (only without
+    a mount namespace: with one, they were in its own tmpfs). Folders only, never followed through a link."""
+    import shutil
+
+    for top in ("/tmp", "/dev/shm"):
+        try:
+            names = [n for n in os.listdir(top) if n.startswith(prefix + "-")]
+        except OSError:
+            continue
+        for name in names:
+            path = os.path.join(top, name)
+            try:
+                if stat.S_ISDIR(os.lstat(path).st_mode):
+                    shutil.rmtree(path, ignore_errors=True)
+            except OSError:
+                pass
+
+
 # --------------------------------------------------------------------------- time the machine kept a process waiting
 #: A call may run this many times its limit longer when the machine kept its worker waiting for a processor.
 MAX_STRETCH = 3.0
@@ -523,6 +543,9 @@ class Sandbox:
         # use a socket another thread's kill() is closing, nor a descriptor number the next start has reused
         self._lock = threading.RLock()
         self._ids = itertools.count(1)
+        # the workers' scratch folders start with it (/tmp/<prefix>-w1-...): without a mount namespace they are the
+        # host's, and kill() removes them
+        self._scratch_prefix = "ag" + os.urandom(8).hex()
 
     def _labels(self, unit, stmt, line):
         u = self.units[unit] if 0 <= unit < len(self.units) else {"label": "?"}
@@ -618,6 +641,7 @@ class Sandbox:
             "skip": [list(s) for s in self.skip],
             "cut": list(self.cut) if self.cut is not None else None,
             "max_workers": self.max_workers,
+            "scratch_prefix": self._scratch_prefix,
             "limits": {"cpu": lim.cpu, "as": lim.memory, "fsize": lim.file_size, "nproc": 0, "nofile": 256},
         }
         parent_ctl, child_ctl = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
@@ -798,6 +822,8 @@ class Sandbox:
                 except OSError:
                     pass
                 self._out_r = None
+            if proc is not None:
+                _remove_scratch(self._scratch_prefix)
             self.proc = None
 
     def close(self):

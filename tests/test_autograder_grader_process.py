@@ -777,3 +777,26 @@ def test_loading_is_not_charged_the_time_the_machine_kept_it_waiting(monkeypatch
         worker.close()
     finally:
         box.close()
+
+
+def test_scratch_folders_in_the_hosts_tmp_are_removed_with_the_sandbox():
+    """Without a mount namespace each worker's private /tmp and /dev/shm folders are the host's: every grading left
+    about seven of them behind (with whatever the submission wrote there)."""
+    from autograder.sandbox import Sandbox
+
+    src = "import os, tempfile\n\ndef f():\n    open(os.path.join(tempfile.gettempdir(), 'left'), 'w').write('x')\n" \
+          "    return 1.0\n"
+    box = Sandbox([{"source": src, "filename": "p.py", "label": "p"}], ["f"], Limits(filesystem=False))
+
+    def left():
+        return [n for top in ("/tmp", "/dev/shm") if os.path.isdir(top) for n in os.listdir(top)
+                if n.startswith(box._scratch_prefix + "-")]
+
+    try:
+        box.start()
+        worker = box.fork_worker()
+        assert worker.call("f", [], timeout=10).status == "ok"
+        assert left(), "the worker's scratch folders carry the sandbox's prefix"
+    finally:
+        box.close()
+    assert not left()
