@@ -958,15 +958,16 @@ class EKFSLAM:
         else:  # a pluggable motion model, e.g. slamlib.AckermannModel: (x_next, G, V) of the pose
             x_next, G, V = self._motion(self._mu[:3], u, dt)
         self._mu[:3] = x_next  # mu_bar = mu + F_x^T g(u, mu)  (Table 10.1 line 3)
-        R = V @ M @ V.T  # R = V M V^T  (Table 7.2 line 5)
-        Sxx = G @ S[:3, :3] @ G.T + R  # robot block of G Sigma G^T + F_x^T R F_x  (Table 10.1 line 5)
+        dot = np.dot  # the BLAS call of @, with less dispatch on these small matrices
+        R = dot(dot(V, M), V.T)  # R = V M V^T  (Table 7.2 line 5)
+        Sxx = dot(dot(G, S[:3, :3]), G.T) + R  # robot block of G Sigma G^T + F_x^T R F_x  (Table 10.1 line 5)
         S[:3, :3] = 0.5 * (Sxx + Sxx.T)
         if n > 3:
-            Sxm = G @ S[:3, 3:n]  # robot-landmark block G_x Sigma_xm  (Table 10.1 line 5)
+            Sxm = dot(G, S[:3, 3:n])  # robot-landmark block G_x Sigma_xm  (Table 10.1 line 5)
             S[:3, 3:n] = Sxm
             S[3:n, :3] = Sxm.T
         if k:
-            self._Pt[:k, :3] = self._Pt[:k, :3] @ G.T  # pending terms: P_x <- G_x P_x
+            self._Pt[:k, :3] = dot(self._Pt[:k, :3], G.T)  # pending terms: P_x <- G_x P_x
 
     def add_landmark(self, z):
         """Append a landmark initialised from measurement `z`.
