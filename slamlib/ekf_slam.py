@@ -1060,7 +1060,8 @@ class EKFSLAM:
         # z_hat and h_t^j = 1/q [[-r dx, -r dy, 0, r dx, r dy], [dy, -dx, -q, -dy, dx]]  (Eqs. 17.2, 17.3;
         # Table 10.1 lines 12-16), from the five entries of mu it reads (the scalar path of _range_bearing1)
         r_hat, phi_hat, dx, dy, q = _rb1(*mu.take(idx).tolist())
-        h = np.array([[-dx / r_hat, -dy / r_hat, 0.0, dx / r_hat, dy / r_hat], [dy / q, -dx / q, -1.0, -dy / q, dx / q]])
+        h = np.array([[-dx / r_hat, -dy / r_hat, 0.0, dx / r_hat, dy / r_hat],
+                      [dy / q, -dx / q, -1.0, -dy / q, dx / q]])
         R = self._S.take(idx, 0)[:, :n]  # Sigma[idx, :] = (Sigma F_{x,j}^T)^T, the 5 rows H touches
         if k:
             Pt = self._Pt[:k]
