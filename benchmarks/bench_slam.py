@@ -9,7 +9,12 @@ covariance up to date. Figures, all measured in this process:
 * the bare-numpy floor of an update step: 8 rank-2 updates
   ``Sigma -= A @ B.T`` (``A``, ``B`` of shape ``(3+2N, 2)``) of the
   ``(3+2N) x (3+2N)`` covariance; the fast step should stay within 3x of it;
-* the teaching version (contract functions, dense ``O(N^3)`` algebra).
+* the teaching version (contract functions, dense ``O(N^3)`` algebra);
+* the size sweep: the fast step against the same floor at ``N = 10, 25, 50,
+  100, 200, 400`` (goal: within 2x of the floor at every size, where the
+  per-measurement Python overhead shows at small ``N``); the fast step and
+  the floor are timed in alternating rounds so that both see the same load.
+  ``--sweep`` prints only this table (a few seconds).
 
 For context (not measured here): a PythonRobotics-style EKF SLAM, which builds
 dense ``F_{x,j}`` and ``(I - K H) Sigma`` products, is quoted at 83 ms per step
@@ -70,6 +75,8 @@ Q = np.diag([0.1**2, np.deg2rad(2.0) ** 2])
 REFERENCE_MS = {100: 83.0, 400: 1080.0}  # PythonRobotics-style EKF SLAM, quoted figures
 TARGET_MS = {100: 1.0, 400: 5.0}
 TARGET_RATIO = 3.0
+SWEEP_SIZES = (10, 25, 50, 100, 200, 400)
+SWEEP_TARGET = 2.0  # fast step / numpy floor at every size
 J_VIEW = np.arange(N_VIEW)
 
 
@@ -151,6 +158,57 @@ def bench_numpy(N, rng, repeats):
     return median_ms(step, repeats)
 
 
+def bench_sweep(N, rng, rounds):
+    """Median ms of the fast step (mean over a cycle of CYCLE steps) and of the floor, timed in alternating rounds."""
+    mu, Sigma = make_state(N, rng)
+    filt = sl.EKFSLAM.from_state(mu, Sigma)
+    zs = iter([measurements(mu, rng) for _ in range((rounds + 2) * CYCLE)])
+    n = 3 + 2 * N
+    S = np.eye(n)
+    AB = [(1e-4 * rng.standard_normal((n, 2)), 1e-4 * rng.standard_normal((n, 2))) for _ in range(N_VIEW)]
+
+    def steps():
+        for _ in range(CYCLE):
+            filt.step(U, DT, M, next(zs), J_VIEW, Q)  # predict + 8 updates
+        filt.Sigma  # noqa: B018  (the covariance is up to date at the end)
+
+    def floor():
+        for A, B in AB:
+            S.__isub__(A @ B.T)  # Sigma -= A @ B.T
+
+    def timed(fn):
+        t0 = time.perf_counter()
+        fn()
+        return time.perf_counter() - t0
+
+    for _ in range(2):  # warm-up
+        steps()
+        floor()
+    fast, base = [], []
+    for _ in range(rounds):
+        fast.append(timed(steps) / CYCLE)
+        base.append(timed(floor))
+    return 1e3 * statistics.median(fast), 1e3 * statistics.median(base)
+
+
+def sweep_rows(rng):
+    rows = []
+    for N in SWEEP_SIZES:
+        fast, base = bench_sweep(N, rng, max(50, 20000 // N))
+        ratio = fast / base
+        rows.append((f"  fast / numpy 8 x rank-2, N={N} (step {fast * 1e3:.0f} us)", f"{ratio:.2f}x",
+                     f"{base * 1e3:.1f} us (numpy)", "", f"<= {SWEEP_TARGET:g}x",
+                     "PASS" if ratio <= SWEEP_TARGET else "MISS"))
+    return rows
+
+
+def print_table(rows):
+    header = ("figure", "value", "baseline", "ratio", "target", "result")
+    widths = [max(len(r[i]) for r in rows + [header]) for i in range(len(header))]
+    for r in [header] + rows:
+        print("  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip())
+
+
 JCBB_TARGET = 3.0
 
 
@@ -225,10 +283,19 @@ def fastslam_lines():
 
 
 def main(argv=None):
-    argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter).parse_args(argv)
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--sweep", action="store_true", help="only the size sweep (fast step / floor at N = 10..400)")
+    args = ap.parse_args(argv)
     rng = np.random.default_rng(SEED)
     rows = []
     t_start = time.perf_counter()
+    threads = os.environ.get("OPENBLAS_NUM_THREADS")
+    if args.sweep:
+        print(f"EKF SLAM size sweep: one step = predict + 8 updates, median over alternating rounds "
+              f"(OPENBLAS_NUM_THREADS={threads})")
+        print_table(sweep_rows(rng))
+        print(f"(measured in {time.perf_counter() - t_start:.1f} s)")
+        return
     for N, reps, plain_reps in ((100, 400, 10), (400, 160, 3)):
         fast = bench_fast(N, rng, reps // CYCLE)
         forced = bench_fast(N, rng, reps, refresh_every_step=True)

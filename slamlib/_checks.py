@@ -692,6 +692,11 @@ def as_count(value, name, *, minimum=0, maximum=None):
 
 def as_indices(value, name, upper, shape=None, *, ref=None):
     """An integer array (intp) of indices in ``[0, upper)``; an empty list is fine; bools are refused."""
+    if type(value) is np.ndarray and value.dtype.kind in "iu" and 0 < value.size <= 16 and value.ndim == 1 \
+            and (shape is None or value.shape == tuple(shape)):
+        lst = value.tolist()  # the common case, a few indices of one step: no ufunc reductions
+        if min(lst) >= 0 and max(lst) < upper:
+            return value.astype(np.intp)
     arr = np.asarray(value)
     if arr.size == 0 and arr.dtype.kind not in "iu":
         arr = arr.astype(np.intp)

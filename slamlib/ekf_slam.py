@@ -62,7 +62,7 @@ from ._checks import (as_array, as_covariance, as_index, as_indices, as_returned
                       as_slam_state, as_threshold, check_callable)
 from .angles import _wrap, _wrap1, wrap_angle
 from .motion import STRAIGHT_LINE_OMEGA, _arc1, velocity_motion
-from .sensors import _landmark_measurement, _range_bearing1, landmark_from_measurement, landmark_measurement
+from .sensors import _landmark_measurement, _rb1, landmark_from_measurement, landmark_measurement
 
 __all__ = [
     "ekf_slam_predict",
@@ -958,15 +958,16 @@ class EKFSLAM:
         else:  # a pluggable motion model, e.g. slamlib.AckermannModel: (x_next, G, V) of the pose
             x_next, G, V = self._motion(self._mu[:3], u, dt)
         self._mu[:3] = x_next  # mu_bar = mu + F_x^T g(u, mu)  (Table 10.1 line 3)
-        R = V @ M @ V.T  # R = V M V^T  (Table 7.2 line 5)
-        Sxx = G @ S[:3, :3] @ G.T + R  # robot block of G Sigma G^T + F_x^T R F_x  (Table 10.1 line 5)
+        dot = np.dot  # the BLAS call of @, with less dispatch on these small matrices
+        R = dot(dot(V, M), V.T)  # R = V M V^T  (Table 7.2 line 5)
+        Sxx = dot(dot(G, S[:3, :3]), G.T) + R  # robot block of G Sigma G^T + F_x^T R F_x  (Table 10.1 line 5)
         S[:3, :3] = 0.5 * (Sxx + Sxx.T)
         if n > 3:
-            Sxm = G @ S[:3, 3:n]  # robot-landmark block G_x Sigma_xm  (Table 10.1 line 5)
+            Sxm = dot(G, S[:3, 3:n])  # robot-landmark block G_x Sigma_xm  (Table 10.1 line 5)
             S[:3, 3:n] = Sxm
             S[3:n, :3] = Sxm.T
         if k:
-            self._Pt[:k, :3] = self._Pt[:k, :3] @ G.T  # pending terms: P_x <- G_x P_x
+            self._Pt[:k, :3] = dot(self._Pt[:k, :3], G.T)  # pending terms: P_x <- G_x P_x
 
     def add_landmark(self, z):
         """Append a landmark initialised from measurement `z`.
@@ -1044,20 +1045,32 @@ class EKFSLAM:
         return self
 
     def _update(self, z, j, Q, gate=math.inf):
+        # The hot path of every measurement: the arguments are checked by the public callers, so this only
+        # does the algebra. At small N the cost is the number of NumPy calls, not their size: scalars are
+        # Python floats (tolist, item), rows and columns are gathered with take, the index rows of each
+        # landmark are built once (_rows), and products are ndarray.dot (the same BLAS call as @, with
+        # less dispatch).
         if self._k + 2 > _PENDING_COLS:
             self._flush()
         n, k, mu = self._n, self._k, self._mu
         a = 3 + 2 * j
-        idx = np.array([0, 1, 2, a, a + 1])
-        r_hat, phi_hat, h = _range_bearing1(mu, a)  # z_hat, h_t^j  (Eqs. 17.2, 17.3; Table 10.1 lines 12-16)
-        R = self._S[idx, :n]  # Sigma[idx, :] = (Sigma F_{x,j}^T)^T, the 5 rows H touches
+        idx = _ROWS.get(a)
+        if idx is None:
+            idx = _rows(a)  # [0, 1, 2, a, a+1]: the five non-zero columns of H
+        # z_hat and h_t^j = 1/q [[-r dx, -r dy, 0, r dx, r dy], [dy, -dx, -q, -dy, dx]]  (Eqs. 17.2, 17.3;
+        # Table 10.1 lines 12-16), from the five entries of mu it reads (the scalar path of _range_bearing1)
+        r_hat, phi_hat, dx, dy, q = _rb1(*mu.take(idx).tolist())
+        h = np.array([[-dx / r_hat, -dy / r_hat, 0.0, dx / r_hat, dy / r_hat],
+                      [dy / q, -dx / q, -1.0, -dy / q, dx / q]])
+        R = self._S.take(idx, 0)[:, :n]  # Sigma[idx, :] = (Sigma F_{x,j}^T)^T, the 5 rows H touches
         if k:
             Pt = self._Pt[:k]
-            R -= Pt[:, idx].T @ Pt[:, :n]  # minus the pending terms
-        HP = h @ R  # (Sigma H^T)^T, shape (2, n)  (Eq. 17.3: H = h F_{x,j})
-        B = HP[:, idx] @ h.T
+            R -= Pt.take(idx, 1).T.dot(Pt[:, :n])  # minus the pending terms
+        HP = h.dot(R)  # (Sigma H^T)^T, shape (2, n)  (Eq. 17.3: H = h F_{x,j})
+        (b00, b01), (b10, b11) = HP.take(idx, 1).dot(h.T).tolist()
+        (q00, q01), (_, q11) = Q.tolist()
         # S = H Sigma_bar H^T + Q  (Table 10.1 line 17), factored S = L L^T by hand
-        s00, s01, s11 = B[0, 0] + Q[0, 0], 0.5 * (B[0, 1] + B[1, 0]) + Q[0, 1], B[1, 1] + Q[1, 1]
+        s00, s01, s11 = b00 + q00, 0.5 * (b01 + b10) + q01, b11 + q11
         l00 = math.sqrt(s00) if s00 > 0 else _not_pd()
         l10 = s01 / l00
         rest = s11 - l10 * l10
@@ -1067,9 +1080,9 @@ class EKFSLAM:
         e0, e1 = i00 * nu0, i10 * nu0 + i11 * nu1  # L^-1 nu
         if e0 * e0 + e1 * e1 > gate:  # validation gate: nu^T S^-1 nu = |L^-1 nu|^2 > gate
             return False
-        Wt = np.array([[i00, 0.0], [i10, i11]]) @ HP  # W^T = L^-1 (Sigma H^T)^T: W W^T = K S K^T
-        mu[:n] += np.array([e0, e1]) @ Wt  # mu += K nu, K = W L^-1  (Table 10.1 line 18)
-        mu[2] = _wrap1(mu[2])
+        Wt = np.array([[i00, 0.0], [i10, i11]]).dot(HP)  # W^T = L^-1 (Sigma H^T)^T: W W^T = K S K^T
+        mu[:n] += np.array([e0, e1]).dot(Wt)  # mu += K nu, K = W L^-1  (Table 10.1 line 18)
+        mu[2] = _wrap1(mu.item(2))
         self._Pt[k:k + 2, :n] = Wt  # Sigma -= W W^T, applied in _flush  (Table 10.1 line 19)
         self._k = k + 2
         if self._bc is not None:  # the same downdate of the blocks association reads, O(N)
@@ -1115,7 +1128,7 @@ class EKFSLAM:
         j = as_indices(j, "j", self.n_landmarks, (z.shape[0],), ref="z")
         Q = as_covariance(Q, "Q", 2)
         self._predict(u, dt, M)
-        for zi, ji in zip(z, j.tolist()):
+        for zi, ji in zip(z.tolist(), j.tolist()):  # Python floats and ints: no NumPy scalars in the loop
             self._update(zi, ji, Q)
         return self
 
@@ -1236,6 +1249,17 @@ class EKFSLAM:
             return 0
         best = int(np.argmin(d))  # argmin returns the first (smallest) index among ties
         return best if d[best] <= alpha else self.n_landmarks  # (Table 10.2 lines 19-20)
+
+
+#: Index rows ``[0, 1, 2, a, a+1]`` of the landmark at state offset ``a``, built once per offset by :func:`_rows`.
+_ROWS = {}
+
+
+def _rows(a):
+    idx = np.array([0, 1, 2, a, a + 1])
+    idx.flags.writeable = False
+    _ROWS[a] = idx
+    return idx
 
 
 def _not_pd():
