@@ -333,6 +333,9 @@ def _load_notebook(path, raw, max_code=MAX_CODE):
 
 
 # --------------------------------------------------------------------------- static dependency analysis
+#: a string that names a forbidden package or a module of it, as a dynamic import would (``"slamlib"``,
+#: ``"slamlib.particle"``, ``"autograder." + name``); prose that mentions one (``"slamlib.f, written again"``) does not
+_FORBIDDEN_STRING = re.compile(r"(?:%s)(?:\.[A-Za-z_]\w*)*\.?" % "|".join(FORBIDDEN))
 #: code whose body runs when it is called, not when it is defined
 _SCOPES = (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)
 
@@ -378,18 +381,21 @@ class _Facts:
 
     def __init__(self, node):
         self.imports = []  # (module, line) of the imports that reach a forbidden package, in walk order
-        self.string = False  # names a forbidden package in a string (a dynamic import)
+        self.string = False  # names a forbidden package in a string (a dynamic import); a docstring never does
         now, later_loaded, stored, declared, rebinds = set(), set(), set(), set(), set()
         # a name loaded inside a function or lambda is looked up when it is called; one loaded elsewhere (in an
         # assigned value, a class body) when the node runs, while the module loads
         all_later = isinstance(node, _SCOPES)
-        later = set()
+        later, docstrings = set(), set()
         for n in ast.walk(node):
             if not all_later and (id(n) in later or (n is not node and isinstance(n, _SCOPES))):
                 later.update(id(c) for c in ast.iter_child_nodes(n))
             if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
                 if n is not node:
                     stored.add(n.name)
+                first = n.body[0] if n.body else None
+                if isinstance(first, ast.Expr) and isinstance(first.value, ast.Constant):
+                    docstrings.add(id(first.value))
             if isinstance(n, ast.Name):
                 if not isinstance(n.ctx, ast.Load):
                     stored.add(n.id)
@@ -405,7 +411,8 @@ class _Facts:
                     self.imports.append((n.module, n.lineno))
                 stored.update(a.asname or a.name for a in n.names if a.name != "*")
             elif isinstance(n, ast.Constant):
-                self.string = self.string or (isinstance(n.value, str) and _is_forbidden_module(n.value.strip()))
+                self.string = self.string or (isinstance(n.value, str) and id(n) not in docstrings
+                                              and _FORBIDDEN_STRING.fullmatch(n.value.strip()) is not None)
             elif isinstance(n, (ast.Global, ast.Nonlocal)):
                 declared.update(n.names)
                 if isinstance(n, ast.Global):
@@ -699,10 +706,10 @@ class _Execution:
 def forbidden_usage(units, functions):
     """Which contract functions depend on ``slamlib`` or ``autograder``.
 
-    A function depends on a forbidden package when its body imports it, names a string like ``"slamlib..."``
-    (``importlib.import_module``), or loads a module-level name
-    bound by such an import -- directly or through helper functions, classes and module-level assignments of
-    the submission.
+    A function depends on a forbidden package when its body imports it, holds a string that is the dotted name of
+    it or of one of its modules (``importlib.import_module("slamlib.particle")``; a docstring, or prose that
+    mentions one, is not), or loads a module-level name bound by such an import -- directly or through helper
+    functions, classes and module-level assignments of the submission.
 
     Names are resolved as the submission runs (`_Execution`): a function's body sees the bindings in force after
     the last cell, an assigned value those in force when it ran. So an import of the reference that a later def

@@ -854,3 +854,30 @@ def test_the_binding_in_force_when_the_functions_run_decides():
         if (found is None) != (why is None) or (why is not None and why not in found):
             wrong.append(f"{src!r}: expected {why!r}, found {found!r}")
     assert not wrong, "\n".join(wrong)
+
+
+def test_a_docstring_that_names_the_reference_is_not_a_dynamic_import(tmp_path):
+    """Any string starting with "slamlib." was taken for a dynamic import: the docstring "slamlib.effective_sample_size,
+    written again with NumPy only." zeroed a correct function. Docstrings never count, and other strings only when
+    they are a dotted module name of slamlib or the autograder; a real dynamic import by name still costs it."""
+    doc = '    """slamlib.effective_sample_size, written again with NumPy only."""\n'
+    text = solution_text("particle_filter").replace("def effective_sample_size(w):\n",
+                                                    "def effective_sample_size(w):\n" + doc)
+    assert doc in text
+    path = tmp_path / "docstring.py"
+    path.write_text(text)
+    result = grade(path, "particle_filter", limits=limits(), functions=[OTHER])
+    assert result.by_function()[OTHER] == (15.0, 15.0), result.text_report()
+    # a string that is the name of a module of slamlib is a dynamic import, wherever it is used
+    body = (f"def {OTHER}(w):\n    import importlib\n    ref = importlib.import_module('slamlib.particle')\n"
+            f"    return ref.{OTHER}(w)\n")
+    scores, out, _ = _grade_variant(tmp_path, body, function=OTHER, name="dynamic.py")
+    assert scores[OTHER][0] == 0 and "No credit" in out and "a dynamic import" in out, out
+    code = "def f(w, n='x'):\n    import importlib, sys\n    return {}\n"
+    for call in ("importlib.import_module('slamlib')", "__import__(' slamlib.fastslam ')", "sys.modules['autograder']",
+                 "getattr(importlib.import_module('slamlib'), n)", "importlib.import_module('slamlib.' + n)"):
+        assert "a dynamic import" in _static(code.format(call)).get("f", ""), call
+    # a docstring, or prose that mentions one, is not
+    assert _static('def f(w):\n    """slamlib.particle"""\n    return w\n') == {}
+    for prose in ("see slamlib.particle, the reference", "slamlib is the reference", "slamlib.f, again"):
+        assert _static(f"def f(w):\n    x = {prose!r}\n    return w\n") == {}, prose
