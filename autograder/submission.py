@@ -463,9 +463,9 @@ class _Scope:
 
     __slots__ = ("parent", "vars", "history")
 
-    def __init__(self, parent=None, history=None, new_history=False):
+    def __init__(self, parent=None, history=None):
         self.parent, self.vars = parent, {}
-        self.history = history if new_history or parent is None else parent.history
+        self.history = history if history is not None or parent is None else parent.history
 
     def get(self, name):
         s = self
@@ -585,7 +585,7 @@ class _Execution:
                         scope.set(name, value)
             self.run(stmt.body, scope, label)
         elif isinstance(stmt, (ast.Try, getattr(ast, "TryStar", ast.Try))):
-            body = _Scope(scope, history={}, new_history=True)
+            body = _Scope(scope, history={})  # a new history: that of this try
             self.run(stmt.body, body, label)
             start = _Scope(scope)  # a handler starts before the body or after any binding in it
             for name, values in body.history.items():

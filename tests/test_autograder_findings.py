@@ -820,7 +820,8 @@ def test_a_notebook_that_imports_the_reference_before_the_template_defines_the_n
 BINDINGS = [
     # replaced by a later binding, unbound, or never run: harmless
     ("from slamlib import w\ndef w(a): return a\ndef f(x): return w(x)\n", None),
-    ("try:\n    from slamlib import w\nexcept ImportError:\n    pass\ndef w(a): return a\ndef f(x): return w(x)\n", None),
+    ("try:\n    from slamlib import w\nexcept ImportError:\n    pass\ndef w(a): return a\ndef f(x): return w(x)\n",
+     None),
     ("def w(a): return a\nif __name__ == '__main__':\n    from slamlib import w\ndef f(x): return w(x)\n", None),
     ("from slamlib import w\nif c:\n    def w(a): return a\nelse:\n    w = abs\ndef f(x): return w(x)\n", None),
     ("from slamlib import w\ndel w\ndef f(x): return w(x)\n", None),
@@ -829,7 +830,8 @@ BINDINGS = [
     ("from slamlib import f\ndef f(x): return x\n", None),
     ("from slamlib import w\nW = lambda a: w(a)\ndef w(a): return a\ndef f(x): return W(x)\n", None),
     # the reference's code may be what runs: no credit
-    ("def w(a): return a\nfrom slamlib import w\ndef f(x): return w(x)\n", "uses `w` (from slamlib import w, s.py line 2)"),
+    ("def w(a): return a\nfrom slamlib import w\ndef f(x): return w(x)\n",
+     "uses `w` (from slamlib import w, s.py line 2)"),
     ("try:\n    from slamlib import w\nexcept ImportError:\n    def w(a): return a\ndef f(x): return w(x)\n",
      "uses `w` (from slamlib"),
     ("def w(a): return a\nif c:\n    from slamlib import w\ndef f(x): return w(x)\n", "uses `w` (from slamlib"),
