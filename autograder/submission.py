@@ -336,137 +336,360 @@ def _load_notebook(path, raw, max_code=MAX_CODE):
 
 
 # --------------------------------------------------------------------------- static dependency analysis
+#: a string that names a forbidden package or a module of it, as a dynamic import would (``"slamlib"``,
+#: ``"slamlib.particle"``, ``"autograder." + name``); prose that mentions one (``"slamlib.f, written again"``) does not
+_FORBIDDEN_STRING = re.compile(r"(?:%s)(?:\.[A-Za-z_]\w*)*\.?" % "|".join(FORBIDDEN))
+#: code whose body runs when it is called, not when it is defined
+_SCOPES = (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)
+
+
 def _is_forbidden_module(name):
     return isinstance(name, str) and name.split(".")[0] in FORBIDDEN
 
 
-def _bound_names(target):
-    return {n.id for n in ast.walk(target) if isinstance(n, ast.Name)}
+def _bound_names(target, ctx=ast.Store):
+    """Names an assignment to `target` binds (``a, *b = ...``; ``del a`` with ast.Del), not those of ``a.x = ...``."""
+    return [n.id for n in ast.walk(target) if isinstance(n, ast.Name) and isinstance(n.ctx, ctx)]
+
+
+def _mutated_names(target):
+    """Names whose object an assignment to `target` changes: ``a`` of ``a.x = ...`` and ``a[i] = ...``."""
+    out = []
+    for t in ast.walk(target):
+        if isinstance(t, (ast.Attribute, ast.Subscript)) and isinstance(t.ctx, ast.Store):
+            base = t.value
+            while isinstance(base, (ast.Attribute, ast.Subscript)):
+                base = base.value
+            if isinstance(base, ast.Name):
+                out.append(base.id)
+    return out
+
+
+def _main_guard(test):
+    """True for ``__name__ == "__main__"``, False for ``__name__ != "__main__"``, None for any other test.
+
+    The grader runs the submission as the module ``submission``: such a block's body never runs."""
+    if isinstance(test, ast.Compare) and len(test.ops) == 1 and isinstance(test.ops[0], (ast.Eq, ast.NotEq)):
+        sides = (test.left, test.comparators[0])
+        if (any(isinstance(s, ast.Name) and s.id == "__name__" for s in sides)
+                and any(isinstance(s, ast.Constant) and s.value == "__main__" for s in sides)):
+            return isinstance(test.ops[0], ast.Eq)
+    return None
 
 
 class _Facts:
     """What one node's code does, found in one walk over it: linear in its size, whatever it holds."""
 
-    __slots__ = ("imports", "string", "names")
+    __slots__ = ("imports", "string", "now", "later", "names", "rebinds")
 
     def __init__(self, node):
         self.imports = []  # (module, line) of the imports that reach a forbidden package, in walk order
-        self.string = False  # names a forbidden package in a string (a dynamic import)
-        loaded, stored, declared = set(), set(), set()
+        self.string = False  # names a forbidden package in a string (a dynamic import); a docstring never does
+        now, later_loaded, stored, declared, rebinds = set(), set(), set(), set(), set()
+        # a name loaded inside a function or lambda is looked up when it is called; one loaded elsewhere (in an
+        # assigned value, a class body) when the node runs, while the module loads
+        all_later = isinstance(node, _SCOPES)
+        later, docstrings = set(), set()
         for n in ast.walk(node):
+            if not all_later and (id(n) in later or (n is not node and isinstance(n, _SCOPES))):
+                later.update(id(c) for c in ast.iter_child_nodes(n))
+            if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+                if n is not node:
+                    stored.add(n.name)
+                first = n.body[0] if n.body else None
+                if isinstance(first, ast.Expr) and isinstance(first.value, ast.Constant):
+                    docstrings.add(id(first.value))
             if isinstance(n, ast.Name):
-                (loaded if isinstance(n.ctx, ast.Load) else stored).add(n.id)
+                if not isinstance(n.ctx, ast.Load):
+                    stored.add(n.id)
+                elif all_later or id(n) in later:
+                    later_loaded.add(n.id)
+                else:
+                    now.add(n.id)
             elif isinstance(n, ast.Import):
                 self.imports += [(a.name, n.lineno) for a in n.names if _is_forbidden_module(a.name)]
+                stored.update(a.asname or a.name.split(".")[0] for a in n.names)
             elif isinstance(n, ast.ImportFrom):
                 if n.level == 0 and _is_forbidden_module(n.module):
                     self.imports.append((n.module, n.lineno))
+                stored.update(a.asname or a.name for a in n.names if a.name != "*")
             elif isinstance(n, ast.Constant):
-                self.string = self.string or (isinstance(n.value, str) and _is_forbidden_module(n.value.strip()))
+                self.string = self.string or (isinstance(n.value, str) and id(n) not in docstrings
+                                              and _FORBIDDEN_STRING.fullmatch(n.value.strip()) is not None)
             elif isinstance(n, (ast.Global, ast.Nonlocal)):
                 declared.update(n.names)
+                if isinstance(n, ast.Global):
+                    rebinds.update(n.names)
         local = set()
-        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
+        if isinstance(node, _SCOPES):
             args = node.args
             local = {a.arg for a in args.args + args.posonlyargs + args.kwonlyargs}
             local |= {a.arg for a in (args.vararg, args.kwarg) if a is not None}
             local |= stored - declared  # a parameter or a local assignment (not one declared global)
-        self.names = sorted(loaded - local)
+        self.now = now - local  # module-level names looked up when the node runs
+        self.later = later_loaded - local  # ... and when the functions in it are called
+        self.names = sorted(self.now | self.later)
+        self.rebinds = sorted(rebinds & stored)  # module-level names it binds through ``global``
 
 
-def _module_level(stmts):
-    """Statements executed at module level (descending into if/try/with/loops, not defs)."""
-    for stmt in stmts:
-        yield stmt
-        if isinstance(stmt, (ast.If, ast.For, ast.AsyncFor, ast.While, ast.With, ast.AsyncWith, ast.Try)):
-            for attr in ("body", "orelse", "finalbody"):
-                yield from _module_level(getattr(stmt, attr, []) or [])
-            for handler in getattr(stmt, "handlers", []) or []:
-                yield from _module_level(handler.body)
+class _Bound:
+    """One binding of a module-level name: an import (`why` describes it when it is of a forbidden package), or
+    code that runs when the name is used (`node`: a def, a class, an assigned value) with, for the names that code
+    loads while the module runs, the bindings they had then (`at`)."""
+
+    __slots__ = ("why", "node", "at")
+
+    def __init__(self, why=None, node=None, at=None):
+        self.why, self.node, self.at = why, node, at
 
 
-def forbidden_usage(units, functions):
-    """Which contract functions depend on ``slamlib`` or ``autograder``.
+class _Either:
+    """Bindings any one of which may be in force (the branches of an ``if``, a ``try`` stopped anywhere ...);
+    None among them: perhaps none. `why`: that of the first forbidden import among them."""
 
-    A function depends on a forbidden package when its body imports it, names a
-    string like ``"slamlib..."`` (``importlib.import_module``), or loads a
-    module-level name bound by such an import -- directly or through helper
-    functions, classes and module-level assignments of the submission.
+    __slots__ = ("options", "why")
 
-    Returns
-    -------
-    dict
-        Function name -> human-readable reason, for the functions that depend on one.
+    def __init__(self, options):
+        self.options = options
+        self.why = next((o.why for o in options if o is not None and o.why), None)
+
+
+def _either(options):
+    unique = list({id(o): o for o in options}.values())
+    return unique[0] if len(unique) == 1 else _Either(tuple(unique))
+
+
+class _Scope:
+    """The module-level names a stretch of statements binds, over those of the stretch around it.
+
+    `history`: every binding made inside the innermost enclosing ``try`` body (its handlers may start from any)."""
+
+    __slots__ = ("parent", "vars", "history")
+
+    def __init__(self, parent=None, history=None):
+        self.parent, self.vars = parent, {}
+        self.history = history if history is not None or parent is None else parent.history
+
+    def get(self, name):
+        s = self
+        while s is not None:
+            if name in s.vars:
+                return s.vars[name]
+            s = s.parent
+        return None
+
+    def set(self, name, value):
+        self.vars[name] = value
+        if self.history is not None:
+            self.history.setdefault(name, []).append(value)
+
+    def changed(self, top):
+        """Names bound from this scope up to `top` (excluded), in order."""
+        names, s = {}, self
+        while s is not top:
+            names.update(dict.fromkeys(s.vars))
+            s = s.parent
+        return names
+
+
+class _Execution:
+    """The module-level bindings of a submission followed in execution order, and what each one's code uses.
+
+    Statements run in cell (source) order. A binding replaces the one before it; ``del`` unbinds. Of the branches
+    of an ``if``, a loop (its body runs zero or more times), a ``match`` or a ``try`` (a handler may start after any
+    statement of the body), every possible outcome is kept. The body of ``if __name__ == "__main__":`` never runs
+    (the grader loads the submission as the module ``submission``). A function that binds a module-level name
+    through ``global`` may have done so whenever it was called: it stays a possible binding of that name.
     """
-    tainted = {}  # module-level name -> description of the import that bound it
-    defs = {}  # module-level name -> nodes whose code runs when the name is used
-    star = []
-    imported = set()  # module-level names bound by an import (numpy's np): defined, whatever a star import brings
-    for unit in units:
-        try:
-            tree = ast.parse(unit["source"], filename=unit["filename"])
-        except (SyntaxError, ValueError, RecursionError, MemoryError):
-            continue
-        for stmt in _module_level(tree.body):
-            where = f"{unit['label']} line {stmt.lineno}"
-            if isinstance(stmt, (ast.Import, ast.ImportFrom)):  # names an import binds are defined, not a star's
-                imported.update(a.asname or a.name.split(".")[0] for a in stmt.names if a.name != "*")
-            if isinstance(stmt, ast.Import):
-                for alias in stmt.names:
-                    if _is_forbidden_module(alias.name):
-                        bound = alias.asname or alias.name.split(".")[0]
-                        tainted[bound] = f"`{bound}` (import {alias.name}, {where})"
-            elif isinstance(stmt, ast.ImportFrom) and stmt.level == 0 and _is_forbidden_module(stmt.module):
-                for alias in stmt.names:
-                    if alias.name == "*":
-                        star.append(f"from {stmt.module} import * ({where})")
-                    else:
-                        bound = alias.asname or alias.name
-                        tainted[bound] = f"`{bound}` (from {stmt.module} import {alias.name}, {where})"
-            for name, node in _bindings(stmt):
-                defs.setdefault(name, []).append(node)
-    defined = set(defs) | set(tainted) | imported
-    builtin_names = set(dir(builtins))
 
-    facts = {}  # id(node) -> _Facts, each node walked once
+    def __init__(self):
+        self.top = _Scope()
+        self.star = []  # forbidden star imports executed
+        self.rebound = {}  # name -> bindings of it by defs through ``global``
+        self.facts = {}  # id(node) -> _Facts, each node walked once
+        self.finals = {}
 
-    def direct(node):
-        """Why `node`'s own code depends on a forbidden package, without following the names it uses."""
-        f = facts.get(id(node))
+    def facts_of(self, node):
+        f = self.facts.get(id(node))
         if f is None:
-            f = facts[id(node)] = _Facts(node)
+            f = self.facts[id(node)] = _Facts(node)
+        return f
+
+    def code(self, node, scope):
+        """A binding to `node`'s code; the names it loads while the module runs are looked up now."""
+        return _Bound(node=node, at={n: scope.get(n) for n in self.facts_of(node).now})
+
+    def final(self, name):
+        """The bindings a name may have after the whole submission ran, when the graded functions are called."""
+        if name not in self.finals:
+            value, extra = self.top.get(name), self.rebound.get(name)
+            self.finals[name] = _either([value] + extra) if extra else value
+        return self.finals[name]
+
+    # ------------------------------------------------------------------ running the module's statements
+    def run(self, stmts, scope, label):
+        for stmt in stmts:
+            self.statement(stmt, scope, label)
+
+    def statement(self, stmt, scope, label):
+        where = f"{label} line {stmt.lineno}"
+        if isinstance(stmt, ast.Import):
+            for alias in stmt.names:
+                bound = alias.asname or alias.name.split(".")[0]
+                forbidden = _is_forbidden_module(alias.name)
+                scope.set(bound, _Bound(f"`{bound}` (import {alias.name}, {where})" if forbidden else None))
+        elif isinstance(stmt, ast.ImportFrom):
+            forbidden = stmt.level == 0 and _is_forbidden_module(stmt.module)
+            for alias in stmt.names:
+                if alias.name == "*":
+                    if forbidden:
+                        self.star.append(f"from {stmt.module} import * ({where})")
+                    continue
+                bound = alias.asname or alias.name
+                why = f"`{bound}` (from {stmt.module} import {alias.name}, {where})" if forbidden else None
+                scope.set(bound, _Bound(why))
+        elif isinstance(stmt, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            scope.set(stmt.name, self.code(stmt, scope))
+            for name in self.facts_of(stmt).rebinds:
+                self.rebound.setdefault(name, []).append(_Bound(node=stmt))
+        elif isinstance(stmt, (ast.Assign, ast.AnnAssign, ast.AugAssign)):
+            if stmt.value is None:  # x: int
+                return
+            value = self.code(stmt.value, scope)
+            for target in (stmt.targets if isinstance(stmt, ast.Assign) else [stmt.target]):
+                for name in _bound_names(target):  # x += v is x changed by v
+                    scope.set(name, _either([scope.get(name), value]) if isinstance(stmt, ast.AugAssign) else value)
+                for name in _mutated_names(target):
+                    scope.set(name, _either([scope.get(name), value]))
+        elif isinstance(stmt, ast.Delete):
+            for target in stmt.targets:
+                for name in _bound_names(target, ast.Del):
+                    scope.set(name, None)
+        elif isinstance(stmt, ast.If):
+            guard = _main_guard(stmt.test)
+            if guard is None:
+                self.branches(scope, [stmt.body, stmt.orelse], label, exhaustive=True)
+            else:
+                self.run(stmt.orelse if guard else stmt.body, scope, label)
+        elif isinstance(stmt, (ast.For, ast.AsyncFor, ast.While)):
+            def loop(s):
+                if not isinstance(stmt, ast.While):
+                    value = self.code(stmt.iter, s)
+                    for name in _bound_names(stmt.target):
+                        s.set(name, value)
+                self.run(stmt.body, s, label)
+            self.branches(scope, [loop], label, exhaustive=False)  # zero or more times
+            self.branches(scope, [stmt.orelse], label, exhaustive=False)  # unless it breaks
+        elif isinstance(stmt, (ast.With, ast.AsyncWith)):
+            for item in stmt.items:
+                if item.optional_vars is not None:
+                    value = self.code(item.context_expr, scope)
+                    for name in _bound_names(item.optional_vars):
+                        scope.set(name, value)
+            self.run(stmt.body, scope, label)
+        elif isinstance(stmt, (ast.Try, getattr(ast, "TryStar", ast.Try))):
+            body = _Scope(scope, history={})  # a new history: that of this try
+            self.run(stmt.body, body, label)
+            start = _Scope(scope)  # a handler starts before the body or after any binding in it
+            for name, values in body.history.items():
+                start.vars[name] = _either([scope.get(name)] + values)
+                if scope.history is not None:
+                    scope.history.setdefault(name, []).extend(values)
+            body.history = scope.history
+            self.run(stmt.orelse, body, label)
+            ends = [body]
+            for handler in stmt.handlers:
+                h = _Scope(start)
+                if handler.name:
+                    h.set(handler.name, _Bound())
+                self.run(handler.body, h, label)
+                ends.append(h)
+            self.merge(scope, ends, exhaustive=True)
+            self.run(stmt.finalbody, scope, label)
+        elif isinstance(stmt, getattr(ast, "Match", ())):
+            self.branches(scope, [case.body for case in stmt.cases], label, exhaustive=False)
+
+    def branches(self, scope, blocks, label, exhaustive):
+        """Run each block (statements, or a function of the scope) from `scope`; keep every outcome in it."""
+        ends = []
+        for block in blocks:
+            s = _Scope(scope)
+            if callable(block):
+                block(s)
+            else:
+                self.run(block, s, label)
+            ends.append(s)
+        self.merge(scope, ends, exhaustive)
+
+    @staticmethod
+    def merge(scope, ends, exhaustive):
+        names = {}
+        for s in ends:
+            names.update(s.changed(scope))
+        for name in names:
+            options = [s.get(name) for s in ends] + ([] if exhaustive else [scope.get(name)])
+            scope.set(name, _either(options))
+
+    # ------------------------------------------------------------------ what the graded functions use
+    def leaves(self, value, seen):
+        """The code bindings among `value`'s options not in `seen` (ids), each once."""
+        stack = [value]
+        while stack:
+            v = stack.pop()
+            if v is None or id(v) in seen:
+                continue
+            seen.add(id(v))
+            if isinstance(v, _Either):
+                stack.extend(reversed(v.options))
+            elif v.node is not None:
+                yield v
+
+    def values(self, f, at, name):
+        """The bindings `name` may have for code whose facts are `f`: while loading (`at`), when called."""
+        out = []
+        if name in f.now:
+            out.append(at.get(name) if at is not None else self.final(name))
+        if name in f.later:
+            out.append(self.final(name))
+        return out
+
+    def direct(self, bound):
+        """Why `bound`'s own code depends on a forbidden package, without following the names it uses."""
+        f = self.facts_of(bound.node)
         if f.imports:
             mod, line = f.imports[0]
             return f"imports {mod} (line {line})", f
         if f.string:
             return "names the slamlib/autograder package in a string (a dynamic import)", f
         for name in f.names:
-            if name in tainted:
-                return f"uses {tainted[name]}", f
-        if star:
+            for v in self.values(f, bound.at, name):
+                if v is not None and v.why:
+                    return f"uses {v.why}", f
+        if self.star:
+            builtin_names = set(dir(builtins))
             for name in f.names:
-                if name not in defined and name not in builtin_names:
-                    return f"uses `{name}`, which can only come from {star[0]}", f
+                if name not in builtin_names and all(v is None for v in self.values(f, bound.at, name)):
+                    return f"uses `{name}`, which can only come from {self.star[0]}", f
         return None, f
 
-    def reason(root, seen):
+    def reason(self, root):
         """Why `root` depends on a forbidden package, through the submission's names it uses (depth first).
 
-        Iterative, with every name followed once (`seen`): a chain of a thousand helpers neither
-        recurses past Python's limit nor costs more than one walk over each of them.
+        Iterative, with every binding followed once: a chain of a thousand helpers neither recurses past
+        Python's limit nor costs more than one walk over each of them.
         """
-        why, f = direct(root)
+        why, f = self.direct(root)
         if why:
             return why
+        seen = {id(root)}
 
-        def children(f):
+        def children(f, at):
             for name in f.names:
-                if name in defs and name not in seen:
-                    seen.add(name)
-                    for sub in defs[name]:
+                for v in self.values(f, at, name):
+                    for sub in self.leaves(v, seen):
                         yield name, sub
 
-        chain, stack = [], [children(f)]
+        chain, stack = [], [children(f, root.at)]
         while stack:
             step = next(stack[-1], None)
             if step is None:
@@ -475,32 +698,51 @@ def forbidden_usage(units, functions):
                     chain.pop()
                 continue
             name, sub = step
-            why, f = direct(sub)
+            why, f = self.direct(sub)
             if why:
                 return "".join(f"calls `{n}`, which " for n in chain + [name]) + why
             chain.append(name)
-            stack.append(children(f))
+            stack.append(children(f, sub.at))
         return None
 
+
+def forbidden_usage(units, functions):
+    """Which contract functions depend on ``slamlib`` or ``autograder``.
+
+    A function depends on a forbidden package when its body imports it, holds a string that is the dotted name of
+    it or of one of its modules (``importlib.import_module("slamlib.particle")``; a docstring, or prose that
+    mentions one, is not), or loads a module-level name bound by such an import -- directly or through helper
+    functions, classes and module-level assignments of the submission.
+
+    Names are resolved as the submission runs (`_Execution`): a function's body sees the bindings in force after
+    the last cell, an assigned value those in force when it ran. So an import of the reference that a later def
+    of the same name replaces, or one under ``if __name__ == "__main__":``, is harmless; one that may be the binding
+    in force (in either branch of an ``if``, in a ``try`` body or its handler) counts. A name no statement binds,
+    used after ``from slamlib import *``, can only come from that import.
+
+    Returns
+    -------
+    dict
+        Function name -> human-readable reason, for the functions that depend on one.
+    """
+    ex = _Execution()
+    trees = []  # the nodes stay alive: bindings and facts are keyed by their ids
+    for unit in units:
+        try:
+            tree = ast.parse(unit["source"], filename=unit["filename"])
+        except (SyntaxError, ValueError, RecursionError, MemoryError):
+            continue
+        trees.append(tree)
+        ex.run(tree.body, ex.top, unit["label"])
     out = {}
     for fn in functions:
-        if fn in tainted:
-            out[fn] = f"{fn} is {tainted[fn]}, not your own implementation"
+        value = ex.final(fn)
+        if value is not None and value.why:
+            out[fn] = f"{fn} is {value.why}, not your own implementation"
             continue
-        for node in defs.get(fn, []):
-            why = reason(node, {fn})
+        for bound in ex.leaves(value, set()):
+            why = ex.reason(bound)
             if why:
                 out[fn] = f"{fn} {why}"
                 break
     return out
-
-
-def _bindings(stmt):
-    """(name, node) pairs a module-level statement binds, with the code that runs when the name is used."""
-    if isinstance(stmt, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
-        return [(stmt.name, stmt)]
-    if isinstance(stmt, ast.Assign):
-        return [(n, stmt.value) for t in stmt.targets for n in _bound_names(t)]
-    if isinstance(stmt, (ast.AnnAssign, ast.AugAssign)) and stmt.value is not None:
-        return [(n, stmt.value) for n in _bound_names(stmt.target)]
-    return []

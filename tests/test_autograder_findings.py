@@ -759,3 +759,127 @@ def test_the_always_visible_summary_counts_no_hidden_test():
     assert "Every test shown now passed." in data["output"] and "f (3/5)" not in data["output"]
     # the staff's report still counts every test
     assert GradeResult("s.py", "ex", tests[:2]).text_report().startswith("Exercise ex: 3 / 5 points\n")
+
+
+# --------------------------------------------------------------------------- 11. the static check for slamlib
+LIK = "landmark_likelihood"
+OWN_WRAP = ('def wrap_angle(a):\n    """My own wrap."""\n'
+            '    return (np.asarray(a, dtype=float) + np.pi) % (2.0 * np.pi) - np.pi\n\n\n')
+WRAPPED = solution_text("particle_filter").replace("nu[:, 1] = (nu[:, 1] + np.pi) % (2 * np.pi) - np.pi",
+                                                   "nu[:, 1] = wrap_angle(nu[:, 1])")
+
+
+def _static(src, functions=("f",)):
+    from autograder.submission import forbidden_usage
+
+    return forbidden_usage([{"source": src, "filename": "s.py", "label": "s.py"}], list(functions))
+
+
+def _grade_lik(path):
+    result = grade(path, "particle_filter", limits=limits(), functions=[LIK])
+    gradescope_json_ok(result.to_gradescope())
+    return result.by_function()[LIK], "\n".join(t.output for t in result.tests)
+
+
+def test_an_import_of_the_reference_the_submission_replaces_or_never_runs_costs_nothing(tmp_path):
+    """Any ``from slamlib import wrap_angle`` anywhere tainted the name: a correct landmark_likelihood calling the
+    student's own wrap_angle, defined after a try/except import of the reference's, or compared with it under
+    ``if __name__ == "__main__":``, scored 0 ("uses `wrap_angle` (from slamlib import wrap_angle ...)"). The
+    binding in force when the functions are called counts; an import still in force at the end costs it."""
+    assert "def wrap_angle" not in WRAPPED and "wrap_angle(nu[:, 1])" in WRAPPED
+    head, _, body = WRAPPED.partition("\n\n\n")
+    try_import = "try:\n    from slamlib import wrap_angle\n    print(wrap_angle(4.0))\nexcept ImportError:\n    pass\n"
+    main = ('\n\nif __name__ == "__main__":\n    from slamlib import wrap_angle, landmark_likelihood as ref\n'
+            '    print(wrap_angle(4.0))\n')
+    path = tmp_path / "own_wrap.py"
+    path.write_text(head + "\n\n" + try_import + "\n\n" + OWN_WRAP + body + main)
+    (score, max_score), out = _grade_lik(path)
+    assert score == max_score > 0, out
+    # the same import in force at the end: landmark_likelihood calls the reference's wrap_angle
+    path.write_text(head + "\n\n" + OWN_WRAP + body + "\n\nfrom slamlib import wrap_angle\n")
+    (score, _), out = _grade_lik(path)
+    assert score == 0 and "No credit" in out and "`wrap_angle` (from slamlib import wrap_angle" in out, out
+
+
+def test_a_notebook_that_imports_the_reference_before_the_template_defines_the_name_keeps_its_points(tmp_path):
+    """Notebooks 02 and 03 define wrap_angle in a template cell: an earlier cell of the student's importing the
+    reference's wrap_angle to compare zeroed the correct landmark_likelihood. A cell after it that imports it
+    again still does."""
+    cells = ["from slamlib import wrap_angle\nprint(wrap_angle(4.0))", OWN_WRAP, WRAPPED]
+    path = tmp_path / "compare_first.ipynb"
+    nbformat.write(nbformat.v4.new_notebook(cells=[nbformat.v4.new_code_cell(c) for c in cells]), path)
+    (score, max_score), out = _grade_lik(path)
+    assert score == max_score > 0, out
+    path = tmp_path / "compare_last.ipynb"
+    nbformat.write(nbformat.v4.new_notebook(cells=[nbformat.v4.new_code_cell(c) for c in cells[1:] + cells[:1]]),
+                   path)
+    (score, _), out = _grade_lik(path)
+    assert score == 0 and "No credit" in out and "code cell 3" in out, out
+
+
+BINDINGS = [
+    # replaced by a later binding, unbound, or never run: harmless
+    ("from slamlib import w\ndef w(a): return a\ndef f(x): return w(x)\n", None),
+    ("try:\n    from slamlib import w\nexcept ImportError:\n    pass\ndef w(a): return a\ndef f(x): return w(x)\n",
+     None),
+    ("def w(a): return a\nif __name__ == '__main__':\n    from slamlib import w\ndef f(x): return w(x)\n", None),
+    ("from slamlib import w\nif c:\n    def w(a): return a\nelse:\n    w = abs\ndef f(x): return w(x)\n", None),
+    ("from slamlib import w\ndel w\ndef f(x): return w(x)\n", None),
+    ("import slamlib as sl\nsl = None\ndef f(x): return sl.w(x)\n", None),
+    ("from slamlib import *\ndef w(a): return a\ndef f(x): return w(x)\n", None),
+    ("from slamlib import f\ndef f(x): return x\n", None),
+    ("from slamlib import w\nW = lambda a: w(a)\ndef w(a): return a\ndef f(x): return W(x)\n", None),
+    # the reference's code may be what runs: no credit
+    ("def w(a): return a\nfrom slamlib import w\ndef f(x): return w(x)\n",
+     "uses `w` (from slamlib import w, s.py line 2)"),
+    ("try:\n    from slamlib import w\nexcept ImportError:\n    def w(a): return a\ndef f(x): return w(x)\n",
+     "uses `w` (from slamlib"),
+    ("def w(a): return a\nif c:\n    from slamlib import w\ndef f(x): return w(x)\n", "uses `w` (from slamlib"),
+    ("def w(a): return a\nif __name__ == '__main__':\n    pass\nelse:\n    from slamlib import w\n"
+     "def f(x): return w(x)\n", "uses `w` (from slamlib"),
+    ("from slamlib import w\nW = w\ndef w(a): return a\ndef f(x): return W(x)\n", "calls `W`, which uses `w`"),
+    ("import slamlib as sl\nsl.x = 1\ndef f(x): return sl.w(x)\n", "uses `sl` (import slamlib"),
+    ("def w(a): return a\ndef load():\n    global w\n    from slamlib import w\nload()\ndef f(x): return w(x)\n",
+     "calls `w`, which imports slamlib"),
+    ("from slamlib import *\ndef f(x): return w(x)\n", "can only come from from slamlib import *"),
+    ("def f(x): return x\nfrom slamlib import f\n", "f is `f` (from slamlib import f, s.py line 2)"),
+]
+
+
+def test_the_binding_in_force_when_the_functions_run_decides():
+    """The static check tainted a name any statement bound from slamlib, wherever it stood: a later def, a
+    ``del``, an ``if __name__ == "__main__":`` block did not count. The bindings are followed in execution order;
+    one that may be in force (in either branch, in a try body or its handler) still counts."""
+    wrong = []
+    for src, why in BINDINGS:
+        found = _static(src).get("f")
+        if (found is None) != (why is None) or (why is not None and why not in found):
+            wrong.append(f"{src!r}: expected {why!r}, found {found!r}")
+    assert not wrong, "\n".join(wrong)
+
+
+def test_a_docstring_that_names_the_reference_is_not_a_dynamic_import(tmp_path):
+    """Any string starting with "slamlib." was taken for a dynamic import: the docstring "slamlib.effective_sample_size,
+    written again with NumPy only." zeroed a correct function. Docstrings never count, and other strings only when
+    they are a dotted module name of slamlib or the autograder; a real dynamic import by name still costs it."""
+    doc = '    """slamlib.effective_sample_size, written again with NumPy only."""\n'
+    text = solution_text("particle_filter").replace("def effective_sample_size(w):\n",
+                                                    "def effective_sample_size(w):\n" + doc)
+    assert doc in text
+    path = tmp_path / "docstring.py"
+    path.write_text(text)
+    result = grade(path, "particle_filter", limits=limits(), functions=[OTHER])
+    assert result.by_function()[OTHER] == (15.0, 15.0), result.text_report()
+    # a string that is the name of a module of slamlib is a dynamic import, wherever it is used
+    body = (f"def {OTHER}(w):\n    import importlib\n    ref = importlib.import_module('slamlib.particle')\n"
+            f"    return ref.{OTHER}(w)\n")
+    scores, out, _ = _grade_variant(tmp_path, body, function=OTHER, name="dynamic.py")
+    assert scores[OTHER][0] == 0 and "No credit" in out and "a dynamic import" in out, out
+    code = "def f(w, n='x'):\n    import importlib, sys\n    return {}\n"
+    for call in ("importlib.import_module('slamlib')", "__import__(' slamlib.fastslam ')", "sys.modules['autograder']",
+                 "getattr(importlib.import_module('slamlib'), n)", "importlib.import_module('slamlib.' + n)"):
+        assert "a dynamic import" in _static(code.format(call)).get("f", ""), call
+    # a docstring, or prose that mentions one, is not
+    assert _static('def f(w):\n    """slamlib.particle"""\n    return w\n') == {}
+    for prose in ("see slamlib.particle, the reference", "slamlib is the reference", "slamlib.f, again"):
+        assert _static(f"def f(w):\n    x = {prose!r}\n    return w\n") == {}, prose
