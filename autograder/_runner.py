@@ -1511,6 +1511,10 @@ def _zygote(job, ctl, mod, attempts, npx, hook_busy):
             except OSError as exc:
                 pid = -1
                 try:  # the machine's doing (a process limit, memory): the grader is told so, never a worker's end
+                    # the request pipe is closed first: no process then reads it, which is how the grader tells this
+                    # word from one a worker forges on the result pipe it shares with the zygote
+                    os.close(fds[0])
+                    fds[0] = os.open("/dev/null", os.O_RDONLY)
                     os.set_blocking(fds[1], False)
                     _write(fds[1], pack_frame({"status": "fork-failed", "error": str(exc.strerror or exc)[:100]}))
                 except OSError:

@@ -922,6 +922,17 @@ class Worker:
                 continue
         return ([proc.pid] if proc is not None else []) + tree  # not kept: the worker may not be forked yet
 
+    def _request_pipe_read(self):
+        """Whether a process holds the request pipe's reading end (a byte written to it is refused with EPIPE
+        when none does). The zygote closes its copy before it says a fork failed; a worker holds it."""
+        try:
+            os.write(self._req_w, b"\0")
+        except BrokenPipeError:
+            return False
+        except OSError:
+            return True  # full, or anything else: not the zygote's clean word
+        return True
+
     def close(self, kill=True):
         if kill and not self.dead:
             self.sandbox.kill_worker(self.id)
@@ -1019,7 +1030,10 @@ class Worker:
                     if header == {"status": "loaded"}:
                         status, err = "ok", None
                     elif header.get("status") == "fork-failed":  # written by the zygote: no worker was started
-                        status, err = "fork-failed", wire.clean_text(str(header.get("error")))[:100]
+                        if self._request_pipe_read():  # a process reads the request pipe: a worker wrote this
+                            status, err = "protocol", "a worker sent the sandbox's own word that it could not start"
+                        else:
+                            status, err = "fork-failed", wire.clean_text(str(header.get("error")))[:100]
                     elif header.get("status") == "exited":  # written by the zygote: the worker ended while loading
                         self._drain_output()
                         status, err = "eof", str(header.get("exit"))[:100]

@@ -800,3 +800,33 @@ def test_scratch_folders_in_the_hosts_tmp_are_removed_with_the_sandbox():
     finally:
         box.close()
     assert not left()
+
+
+FORGED_FORK_FAILURE = '''
+import fcntl, json, os, stat, struct
+
+
+def _forge():
+    head = json.dumps({"status": "fork-failed", "error": "forged"}).encode()
+    frame = b"AGW1" + struct.pack("<II", len(head), 0) + head
+    for fd in range(3, 256):  # a worker's result pipe: the one pipe it writes to beyond stdout and stderr
+        try:
+            if stat.S_ISFIFO(os.fstat(fd).st_mode) and fcntl.fcntl(fd, fcntl.F_GETFL) & os.O_ACCMODE == os.O_WRONLY:
+                os.write(fd, frame)
+        except OSError:
+            pass
+
+
+_forge()
+'''
+
+
+def test_a_worker_cannot_pass_for_the_sandbox_that_could_not_start_it(tmp_path):
+    """The zygote tells the grader on a worker's result pipe that it could not fork it (the grader's fault, graded
+    again, then an internal error); a worker shares that pipe, and its forged word would turn the submission's
+    grading into the grader's error at will (one bit, visible before the deadline, per grading)."""
+    path = tmp_path / "sub.py"
+    path.write_text(solution_text("particle_filter") + FORGED_FORK_FAILURE)
+    result = grade(path, "particle_filter", limits=_limits(), functions=[TARGET])
+    assert not any("graded a second time" in n for n in result.notes), result.notes
+    assert result.score == 0 and "sandbox's own word" in result.tests[0].output, result.tests[0].output
