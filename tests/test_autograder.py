@@ -256,8 +256,9 @@ def test_batch(tmp_path):
 def test_batch_rerun_keeps_graded_rows_and_grades_the_graders_failures_again(tmp_path):
     """A rerun skips a submission whose results JSON matches its content, except where the grader itself failed on
     it ("grader-error"): that was no grade, so it is graded again."""
-    from autograder.batch import _fingerprint
+    from autograder.batch import _fingerprint, _settings
     from autograder.results import fallback_results, write_json_atomic
+    from autograder.seeds import derive_seed, load_secret
 
     subs = tmp_path / "subs"
     subs.mkdir()
@@ -269,8 +270,10 @@ def test_batch_rerun_keeps_graded_rows_and_grades_the_graders_failures_again(tmp
         path.write_text(solution_text("particle_filter"))
         row = {"submission": sid, "file": str(path), "score": score, "max_score": ex.max_score(), "status": status,
                "message": "OSError: [Errno 9] Bad file descriptor" if status != "ok" else ""}
+        fp = _fingerprint(path, None)  # what a grading with this run's secret and default limits records
         write_json_atomic(results / f"{sid}.json", {**fallback_results("earlier run"), "extra_data": {
-            "exercise": "particle_filter", "submission_sha256": _fingerprint(path, None), "batch_row": row}})
+            "exercise": "particle_filter", "submission_sha256": fp, "batch_row": row,
+            "seed": derive_seed(load_secret(), "particle_filter", fp), "batch_settings": _settings(None)}})
     out = tmp_path / "grades.csv"
     p = _run(["batch", str(subs), "--exercise", "particle_filter", "--out", str(out), "--jobs", "1", "--quiet"])
     assert p.returncode == 0, p.stderr

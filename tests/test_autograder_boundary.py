@@ -747,7 +747,7 @@ def _ends_the_sandbox_during_its_calls(monkeypatch, times):
     real_exchange = sandbox_mod.Worker._exchange
     left = dict(times)
 
-    def exchange(self, request, deadline):
+    def exchange(self, request, deadline, *rest):
         head = bytes(request[:4096]).replace(b" ", b"")
         for fn in left:
             if (left[fn] is None or left[fn] > 0) and self.sandbox.proc is not None and \
@@ -758,8 +758,8 @@ def _ends_the_sandbox_during_its_calls(monkeypatch, times):
                 assert os.write(self._req_w, request) > 0  # the call is under way ...
                 os.killpg(self.sandbox.proc.pid, signal.SIGKILL)  # ... when the sandbox ends
                 self.sandbox.proc.wait()
-                return real_exchange(self, b"", deadline)
-        return real_exchange(self, request, deadline)
+                return real_exchange(self, b"", deadline, *rest)
+        return real_exchange(self, request, deadline, *rest)
 
     monkeypatch.setattr(sandbox_mod.Worker, "_exchange", exchange)
     return left
