@@ -53,26 +53,22 @@ def _seconds(text):
     return value
 
 
-def _count(text):
-    """An option's count: an integer of at least 1."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer of at least 1, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected an integer of at least 1, got {text!r}")
-    return value
+def _integer(minimum):
+    """An argparse type: an integer of at least ``minimum`` (counts: 1; seeds: 0, NumPy's are non-negative)."""
+
+    def parse(text):
+        try:
+            value = int(text)
+        except ValueError:
+            value = None
+        if value is None or value < minimum:
+            raise argparse.ArgumentTypeError(f"expected an integer of at least {minimum}, got {text!r}")
+        return value
+
+    return parse
 
 
-def _seed(text):
-    """A base seed: an integer of at least 0 (NumPy's seeds are non-negative)."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer of at least 0, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected an integer of at least 0, got {text!r}")
-    return value
+_count, _seed = _integer(1), _integer(0)
 
 
 def _limits(args):
