@@ -1508,17 +1508,11 @@ def _zygote(job, ctl, mod, attempts, npx, hook_busy):
                     pid = _fork()
                 finally:
                     hook_busy[0] = False
-            except OSError as exc:
+            except OSError:
+                # the machine's doing (a process limit, memory): the worker's pipes are closed with not a byte
+                # written, which no worker can bring about (the zygote holds the result pipe too, and writes on it
+                # when a worker ends); the grader reads that as a worker never started
                 pid = -1
-                try:  # the machine's doing (a process limit, memory): the grader is told so, never a worker's end
-                    # the request pipe is closed first: no process then reads it, which is how the grader tells this
-                    # word from one a worker forges on the result pipe it shares with the zygote
-                    os.close(fds[0])
-                    fds[0] = os.open("/dev/null", os.O_RDONLY)
-                    os.set_blocking(fds[1], False)
-                    _write(fds[1], pack_frame({"status": "fork-failed", "error": str(exc.strerror or exc)[:100]}))
-                except OSError:
-                    pass
             if pid == 0:
                 hook_busy[0] = False
                 for _, pfd, rfd in workers.values():

@@ -809,12 +809,23 @@ import fcntl, json, os, stat, struct
 def _forge():
     head = json.dumps({"status": "fork-failed", "error": "forged"}).encode()
     frame = b"AGW1" + struct.pack("<II", len(head), 0) + head
-    for fd in range(3, 256):  # a worker's result pipe: the one pipe it writes to beyond stdout and stderr
+    pipes = [fd for fd in range(3, 256) if _fifo(fd)]
+    for fd in pipes:  # the request pipe first (no one reads it then), as a zygote that could not fork would
+        if fcntl.fcntl(fd, fcntl.F_GETFL) & os.O_ACCMODE == os.O_RDONLY:
+            os.close(fd)
+    for fd in pipes:  # then the word, on the result pipe: the one pipe it writes to beyond stdout and stderr
         try:
-            if stat.S_ISFIFO(os.fstat(fd).st_mode) and fcntl.fcntl(fd, fcntl.F_GETFL) & os.O_ACCMODE == os.O_WRONLY:
+            if fcntl.fcntl(fd, fcntl.F_GETFL) & os.O_ACCMODE == os.O_WRONLY:
                 os.write(fd, frame)
         except OSError:
             pass
+
+
+def _fifo(fd):
+    try:
+        return stat.S_ISFIFO(os.fstat(fd).st_mode)
+    except OSError:
+        return False
 
 
 _forge()
@@ -822,11 +833,31 @@ _forge()
 
 
 def test_a_worker_cannot_pass_for_the_sandbox_that_could_not_start_it(tmp_path):
-    """The zygote tells the grader on a worker's result pipe that it could not fork it (the grader's fault, graded
-    again, then an internal error); a worker shares that pipe, and its forged word would turn the submission's
-    grading into the grader's error at will (one bit, visible before the deadline, per grading)."""
+    """A zygote that could not fork a worker said so on the worker's result pipe (the grader's fault: graded again,
+    then an internal error); a worker shares that pipe, and its forged word (after closing its request pipe, as the
+    zygote did) turned the submission's grading into the grader's error at will: one bit per grading, visible
+    before the deadline. The zygote now closes the pipes empty, which no worker can do."""
     path = tmp_path / "sub.py"
     path.write_text(solution_text("particle_filter") + FORGED_FORK_FAILURE)
     result = grade(path, "particle_filter", limits=_limits(), functions=[TARGET])
     assert not any("graded a second time" in n for n in result.notes), result.notes
-    assert result.score == 0 and "sandbox's own word" in result.tests[0].output, result.tests[0].output
+    assert result.score == 0 and "a result arrived before the request was sent" in result.tests[0].output, \
+        result.tests[0].output
+
+
+def test_a_deep_scratch_tree_is_removed_without_failing_the_grading():
+    """Python 3.11's shutil.rmtree recurses once per folder level: 5000 nested folders in a worker's scratch folder
+    raised RecursionError out of the sandbox's end, and so out of grade() (an internal error, the folders left)."""
+    from autograder.sandbox import Sandbox
+
+    src = ("import os\n\ndef f():\n    for _ in range(3000):\n        os.mkdir('d')\n        os.chdir('d')\n"
+           "    return 1.0\n")
+    box = Sandbox([{"source": src, "filename": "p.py", "label": "p"}], ["f"], Limits(filesystem=False))
+    try:
+        box.start()
+        worker = box.fork_worker()
+        assert worker.call("f", [], timeout=30).status == "ok"
+    finally:
+        box.close()
+    assert not [n for top in ("/tmp", "/dev/shm") if os.path.isdir(top) for n in os.listdir(top)
+                if n.startswith(box._scratch_prefix + "-")]
