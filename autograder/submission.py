@@ -377,6 +377,44 @@ def _main_guard(test):
     return None
 
 
+def _parameters(scope):
+    args = scope.args
+    names = [a.arg for a in args.args + args.posonlyargs + args.kwonlyargs]
+    return names + [a.arg for a in (args.vararg, args.kwarg) if a is not None]
+
+
+def _parameter_uses(node):
+    """``id``s of the names loaded inside a lambda or def nested in ``node`` that are parameters of it (or of one
+    around it, inside ``node``): ``(lambda wrap_angle: wrap_angle + 1)(x)`` loads no module-level ``wrap_angle``.
+
+    One walk, each node entered and left once (a count of the parameters in scope, not a set per scope): linear
+    however deep the nesting. A def's decorators and the parameters' defaults are outside its scope.
+    """
+    out, count = set(), {}
+    stack = [(node, False)]
+    while stack:
+        n, leaving = stack.pop()
+        if leaving:
+            for name in _parameters(n):
+                count[name] -= 1
+            continue
+        if n is not node and isinstance(n, _SCOPES):
+            body = n.body if isinstance(n.body, list) else [n.body]
+            inside = {id(c) for c in body}
+            # popped last: everything outside the scope (decorators, defaults, annotations), then leaving it,
+            # then (popped first) its body with its parameters counted
+            stack.extend((c, False) for c in ast.iter_child_nodes(n) if id(c) not in inside)
+            stack.append((n, True))
+            for name in _parameters(n):
+                count[name] = count.get(name, 0) + 1
+            stack.extend((c, False) for c in body)
+            continue
+        if isinstance(n, ast.Name) and isinstance(n.ctx, ast.Load) and count.get(n.id, 0) > 0:
+            out.add(id(n))
+        stack.extend((c, False) for c in ast.iter_child_nodes(n))
+    return out
+
+
 class _Facts:
     """What one node's code does, found in one walk over it: linear in its size, whatever it holds."""
 
@@ -390,7 +428,10 @@ class _Facts:
         # assigned value, a class body) when the node runs, while the module loads
         all_later = isinstance(node, _SCOPES)
         later, docstrings = set(), set()
+        shadowed = _parameter_uses(node)
         for n in ast.walk(node):
+            if id(n) in shadowed:  # a parameter of a lambda or def inside: not a module-level name
+                continue
             if not all_later and (id(n) in later or (n is not node and isinstance(n, _SCOPES))):
                 later.update(id(c) for c in ast.iter_child_nodes(n))
             if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
