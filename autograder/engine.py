@@ -57,7 +57,7 @@ import numpy as np
 from .context import CallError, Ctx, Fail, SkipRest
 from .exercises import EXERCISES, get_exercise
 from .results import GradeResult, TestResult
-from .sandbox import CallOutcome, ChildFailed, Limits, Sandbox
+from .sandbox import MAX_STRETCH, CallOutcome, ChildFailed, Limits, Sandbox
 from .spec import VISIBILITY
 from .submission import FORBIDDEN, SubmissionError, forbidden_usage, load_submission
 
@@ -159,6 +159,15 @@ class Budget:
         if self.test_deadline is not None:
             self.test_deadline += seconds
 
+    def give_back_waiting(self, seconds):
+        """Give back ``seconds`` a loaded machine kept a call's worker waiting for a processor: at most
+        ``MAX_STRETCH`` times the submission's budget over the whole grading, so a grading ends however loaded the
+        machine (or however a submission might make its workers wait)."""
+        room = MAX_STRETCH * self.submission_budget - getattr(self, "waited", 0.0)
+        seconds = min(max(0.0, seconds), max(0.0, room))
+        self.waited = getattr(self, "waited", 0.0) + seconds
+        self.extend(seconds)
+
     def message(self, reason):
         if reason == "submission":
             return (f"the submission's time budget of {self.submission_budget:g} s was used up (grading stops "
@@ -232,7 +241,7 @@ class _WorkerCaller:
                     if self.budget is not None and getattr(out, "waited", 0.0) > 0:
                         # the time a loaded machine kept the worker waiting for a processor is no one's: the
                         # call's deadline was stretched by it, and so are the test's and the submission's budgets
-                        self.budget.extend(out.waited)
+                        self.budget.give_back_waiting(out.waited)
                     if out.status == "crashed" and self.worker.gone_before_call:
                         blame = "before"
                     elif out.status == "crashed" and self.worker.zygote_gone:

@@ -476,15 +476,38 @@ def _descendants(pid):
     return out
 
 
+def _scheduling(pid):
+    """``(nice, allowed processors)`` of a process, from ``/proc``; None when it cannot tell."""
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as fh:
+            stat_line = fh.read()
+        nice = int(stat_line[stat_line.rindex(b")") + 2:].split()[16])  # field 19 of stat(5)
+        with open(f"/proc/{pid}/status", "rb") as fh:
+            cpus = next((ln.split(b":", 1)[1].strip() for ln in fh if ln.startswith(b"Cpus_allowed_list:")), None)
+        return nice, cpus
+    except (OSError, ValueError, IndexError):
+        return None
+
+
 def _delays(pids):
-    """``{pid: seconds}`` each process has spent runnable but waiting for a processor, for those the kernel says."""
-    out = {}
+    """``{pid: seconds}`` each process has spent runnable but waiting for a processor, for those the kernel says.
+
+    A process that lowered its own priority or narrowed its processors below the grader's waits on purpose
+    (seccomp refuses both; this holds where there is no seccomp): its waiting is not counted.
+    """
+    out, own = {}, None
     for p in pids:
         try:
             with open(f"/proc/{p}/schedstat", "rb") as fh:
-                out[p] = int(fh.read().split()[1]) / 1e9
+                waited = int(fh.read().split()[1]) / 1e9
         except (OSError, ValueError, IndexError):
             continue
+        if own is None:
+            own = _scheduling(os.getpid())
+        its = _scheduling(p)
+        if own is None or its is None or its[0] > own[0] or its[1] != own[1]:
+            continue
+        out[p] = waited
     return out
 
 
@@ -1291,7 +1314,7 @@ def describe_isolation(iso):
         lines.append(f"system calls: seccomp filter ({iso.get('seccomp_backend', '?')}) refuses keyrings, new "
                      "namespaces, ptrace, bpf, perf events, io_uring, mounts, other processes' memory, kernel modules, "
                      "SysV/POSIX IPC, sockets, memory files, extended attributes and grown pipes (memory no limit "
-                     "counts); workers may signal only themselves")
+                     "counts), and changes of their own scheduling; workers may signal only themselves")
     else:
         lines.append("system calls: NO seccomp filter (" + str(iso.get("seccomp_error", "unavailable")) + ")")
     lines.append("kernel keyrings: " + ("a fresh session keyring per sandbox" if iso.get("session_keyring")

@@ -861,3 +861,39 @@ def test_a_deep_scratch_tree_is_removed_without_failing_the_grading():
         box.close()
     assert not [n for top in ("/tmp", "/dev/shm") if os.path.isdir(top) for n in os.listdir(top)
                 if n.startswith(box._scratch_prefix + "-")]
+
+
+def test_a_worker_cannot_make_itself_wait_for_a_processor():
+    """Round 7: a worker that lowered its own priority (os.nice(19)) or pinned itself to one processor waited on
+    purpose, and the grader gave that waiting back as the machine's (a hanging call ran twice as long, and the
+    budgets had no cap on it). Seccomp refuses the calls; where there is no seccomp, such a process's waiting is
+    not counted; and the budgets get back at most MAX_STRETCH times the submission's budget."""
+    from autograder.engine import Budget
+    from autograder.sandbox import MAX_STRETCH, Sandbox, _delays
+
+    src = ("import os\n\ndef nice():\n    os.nice(19)\n    return 1.0\n\n"
+           "def pin():\n    os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})\n    return 1.0\n")
+    box = Sandbox([{"source": src, "filename": "p.py", "label": "p"}], ["nice", "pin"], Limits())
+    try:
+        ready = box.start()
+        if (ready.get("isolation") or {}).get("seccomp"):
+            for fn in ("nice", "pin"):
+                worker = box.fork_worker()
+                out = worker.call(fn, [], timeout=10)
+                assert out.status == "error" and "PermissionError" in out.error, (fn, out.status, out.error)
+                worker.close()
+    finally:
+        box.close()
+    slow = subprocess.Popen([sys.executable, "-c", "import os, time; os.nice(5); time.sleep(30)"])
+    try:
+        import time
+
+        time.sleep(1.0)
+        assert slow.pid not in _delays([slow.pid])  # a process that lowered its priority: its waiting is its own
+        assert os.getpid() in _delays([os.getpid()]) or not os.path.exists("/proc/self/schedstat")
+    finally:
+        slow.kill()
+        slow.wait()
+    budget = Budget(30.0, 100.0, start=0.0)
+    budget.give_back_waiting(10 * MAX_STRETCH * 100.0)
+    assert budget.deadline == 100.0 + MAX_STRETCH * 100.0
