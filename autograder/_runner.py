@@ -1532,8 +1532,12 @@ def _zygote(job, ctl, mod, attempts, npx, hook_busy):
                 try:
                     workers[wid] = (pid, os.pidfd_open(pid), fds[1])
                     keep = fds[1]
-                except OSError:
-                    pass
+                except OSError:  # a worker the zygote cannot watch (and report on) is not left to run
+                    try:
+                        os.kill(pid, signal.SIGKILL)
+                        os.waitpid(pid, 0)
+                    except OSError:
+                        pass
             for fd in fds:
                 if fd != keep:
                     os.close(fd)

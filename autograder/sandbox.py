@@ -700,8 +700,8 @@ class Sandbox:
         parent_ctl.setblocking(False)
         current = None  # (unit, stmt, line, started, the sandbox's waiting for a processor then)
 
-        def tree():  # the loading processes (leniency only: see Worker.call)
-            return [proc.pid] + _descendants(proc.pid)
+        def tree():  # the loading processes (leniency only: see Worker.call), where seccomp is asked for
+            return [proc.pid] + _descendants(proc.pid) if lim.seccomp else []
 
         def stretch(waiting, allowed):
             """Seconds the loading waited for a processor since ``waiting`` began, capped."""
@@ -931,7 +931,13 @@ class Worker:
 
     def _own_pids(self):
         """The worker's host process id (the one process below the sandbox that reads this worker's request pipe),
-        else every process of the sandbox (their waiting then counts for each call: only ever more lenient)."""
+        else every process of the sandbox (their waiting then counts for each call: only ever more lenient).
+
+        None at all without seccomp: a worker could then change its own scheduling (its priority, its
+        processors) between two readings and wait on purpose; its waiting is given back only where it cannot.
+        """
+        if not ((self.sandbox.ready or {}).get("isolation") or {}).get("seccomp"):
+            return []
         if self._pids is not None:
             return self._pids
         proc = self.sandbox.proc

@@ -384,34 +384,61 @@ def _parameters(scope):
 
 
 def _parameter_uses(node):
-    """``id``s of the names loaded inside a lambda or def nested in ``node`` that are parameters of it (or of one
-    around it, inside ``node``): ``(lambda wrap_angle: wrap_angle + 1)(x)`` loads no module-level ``wrap_angle``.
+    """``(shadowed, forced)``: ``id``s of the names loaded inside a lambda or def nested in ``node`` that are
+    parameters of it (or of one around it, inside ``node``): ``(lambda wrap_angle: wrap_angle + 1)(x)`` loads no
+    module-level ``wrap_angle``; and of those loaded in a nested scope that declares them ``global`` (or
+    ``nonlocal``), module-level whatever ``node`` binds.
 
     One walk, each node entered and left once (a count of the parameters in scope, not a set per scope): linear
     however deep the nesting. A def's decorators and the parameters' defaults are outside its scope.
     """
-    out, count = set(), {}
-    stack = [(node, False)]
+    declared = _declared_outside(node)
+    out, forced, count, glob = set(), set(), {}, {}
+    stack = [(node, None)]
     while stack:
-        n, leaving = stack.pop()
-        if leaving:
+        n, saved = stack.pop()
+        if saved is not None:  # leaving the scope n: its parameters out of scope, its global names back
             for name in _parameters(n):
                 count[name] -= 1
+            count.update(saved[0])
+            glob.update(saved[1])
             continue
         if n is not node and isinstance(n, _SCOPES):
             body = n.body if isinstance(n.body, list) else [n.body]
             inside = {id(c) for c in body}
             # popped last: everything outside the scope (decorators, defaults, annotations), then leaving it,
             # then (popped first) its body with its parameters counted
-            stack.extend((c, False) for c in ast.iter_child_nodes(n) if id(c) not in inside)
-            stack.append((n, True))
+            stack.extend((c, None) for c in ast.iter_child_nodes(n) if id(c) not in inside)
             for name in _parameters(n):
                 count[name] = count.get(name, 0) + 1
-            stack.extend((c, False) for c in body)
+            # a name the scope declares global (or nonlocal) is not the parameter of any scope around it
+            names = declared.get(id(n), ())
+            stack.append((n, ({name: count.get(name, 0) for name in names}, {name: glob.get(name, 0) for name in names})))
+            for name in names:
+                count[name] = 0
+                glob[name] = glob.get(name, 0) + 1
+            stack.extend((c, None) for c in body)
             continue
-        if isinstance(n, ast.Name) and isinstance(n.ctx, ast.Load) and count.get(n.id, 0) > 0:
-            out.add(id(n))
-        stack.extend((c, False) for c in ast.iter_child_nodes(n))
+        if isinstance(n, ast.Name) and isinstance(n.ctx, ast.Load):
+            if count.get(n.id, 0) > 0:
+                out.add(id(n))
+            elif glob.get(n.id, 0) > 0:
+                forced.add(id(n))
+        stack.extend((c, None) for c in ast.iter_child_nodes(n))
+    return out, forced
+
+
+def _declared_outside(node):
+    """``{id(scope): names}``: the names each lambda or def in ``node`` declares ``global`` or ``nonlocal`` in its
+    own body (one walk, each statement credited to the innermost scope around it)."""
+    out = {}
+    stack = [(node, None)]
+    while stack:
+        n, scope = stack.pop()
+        if isinstance(n, (ast.Global, ast.Nonlocal)) and scope is not None:
+            out.setdefault(id(scope), set()).update(n.names)
+        inner = n if isinstance(n, _SCOPES) else scope
+        stack.extend((c, inner) for c in ast.iter_child_nodes(n))
     return out
 
 
@@ -428,7 +455,8 @@ class _Facts:
         # assigned value, a class body) when the node runs, while the module loads
         all_later = isinstance(node, _SCOPES)
         later, docstrings = set(), set()
-        shadowed = _parameter_uses(node)
+        shadowed, forced = _parameter_uses(node)
+        forced_loads = set()
         for n in ast.walk(node):
             if id(n) in shadowed:  # a parameter of a lambda or def inside: not a module-level name
                 continue
@@ -441,6 +469,8 @@ class _Facts:
                 if isinstance(first, ast.Expr) and isinstance(first.value, ast.Constant):
                     docstrings.add(id(first.value))
             if isinstance(n, ast.Name):
+                if id(n) in forced:  # declared global in its own scope: the module's, whatever node binds
+                    forced_loads.add(n.id)
                 if not isinstance(n.ctx, ast.Load):
                     stored.add(n.id)
                 elif all_later or id(n) in later:
@@ -468,7 +498,7 @@ class _Facts:
             local |= {a.arg for a in (args.vararg, args.kwarg) if a is not None}
             local |= stored - declared  # a parameter or a local assignment (not one declared global)
         self.now = now - local  # module-level names looked up when the node runs
-        self.later = later_loaded - local  # ... and when the functions in it are called
+        self.later = (later_loaded - local) | forced_loads  # ... and when the functions in it are called
         self.names = sorted(self.now | self.later)
         self.rebinds = sorted(rebinds & stored)  # module-level names it binds through ``global``
 

@@ -829,6 +829,9 @@ BINDINGS = [
     # ... but a default or a decorator is evaluated outside that scope, and the function's own use still counts
     ("from slamlib import w\ndef f(x):\n    def g(a, w=w):\n        return w(a)\n    return g(x)\n", "w"),
     ("from slamlib import w\ndef f(x):\n    g = lambda w: w\n    return w(g(x))\n", "w"),
+    # ... and so does a name a nested def declares global, whatever the parameters around it (round 8)
+    ("from slamlib import w\ndef f(x, w=None):\n    def g(a):\n        global w\n        return w(a)\n"
+     "    return g(x)\n", "w"),
     # replaced by a later binding, unbound, or never run: harmless
     ("from slamlib import w\ndef w(a): return a\ndef f(x): return w(x)\n", None),
     ("try:\n    from slamlib import w\nexcept ImportError:\n    pass\ndef w(a): return a\ndef f(x): return w(x)\n",

@@ -708,7 +708,8 @@ def _fake_waiting(monkeypatch, share):
     from autograder import sandbox
 
     t0 = _time.monotonic()
-    monkeypatch.setattr(sandbox, "_delays", lambda pids: {0: share * (_time.monotonic() - t0)}, raising=False)
+    monkeypatch.setattr(sandbox, "_delays", lambda pids: {p: share * (_time.monotonic() - t0) for p in pids},
+                        raising=False)
 
 
 def test_a_call_is_not_charged_the_time_the_machine_kept_it_waiting(monkeypatch):
@@ -897,3 +898,19 @@ def test_a_worker_cannot_make_itself_wait_for_a_processor():
     budget = Budget(30.0, 100.0, start=0.0)
     budget.give_back_waiting(10 * MAX_STRETCH * 100.0)
     assert budget.deadline == 100.0 + MAX_STRETCH * 100.0
+
+
+def test_without_seccomp_no_waiting_is_given_back(monkeypatch):
+    """Round 8: without seccomp a worker may change its own scheduling between two of the grader's readings (pin
+    itself to one processor, spin, widen again) and be given its own waiting back; there, none is."""
+    from autograder.sandbox import Sandbox
+
+    box = Sandbox([{"source": SLEEPER, "filename": "p.py", "label": "p"}], ["f"], Limits(seccomp=False))
+    try:
+        box.start()
+        _fake_waiting(monkeypatch, 0.8)
+        worker = box.fork_worker()
+        out = worker.call("f", [1.5], timeout=1.0)
+        assert out.status == "timeout" and out.waited == 0.0, (out.status, out.waited)
+    finally:
+        box.close()
