@@ -143,11 +143,13 @@ def pick_submission_file(folder, notebook_name=None):
             names = ", ".join(_printable(p.name) for p in cand)
             return None, f"several {suffix} files ({names}); submit only the exercise notebook"
     if links:
-        return None, f"{_printable(str(links[0].relative_to(folder)))} is {_LINK_REASON}; no other .ipynb or .py file in the submission"
+        return None, (f"{_printable(str(links[0].relative_to(folder)))} is {_LINK_REASON}; no other .ipynb or .py "
+                      "file in the submission")
     special = sorted(p for p in found if p.suffix.lower() in _SUFFIXES and not p.is_symlink() and not p.is_file()
                      and not p.is_dir())
     if special:  # a FIFO, a socket, a device named like a submission: never opened
-        return None, f"{_printable(str(special[0].relative_to(folder)))}: not a regular file; no other .ipynb or .py file in the submission"
+        return None, (f"{_printable(str(special[0].relative_to(folder)))}: not a regular file; no other .ipynb or .py "
+                      "file in the submission")
     return None, "no .ipynb or .py file in the submission"
 
 
@@ -204,7 +206,7 @@ def _settings(limits):
 
     from .sandbox import Limits
 
-    return {k: v for k, v in dataclasses.asdict(limits or Limits()).items()}
+    return dataclasses.asdict(limits or Limits())
 
 
 def _fingerprint(path, problem):
@@ -239,8 +241,8 @@ def _grade_one(sid, path, problem, exercise, results_path, limits, fingerprint, 
     from .exercises import get_exercise
 
     ex = get_exercise(exercise)
-    row = {"submission": sid, "file": _printable(str(path)) if path else "", "score": 0.0, "max_score": ex.max_score(),
-           "status": "ok", "message": ""}
+    row = {"submission": sid, "file": _printable(str(path)) if path else "", "score": 0.0,
+           "max_score": ex.max_score(), "status": "ok", "message": ""}
     for fn in ex.functions:
         row[fn] = 0.0
     extra = {"exercise": exercise, "submission_sha256": fingerprint, "batch_settings": _settings(limits)}

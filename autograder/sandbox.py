@@ -933,8 +933,8 @@ class Worker:
         """The worker's host process id (the one process below the sandbox that reads this worker's request pipe),
         else every process of the sandbox (their waiting then counts for each call: only ever more lenient).
 
-        None at all without seccomp: a worker could then change its own scheduling (its priority, its
-        processors) between two readings and wait on purpose; its waiting is given back only where it cannot.
+        None without seccomp: a worker could then change its own scheduling (its priority, its processors)
+        between two readings and wait on purpose; its waiting is given back only where it cannot.
         """
         if not ((self.sandbox.ready or {}).get("isolation") or {}).get("seccomp"):
             return []
@@ -1012,7 +1012,7 @@ class Worker:
                                output=out)
         try:
             # untrusted: schema, extents, byte cap; decoded by the call's deadline (stretched as the wait was)
-            r = read_reply(reply, rpayload, np, deadline=max(deadline, stretched()) + 1.0)
+            r = read_reply(reply, rpayload, np, deadline=deadline + min(waited, MAX_STRETCH * timeout) + 1.0)
             if r["status"] == "protocol":
                 raise ProtocolError(r["error"][:200])
         except Exception as exc:  # anything a forged reply raises is a protocol error, never a result
