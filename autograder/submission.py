@@ -771,7 +771,11 @@ class _Execution:
             name, sub = step
             why, f = self.direct(sub)
             if why:
-                return "".join(f"calls `{n}`, which " for n in chain + [name]) + why
+                hops = chain + [name]
+                if len(hops) > 6:  # a message, not a trace: the first three and the last two steps
+                    hops = hops[:3] + [f"... ({len(hops) - 5} more)"] + hops[-2:]
+                return "".join(f"calls `{n}`, which " if not n.startswith("...") else f"{n}, which "
+                               for n in hops) + why
             chain.append(name)
             stack.append(children(f, sub.at))
         return None
