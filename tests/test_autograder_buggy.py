@@ -32,6 +32,15 @@ _ODO_ROT2_REUSES_ROT1 = [
     (_R1, "    e1 = rng.standard_normal(M)\n    r1 = rot1 - np.sqrt(a1 * rot1**2 + a2 * trans**2) * e1\n"),
     (_R2, "    r2 = rot2 - np.sqrt(a1 * rot2**2 + a2 * trans**2) * e1\n")]
 
+#: Right marginals, independent noises within a pose, but one pose's draws reused for another: as is, or negated
+#: (antithetic pairs); the hidden "each pose moves with its own noise" test finds such a pair.
+_PAIRED = ("    e = rng.standard_normal(((M + 1) // 2, 3))\n    e = np.concatenate([e, {}e])[:M]\n"
+           "    r1 = rot1 - np.sqrt(a1 * rot1**2 + a2 * trans**2) * e[:, 0]\n")
+_ODO_PAIRS = [(_R1, _PAIRED.format("")),
+              (_TR, "    tr = trans - np.sqrt(a3 * trans**2 + a4 * (rot1**2 + rot2**2)) * e[:, 1]\n"),
+              (_R2, "    r2 = rot2 - np.sqrt(a1 * rot2**2 + a2 * trans**2) * e[:, 2]\n")]
+_ODO_ANTITHETIC = [(_R1, _PAIRED.format("-"))] + _ODO_PAIRS[1:]
+
 VARIANTS = [
     # ---------------------------------------------------------------- exercise 1
     ("motion_sensor_models", "velocity_motion", "sign error in the Jacobian G",
@@ -45,6 +54,8 @@ VARIANTS = [
      _ODO_SHARED_DRAW),
     ("motion_sensor_models", "sample_motion_model_odometry", "the rot2 noise reuses the rot1 noise's draw",
      _ODO_ROT2_REUSES_ROT1),
+    ("motion_sensor_models", "sample_motion_model_odometry", "one pose's noises reused for another", _ODO_PAIRS),
+    ("motion_sensor_models", "sample_motion_model_odometry", "antithetic pairs of poses", _ODO_ANTITHETIC),
     ("motion_sensor_models", "motion_model_odometry", "variances evaluated at the control, not the hypothesis",
      [("p1 = _normal(wrap(u[0] - rot1_h), a1 * rot1_h**2 + a2 * trans_h**2)",
        "p1 = _normal(wrap(u[0] - rot1_h), a1 * u[0]**2 + a2 * u[1]**2)")]),
@@ -182,3 +193,14 @@ def test_correlated_odometry_noises_fail_the_independence_test(replacements, tmp
     assert failed == {name}, result.text_report()
     out = odo[name].output
     assert "are correlated: correlation" in out and "expected |correlation| <= 0.05" in out, out
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("replacements", [_ODO_PAIRS, _ODO_ANTITHETIC], ids=["reused", "antithetic"])
+def test_noise_reused_across_poses_fails_the_own_noise_test(replacements, tmp_path):
+    """Both scored 20/20: every marginal and the three noises of a pose are right; a pair of poses shares a draw."""
+    result = grade(variant("motion_sensor_models", replacements, tmp_path / "msm.py"), "motion_sensor_models")
+    odo = {t.name: t for t in result.tests if t.function == "sample_motion_model_odometry"}
+    name = "sample_motion_model_odometry: each pose moves with its own noise"
+    assert {n for n, t in odo.items() if t.status == "failed"} == {name}, result.text_report()
+    assert "moved with the same noises" in odo[name].output, odo[name].output

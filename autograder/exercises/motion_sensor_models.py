@@ -9,7 +9,7 @@ import slamlib as sl
 from ..context import Out, RngSeed
 from ..spec import Exercise
 from ..stats import (P_THRESHOLD, odometry_independence_problem, odometry_ks_pvalues, odometry_moment_problem,
-                     odometry_noise, odometry_variances)
+                     odometry_noise, odometry_repeated_noise_problem, odometry_variances)
 from .common import check_fd, fd_jacobian, random_pose
 
 EX = Exercise(
@@ -240,6 +240,9 @@ def _(ctx):
     alpha = np.array([0.03, 0.02, 0.02, 0.005])
     out = _odo_sample(ctx, x, u, alpha, 2000)
     _ks_check(ctx, x, out, u, alpha)
+    problem = odometry_repeated_noise_problem(x, out, u, alpha)
+    if problem:
+        ctx.fail(problem)
 
 
 @EX.test("sample_motion_model_odometry", "draws only from rng", weight=2, visibility="hidden",
