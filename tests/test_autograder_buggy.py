@@ -190,7 +190,11 @@ def test_correlated_odometry_noises_fail_the_independence_test(replacements, tmp
     odo = {t.name: t for t in result.tests if t.function == "sample_motion_model_odometry"}
     failed = {name for name, t in odo.items() if t.status == "failed"}
     name = "sample_motion_model_odometry: three independent noises per pose"
-    assert failed == {name}, result.text_report()
+    # one draw for all three puts a pose's noises on a curve, where two of 20 000 poses come within 1e-7 of each
+    # other (or of each other's negatives): the hidden "own noise" test may fail too, and rightly
+    also = {"sample_motion_model_odometry: each pose moves with its own noise"} if replacements is _ODO_SHARED_DRAW \
+        else set()
+    assert name in failed and failed <= {name} | also, result.text_report()
     out = odo[name].output
     assert "are correlated: correlation" in out and "expected |correlation| <= 0.05" in out, out
 
