@@ -358,10 +358,10 @@ def run_batch(folder, exercise, *, out_csv="grades.csv", jobs=2, results_dir=Non
     from .sandbox import require_sandbox
     from .seeds import derive_seed, load_secret
 
-    if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
-        raise ValueError(f"jobs: expected an integer of at least 1, got {jobs!r}")
-    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int) or seed < 0):
-        raise ValueError(f"seed: expected None or an integer of at least 0, got {seed!r}")
+    from .engine import check_integer
+
+    check_integer(jobs, "jobs", 1, optional=False)
+    check_integer(seed, "seed", 0)
     ex = get_exercise(exercise)
     require_sandbox(limits)  # a broken grader stops here, before any submission is charged
     out_csv = Path(out_csv)

@@ -101,6 +101,17 @@ def _call_failure_text(err):
     return "\n".join(lines)
 
 
+def check_integer(value, name, minimum, *, optional=True):
+    """``value`` as given: None (when ``optional``) or an integer of at least ``minimum``, else a ValueError naming
+    the argument (a bool, a float or a negative seed would be coerced into another grading)."""
+    if value is None and optional:
+        return value
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
+        raise ValueError(f"{name}: expected {'None or ' if optional else ''}an integer of at least {minimum}, "
+                         f"got {value!r}")
+    return value
+
+
 class GraderFault(Exception):
     """The grader's own machinery failed during a call (not the submission): never a failed test.
 
@@ -128,6 +139,7 @@ class Budget:
         self.start = time.monotonic() if start is None else start
         self.deadline = self.start + self.submission_budget
         self.test_deadline = None
+        self.waited = 0.0  # seconds of a loaded machine's waiting given back so far (give_back_waiting)
 
     def start_test(self, budget=None):
         self.test_deadline = time.monotonic() + float(budget or self.test_budget)
@@ -163,9 +175,8 @@ class Budget:
         """Give back ``seconds`` a loaded machine kept a call's worker waiting for a processor: at most
         ``MAX_STRETCH`` times the submission's budget over the whole grading, so a grading ends however loaded the
         machine (or however a submission might make its workers wait)."""
-        room = MAX_STRETCH * self.submission_budget - getattr(self, "waited", 0.0)
-        seconds = min(max(0.0, seconds), max(0.0, room))
-        self.waited = getattr(self, "waited", 0.0) + seconds
+        seconds = min(max(0.0, seconds), max(0.0, MAX_STRETCH * self.submission_budget - self.waited))
+        self.waited += seconds
         self.extend(seconds)
 
     def message(self, reason):
@@ -586,10 +597,8 @@ def grade(path, exercise=None, *, limits=None, workers=None, seed=None, function
         When the grader's own machinery failed twice (the first fault is followed
         by a second grading, one function at a time, noted in the result).
     """
-    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0):
-        raise ValueError(f"seed: expected None or an integer of at least 0, got {seed!r}")
-    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, (int, np.integer)) or workers < 1):
-        raise ValueError(f"workers: expected None or an integer of at least 1, got {workers!r}")
+    check_integer(seed, "seed", 0)
+    check_integer(workers, "workers", 1)
     if limits is not None and not isinstance(limits, Limits):
         raise TypeError(f"limits: expected an autograder.sandbox.Limits, got {type(limits).__name__}")
     t0 = time.perf_counter()

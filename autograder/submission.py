@@ -493,10 +493,7 @@ class _Facts:
                     rebinds.update(n.names)
         local = set()
         if isinstance(node, _SCOPES):
-            args = node.args
-            local = {a.arg for a in args.args + args.posonlyargs + args.kwonlyargs}
-            local |= {a.arg for a in (args.vararg, args.kwarg) if a is not None}
-            local |= stored - declared  # a parameter or a local assignment (not one declared global)
+            local = set(_parameters(node)) | (stored - declared)  # a parameter or a local assignment (not global)
         self.now = now - local  # module-level names looked up when the node runs
         self.later = (later_loaded - local) | forced_loads  # ... and when the functions in it are called
         self.names = sorted(self.now | self.later)
