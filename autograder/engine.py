@@ -625,10 +625,10 @@ def _grade(path, exercise, *, limits, workers, seed, functions, secret, final):
         sub = load_submission(path, max_code=limits.code)
     except SubmissionError as exc:
         sub = None
-        load_error = str(exc)
+        load_error, named = str(exc), exc.exercise  # a notebook refused for its size may still name its exercise
     else:
-        load_error = None
-    ex_name = exercise or (sub.exercise if sub else None)
+        load_error, named = None, sub.exercise
+    ex_name = exercise or named
 
     def done():
         result.execution_time = time.perf_counter() - t0

@@ -48,7 +48,14 @@ MAX_JSON_CONTAINERS = 250_000
 
 
 class SubmissionError(Exception):
-    """The file cannot be graded at all (unreadable, unsupported type ...)."""
+    """The file cannot be graded at all (unreadable, unsupported type ...).
+
+    `exercise`: the exercise the notebook names in its metadata, when the grader could read it (a notebook refused
+    for its size still names its exercise, so that its tests are listed with 0 and the reason)."""
+
+    def __init__(self, message, exercise=None):
+        super().__init__(message)
+        self.exercise = exercise
 
 
 @dataclass
@@ -195,18 +202,21 @@ def load_submission(path, *, max_code=MAX_CODE):
     except OSError as exc:
         raise SubmissionError(f"{path.name}: cannot be read ({exc})") from None
     if len(raw) > 50 << 20:
-        raise SubmissionError(f"{path.name}: the file is larger than 50 MB")
+        raise SubmissionError(f"{path.name}: the file is larger than 50 MB",
+                              _named_exercise(raw) if suffix == ".ipynb" else None)
     if suffix == ".py":
         text = decode_python_source(raw, path.name)
         sub = Submission(path, "python", [{"source": text, "filename": path.name, "label": path.name}])
     elif suffix == ".ipynb":
         try:
             sub = _load_notebook(path, raw, max_code)
-        except SubmissionError:
+        except SubmissionError as exc:
+            if exc.exercise is None:
+                exc.exercise = _named_exercise(raw)
             raise
         except Exception as exc:  # noqa: BLE001 - any value of the untrusted JSON the reader did not expect
             raise SubmissionError(f"{path.name}: not a readable Jupyter notebook ({type(exc).__name__}: "
-                                  f"{_quoted(exc)})") from None
+                                  f"{_quoted(exc)})", _named_exercise(raw)) from None
     else:
         raise SubmissionError(f"{path.name}: unsupported file type (submit the exercise notebook .ipynb or a .py file)")
     from .seeds import content_hash
@@ -214,7 +224,7 @@ def load_submission(path, *, max_code=MAX_CODE):
     sub.sha256 = content_hash(raw)
     size = sum(len(unit["source"]) for unit in sub.units)
     if size > max_code:
-        raise _too_much_code(path.name, size, max_code)
+        raise SubmissionError(_too_much_code_message(path.name, size, max_code), sub.exercise)
     for unit in sub.units:
         try:
             # the number of top-level statements: the sandbox accepts the loader's "statement k is running" for these
@@ -262,9 +272,19 @@ def _quoted(exc, n=200):
     return text if len(text) <= n else text[: n - 3] + "..."
 
 
-def _too_much_code(name, size, max_code):
-    return SubmissionError(f"{name}: {size // 1024} KB of code, more than the {max_code // 1024} KB the grader reads "
+def _too_much_code_message(name, size, max_code):
+    return (f"{name}: {size // 1024} KB of code, more than the {max_code // 1024} KB the grader reads "
                            "(keep data out of the code: load it from a file or generate it)")
+
+
+#: a notebook's ``"slam_course": {"exercise": "NAME"}`` in its bytes (the JSON itself could not be read)
+_EXERCISE_IN_BYTES = re.compile(rb'(?<!\\)"slam_course"\s*:\s*\{\s*"exercise"\s*:\s*"([A-Za-z0-9_]{1,100})"')
+
+
+def _named_exercise(raw):
+    """The exercise a notebook that cannot be read whole names in its metadata, or None (none, or several)."""
+    names = {m.group(1).decode("ascii") for m in _EXERCISE_IN_BYTES.finditer(raw)}
+    return names.pop() if len(names) == 1 else None
 
 
 def _graded_cells(data):
@@ -290,6 +310,7 @@ def _load_notebook(path, raw, max_code=MAX_CODE):
         raise SubmissionError(f"{path.name}: not a Jupyter notebook (invalid JSON: {_quoted(exc)})") from None
     if not isinstance(data, dict) or not ("cells" in data or "worksheets" in data):
         raise SubmissionError(f"{path.name}: not a Jupyter notebook (no cells)")
+    exercise = _metadata_exercise(data.get("metadata"))
     for cell in _graded_cells(data):  # outputs are not graded: nbformat never sees (nor validates) them
         if "outputs" in cell:
             cell["outputs"] = []
@@ -299,8 +320,8 @@ def _load_notebook(path, raw, max_code=MAX_CODE):
             warnings.simplefilter("ignore")
             nb = nbformat.reads(json.dumps(data), as_version=4)
     except Exception as exc:  # noqa: BLE001 - nbformat raises many kinds
-        raise SubmissionError(f"{path.name}: not a readable Jupyter notebook ({type(exc).__name__}: {_quoted(exc)})") \
-            from None
+        raise SubmissionError(f"{path.name}: not a readable Jupyter notebook ({type(exc).__name__}: {_quoted(exc)})",
+                              exercise) from None
     notes = []
     units = []
     code_index = 0
@@ -321,18 +342,22 @@ def _load_notebook(path, raw, max_code=MAX_CODE):
             continue
         size += len(source)
         if size > max_code:  # before any parse (a cell with a magic line is parsed to find it)
-            raise _too_much_code(path.name, size, max_code)
+            raise SubmissionError(_too_much_code_message(path.name, size, max_code), exercise)
         source = _strip_magics(source.replace("\r\n", "\n").replace("\r", "\n"), label, notes)
         if not source.strip():
             continue
         units.append({"source": source, "filename": f"{path.name}, {label}", "label": label})
-    meta = nb.get("metadata")
+    return Submission(path, "notebook", units, exercise, notes)
+
+
+def _metadata_exercise(meta):
+    """The exercise a notebook's metadata names (``slam_course.exercise``), or None."""
     meta = meta.get("slam_course") if isinstance(meta, dict) else None
     exercise = meta.get("exercise") if isinstance(meta, dict) else None
-    if isinstance(exercise, str) and len(exercise) > 100:  # no exercise has so long a name; it is quoted in messages
-        exercise = exercise[:97] + "..."
-    sub = Submission(path, "notebook", units, exercise if isinstance(exercise, str) else None, notes)
-    return sub
+    if not isinstance(exercise, str):
+        return None
+    # no exercise has so long a name; it is quoted in messages
+    return exercise[:97] + "..." if len(exercise) > 100 else exercise
 
 
 # --------------------------------------------------------------------------- static dependency analysis

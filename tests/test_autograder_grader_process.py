@@ -12,6 +12,7 @@ from __future__ import annotations
 import ast
 import dataclasses
 import json
+import math
 import os
 import subprocess
 import sys
@@ -231,6 +232,27 @@ def test_the_instructors_page_states_the_caps():
     assert f"more than {MAX_JSON_CONTAINERS:,} JSON objects".replace(",", " ") in page
 
 
+def test_the_instructors_page_states_the_waiting_and_the_own_noise_figures():
+    """The page's figures for a loaded machine's waiting and for the hidden own-noise test are the grader's."""
+    from autograder.exercises.motion_sensor_models import OWN_NOISE_POSES
+    from autograder.sandbox import MAX_STRETCH
+    from autograder.stats import REPEATED_NOISE_TOL, repeated_noise_false_alarm
+
+    words = {2: "two", 3: "three", 4: "four", 5: "five"}
+    page = " ".join((AG_ROOT / "chapters" / "instructors.md").read_text().split())
+    assert MAX_STRETCH == int(MAX_STRETCH)
+    times = words[int(MAX_STRETCH)]
+    assert f"stretch by that waiting, up to {times} times the limit more" in page
+    assert f"at most {times} times the submission's budget over a grading" in page
+    assert f"takes at most {words[int(MAX_STRETCH) + 1]} times its budget" in page
+    exponent = round(math.log10(REPEATED_NOISE_TOL))
+    assert REPEATED_NOISE_TOL == 10.0**exponent
+    bound = repeated_noise_false_alarm(OWN_NOISE_POSES, REPEATED_NOISE_TOL)
+    assert bound < 1e-13
+    assert (f"a correct sampler's {OWN_NOISE_POSES:,} poses hold such a pair, to $10^{{{exponent}}}$, with "
+            f"probability below $10^{{-13}}$").replace(",", " ", 1) in page
+
+
 # --------------------------------------------------------------------------- the environment's failures are the grader's
 def _run_autograder_script(tmp_path, python_body, root="gs"):
     """Gradescope's ``run_autograder`` of a bundle, with a stand-in for the grader's Python (``python_body``)."""
@@ -369,6 +391,30 @@ def test_a_notebook_of_too_many_json_objects_is_refused_before_it_is_parsed(tmp_
                      metadata={"pad": [{}] * (MAX_JSON_CONTAINERS + 1)})
     with pytest.raises(SubmissionError, match="JSON objects and arrays"):
         load_submission(path)
+
+
+@pytest.mark.parametrize("refusal", ["code", "objects", "json", "nbformat"])
+def test_a_refused_notebook_still_names_its_exercise(tmp_path, refusal):
+    """A notebook refused for its size (or unreadable) lost the exercise its metadata names: graded without
+    ``--exercise`` it got "Cannot tell which exercise this is" and no tests, where a notebook that could be read
+    lists every test with 0 and the reason."""
+    from autograder.submission import MAX_CODE, MAX_JSON_CONTAINERS
+
+    meta = {"slam_course": {"exercise": "particle_filter"}}
+    big = "if False:\n    _ = [" + "a," * (MAX_CODE // 2) + "]\n"
+    if refusal == "code":
+        path = _notebook(tmp_path, [_code(big)], metadata=meta)
+    elif refusal == "objects":
+        path = _notebook(tmp_path, [_code("x = 1")], metadata={**meta, "pad": [{}] * (MAX_JSON_CONTAINERS + 1)})
+    elif refusal == "json":  # cut short: not JSON
+        path = _notebook(tmp_path, [_code("x = 1")], metadata=meta)
+        path.write_bytes(path.read_bytes()[:-1])
+    else:  # JSON that nbformat refuses
+        path = _notebook(tmp_path, [_code("x = 1")], metadata=meta, nbformat="four")
+    result = grade(path, None, limits=_limits())
+    assert result.exercise == "particle_filter", result.error
+    assert result.score == 0 and result.error.startswith("The submission could not be read"), result.error
+    assert result.tests and all(t.score == 0 for t in result.tests)
 
 
 def test_a_message_about_the_notebook_is_one_short_line(tmp_path):

@@ -224,6 +224,36 @@ def test_correlation_bound_of_the_odometry_noises():
     assert len(odometry_correlations(x, x, np.array([0.0, 0.0, 0.0]), np.zeros(4))) == 0
 
 
+def test_the_repeated_noise_checks_false_alarm_is_bounded_by_its_formula():
+    """``repeated_noise_false_alarm`` is the expected number of matching pairs (same or opposite scores) among a
+    correct sampler's poses, counted over all pairs here; the check itself (one sort, neighbours only) raises no
+    more alarms than that on the reference sampler, at a tolerance where both are measurable."""
+    from scipy import stats as sstats
+
+    from autograder.stats import odometry_repeated_noise_problem, repeated_noise_false_alarm
+
+    M, tol, trials = 200, 0.02, 600
+    expected = repeated_noise_false_alarm(M, tol)
+    rng = np.random.default_rng(11)
+    iu = np.triu_indices(M, 1)
+    pairs = 0
+    for _ in range(trials):
+        z = rng.standard_normal((M, 3))
+        same = np.abs(z[:, None, :] - z[None, :, :]).max(-1)[iu] <= tol
+        opposite = np.abs(z[:, None, :] + z[None, :, :]).max(-1)[iu] <= tol
+        pairs += int(same.sum() + opposite.sum())
+    # a Poisson count: 34 expected, within 1e-6 two-sided
+    lo, hi = sstats.poisson.ppf([5e-7, 1 - 5e-7], expected * trials)
+    assert lo <= pairs <= hi, (pairs, expected * trials)
+    u, alpha = np.array([-0.6, 0.8, 0.9]), np.array([0.03, 0.02, 0.02, 0.005])
+    alarms = 0
+    for _ in range(trials):
+        x = np.column_stack([rng.uniform(-5, 5, M), rng.uniform(-5, 5, M), rng.uniform(-np.pi, np.pi, M)])
+        out = sl.sample_motion_model_odometry(x, u, alpha, rng=rng)
+        alarms += odometry_repeated_noise_problem(x, out, u, alpha, tol=tol) is not None
+    assert alarms <= sstats.binom.ppf(1 - 1e-6, trials, min(expected, 1.0)), alarms
+
+
 @pytest.mark.slow
 def test_statistical_checks_calibrated_on_the_reference():
     """Reduced calibration (the full one: python -m autograder calibrate --seeds 2000)."""

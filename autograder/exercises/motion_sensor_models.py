@@ -231,10 +231,15 @@ def _(ctx):
         ctx.fail(problem)
 
 
+#: poses of the hidden "each pose moves with its own noise" test: a correct sampler's false alarm is
+#: ``stats.repeated_noise_false_alarm(OWN_NOISE_POSES)`` (7e-14)
+OWN_NOISE_POSES = 20000
+
+
 @EX.test("sample_motion_model_odometry", "each pose moves with its own noise", weight=3, visibility="hidden",
          hint="Draw independent noise for every one of the M poses and apply it relative to that pose's heading.")
 def _(ctx):
-    M = 20000
+    M = OWN_NOISE_POSES
     x = np.stack([random_pose(ctx.rng) for _ in range(M)])
     u = np.array([-0.6, 0.8, 0.9])
     alpha = np.array([0.03, 0.02, 0.02, 0.005])
