@@ -658,8 +658,10 @@ class _Execution:
     Statements run in cell (source) order. A binding replaces the one before it; ``del`` unbinds. Of the branches
     of an ``if``, a loop (its body runs zero or more times), a ``match`` or a ``try`` (a handler may start after any
     statement of the body), every possible outcome is kept. The body of ``if __name__ == "__main__":`` never runs
-    (the grader loads the submission as the module ``submission``). A function that binds a module-level name
-    through ``global`` may have done so whenever it was called: it stays a possible binding of that name.
+    (the grader loads the submission as the module ``submission``). A walrus at module level and a ``match`` capture
+    bind like the other statements; the name of an ``except ... as`` is unbound when its handler ends. A function
+    that binds a module-level name through ``global`` may have done so whenever it was called: it stays a possible
+    binding of that name.
     """
 
     def __init__(self):
@@ -691,8 +693,31 @@ class _Execution:
         for stmt in stmts:
             self.statement(stmt, scope, label)
 
+    def walrus(self, parts, scope):
+        """Bind the module-level names the walruses in `parts` (code of a statement run at module level) bind: to
+        the code of the part that holds the walrus (and so its value), as a possible binding (``a or (w := b)`` may
+        not run it); one in a generator expression may bind it whenever the generator is iterated."""
+        for part in parts:
+            if isinstance(part, (ast.Name, ast.Constant)):  # no walrus in it (the commonest targets)
+                continue
+            facts = self.facts_of(part)
+            if facts.walrus:
+                value = self.code(part, scope)
+                for name, lazily in facts.walrus:
+                    scope.set(name, _either([scope.get(name), value]))
+                    if lazily:
+                        self.rebound.setdefault(name, []).append(_Bound(node=part))
+
     def statement(self, stmt, scope, label):
         where = f"{label} line {stmt.lineno}"
+        # the code a statement runs itself, not its blocks: a walrus in it binds before the statement does
+        if isinstance(stmt, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            parts = [stmt]  # its decorators, defaults, bases (a walrus in its body binds in its own scope)
+        elif isinstance(stmt, (ast.With, ast.AsyncWith)):
+            parts = [e for item in stmt.items for e in (item.context_expr, item.optional_vars) if e is not None]
+        else:
+            parts = [c for c in ast.iter_child_nodes(stmt) if isinstance(c, ast.expr)]
+        self.walrus(parts, scope)
         if isinstance(stmt, ast.Import):
             for alias in stmt.names:
                 bound = alias.asname or alias.name.split(".")[0]
@@ -760,14 +785,28 @@ class _Execution:
             ends = [body]
             for handler in stmt.handlers:
                 h = _Scope(start)
+                self.walrus([handler.type] if handler.type is not None else [], h)
                 if handler.name:
                     h.set(handler.name, _Bound())
                 self.run(handler.body, h, label)
+                if handler.name:  # unbound when the handler ends
+                    h.set(handler.name, None)
                 ends.append(h)
             self.merge(scope, ends, exhaustive=True)
             self.run(stmt.finalbody, scope, label)
         elif isinstance(stmt, getattr(ast, "Match", ())):
-            self.branches(scope, [case.body for case in stmt.cases], label, exhaustive=False)
+            subject = self.code(stmt.subject, scope)
+
+            def case_of(case):
+                def run(s):  # a case binds its captures to the subject or parts of it, then runs
+                    for n in ast.walk(case.pattern):
+                        name = n.name if isinstance(n, _CAPTURES) else getattr(n, "rest", None)
+                        if name:
+                            s.set(name, subject)
+                    self.walrus([case.guard] if case.guard is not None else [], s)
+                    self.run(case.body, s, label)
+                return run
+            self.branches(scope, [case_of(case) for case in stmt.cases], label, exhaustive=False)
 
     def branches(self, scope, blocks, label, exhaustive):
         """Run each block (statements, or a function of the scope) from `scope`; keep every outcome in it."""

@@ -897,12 +897,20 @@ SCOPES = [
     ("walrus-in-comprehension", W + "def f(x):\n    _ = [(w := v) for v in x]\n    return w\n", None),
     # a comprehension's variable at module level is not the module's name
     ("module-level-comprehension", W + "W = [w for w in range(3)]\ndef f(x):\n    return W[x]\n", None),
+    # module-level bindings a walrus or a match capture makes are followed like the others
+    ("module-level-walrus", "import slamlib\n_ = (w := slamlib.wrap_angle)\ndef f(x):\n    return w(x)\n",
+     "calls `w`, which uses `slamlib` (import slamlib"),
+    ("module-level-match-capture", "import slamlib\nmatch slamlib.wrap_angle:\n    case w:\n        pass\n"
+     "def f(x):\n    return w(x)\n", "calls `w`, which uses `slamlib` (import slamlib"),
     # a decorator runs when the def does: the binding then counts, not the last one
     ("decorator-at-def-time", "from slamlib import wrap_angle as d\n@d\ndef f(x):\n    return x\nd = abs\n",
      "uses `d` (from slamlib"),
     # a generator expression runs as it is iterated: when the function calls next() on it
     ("generator-run-later", "def w(a):\n    return a\ng = (w(v) for v in [1])\nfrom slamlib import w\n"
      "def f(x):\n    return next(g)\n", "calls `g`, which uses `w` (from slamlib"),
+    # the name of an except clause is unbound when it ends: the star import is what the function may find
+    ("except-as-unbound-after", "from slamlib import *\ntry:\n    pass\nexcept Exception as w:\n    pass\n"
+     "def f(x):\n    return w(x)\n", "can only come from from slamlib import *"),
 ]
 
 
