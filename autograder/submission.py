@@ -364,8 +364,6 @@ def _metadata_exercise(meta):
 #: a string that names a forbidden package or a module of it, as a dynamic import would (``"slamlib"``,
 #: ``"slamlib.particle"``, ``"autograder." + name``); prose that mentions one (``"slamlib.f, written again"``) does not
 _FORBIDDEN_STRING = re.compile(r"(?:%s)(?:\.[A-Za-z_]\w*)*\.?" % "|".join(FORBIDDEN))
-#: code whose body runs when it is called, not when it is defined
-_SCOPES = (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)
 
 
 def _is_forbidden_module(name):
@@ -408,121 +406,215 @@ def _parameters(scope):
     return names + [a.arg for a in (args.vararg, args.kwarg) if a is not None]
 
 
-def _parameter_uses(node):
-    """``(shadowed, forced)``: ``id``s of the names loaded inside a lambda or def nested in ``node`` that are
-    parameters of it (or of one around it, inside ``node``): ``(lambda wrap_angle: wrap_angle + 1)(x)`` loads no
-    module-level ``wrap_angle``; and of those loaded in a nested scope that declares them ``global`` (or
-    ``nonlocal``), module-level whatever ``node`` binds.
+# Which loads of a name are of the module-level binding is decided by a walk over the ast that follows Python's
+# scoping rules (those of CPython's symtable.c), not by the symtable module itself. symtable resolves scopes
+# exactly, but its scopes carry no column and come in the order symtable.c visits the code (a def's defaults,
+# annotations and decorators before it, a comprehension's first iterable before it, an ``IfExp``'s test before its
+# body; annotation and type-parameter scopes of their own from 3.12): matching them to the ast's nodes would
+# depend on that order and on the Python version. The rules are few and fixed:
+#   * a def, a lambda, a class body and a comprehension are scopes; a def's decorators, defaults and annotations,
+#     a class's bases and keywords, and a comprehension's first iterable are evaluated in the scope around them;
+#   * a name is local to a scope when the scope binds it anywhere in it: an assignment (plain, augmented,
+#     annotated: ``x: int`` too, but not ``(x): int``), a ``for``, ``with ... as``, ``except ... as``, ``import``,
+#     ``del``, a def or class name, a parameter, a ``match`` capture (``case x``, ``[*x]``, ``{**x}``), a
+#     comprehension's targets; ``global`` makes it the module's, ``nonlocal`` that of a def around it;
+#   * a walrus binds in the nearest scope that is not a comprehension (in a def declaring the name global: the
+#     module's);
+#   * a name a scope neither binds nor declares is that of the nearest def, lambda or comprehension around it that
+#     does (``global`` there: the module's), else the module's; a class body is never seen from scopes inside it;
+#   * in a class body, a name the body binds is looked up in the class's namespace, then the module's (LOAD_NAME):
+#     it may be the module's, and counts as such.
+# tests/test_autograder_findings.py checks the walk's answers against symtable's on code of each shape; when it was
+# written, they also agreed on 30 000 random nests of defs, classes, lambdas, comprehensions, walruses, ``global``,
+# ``nonlocal``, ``except ... as`` and ``match``.
+_FUNCTIONS = (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)
+_COMPREHENSIONS = (ast.ListComp, ast.SetComp, ast.DictComp, ast.GeneratorExp)
+_OPENERS = _FUNCTIONS + (ast.ClassDef,) + _COMPREHENSIONS
+_CAPTURES = tuple(getattr(ast, k) for k in ("MatchAs", "MatchStar") if hasattr(ast, k))
+#: when code runs: while the module loads, or when a function is called (a generator expression: either, as it is
+#: iterated)
+_NOW, _LATER = 1, 2
 
-    One walk, each node entered and left once (a count of the parameters in scope, not a set per scope): linear
-    however deep the nesting. A def's decorators and the parameters' defaults are outside its scope.
-    """
-    declared = _declared_outside(node)
-    out, forced, count, glob = set(), set(), {}, {}
-    stack = [(node, None)]
+
+class _Block:
+    """One scope inside a module-level node (`kind`: "module", "function" -- a def or lambda --, "class",
+    "comprehension"): the names it binds, declares global, declares nonlocal; `home`, where a walrus in it binds;
+    `when` its code runs."""
+
+    __slots__ = ("kind", "parent", "home", "when", "bound", "glob", "nonlocal_")
+
+    def __init__(self, kind, parent, when):
+        self.kind, self.parent, self.when = kind, parent, when
+        self.home = parent.home if kind == "comprehension" else self
+        self.bound, self.glob, self.nonlocal_ = set(), set(), set()
+
+    def visible(self):
+        """The names this scope shows to the scopes inside it (a class body shows none), global or not."""
+        return () if self.kind in ("module", "class") else self.glob | self.bound | self.nonlocal_
+
+
+def _split(n):
+    """``(kind, outside, inside)`` for a node that opens a scope (`_OPENERS`): its child nodes evaluated in the
+    scope around it and those evaluated in its own (a lambda's body, a def's statements ...)."""
+    if isinstance(n, _FUNCTIONS):
+        a = n.args
+        outside = a.defaults + [d for d in a.kw_defaults if d is not None]
+        if isinstance(n, ast.Lambda):
+            return "function", outside, [n.body]
+        every = a.posonlyargs + a.args + a.kwonlyargs + [x for x in (a.vararg, a.kwarg) if x is not None]
+        outside = (n.decorator_list + outside + [x.annotation for x in every if x.annotation is not None]
+                   + ([n.returns] if n.returns is not None else []) + list(getattr(n, "type_params", ())))
+        return "function", outside, n.body
+    if isinstance(n, ast.ClassDef):
+        return "class", n.decorator_list + n.bases + n.keywords + list(getattr(n, "type_params", ())), n.body
+    first, *rest = n.generators  # a comprehension
+    inside = ([n.key, n.value] if isinstance(n, ast.DictComp) else [n.elt]) + [first.target] + first.ifs
+    for g in rest:
+        inside += [g.target, g.iter] + g.ifs
+    return "comprehension", [first.iter], inside
+
+
+def _scopes(node):
+    """The scopes of `node`, code at module level: ``(module, splits, walrus)``. `module`: the module's scope;
+    `splits`: ``{id(n): (block, outside, inside)}`` for each node that opens a scope; `walrus`: ``(name, lazily)``
+    for each walrus that binds a module-level name (``lazily``: in a generator expression).
+
+    One walk, each node entered once (iterative: no recursion however deep the nesting)."""
+    module = _Block("module", None, _NOW)
+    splits, walrus = {}, []
+    stack = [(node, module)]
     while stack:
-        n, saved = stack.pop()
-        if saved is not None:  # leaving the scope n: its parameters out of scope, its global names back
-            for name in _parameters(n):
-                count[name] -= 1
-            count.update(saved[0])
-            glob.update(saved[1])
+        n, b = stack.pop()
+        if isinstance(n, ast.Name):  # the commonest node; its only child is its ctx
+            if not isinstance(n.ctx, ast.Load):
+                b.bound.add(n.id)
             continue
-        if n is not node and isinstance(n, _SCOPES):
-            body = n.body if isinstance(n.body, list) else [n.body]
-            inside = {id(c) for c in body}
-            # popped last: everything outside the scope (decorators, defaults, annotations), then leaving it,
-            # then (popped first) its body with its parameters counted
-            stack.extend((c, None) for c in ast.iter_child_nodes(n) if id(c) not in inside)
-            for name in _parameters(n):
-                count[name] = count.get(name, 0) + 1
-            # a name the scope declares global (or nonlocal) is not the parameter of any scope around it
-            names = declared.get(id(n), ())
-            stack.append((n, ({name: count.get(name, 0) for name in names}, {name: glob.get(name, 0) for name in names})))
-            for name in names:
-                count[name] = 0
-                glob[name] = glob.get(name, 0) + 1
-            stack.extend((c, None) for c in body)
+        if isinstance(n, ast.Constant):
             continue
-        if isinstance(n, ast.Name) and isinstance(n.ctx, ast.Load):
-            if count.get(n.id, 0) > 0:
-                out.add(id(n))
-            elif glob.get(n.id, 0) > 0:
-                forced.add(id(n))
-        stack.extend((c, None) for c in ast.iter_child_nodes(n))
-    return out, forced
-
-
-def _declared_outside(node):
-    """``{id(scope): names}``: the names each lambda or def in ``node`` declares ``global`` or ``nonlocal`` in its
-    own body (one walk, each statement credited to the innermost scope around it)."""
-    out = {}
-    stack = [(node, None)]
-    while stack:
-        n, scope = stack.pop()
-        if isinstance(n, (ast.Global, ast.Nonlocal)) and scope is not None:
-            out.setdefault(id(scope), set()).update(n.names)
-        inner = n if isinstance(n, _SCOPES) else scope
-        stack.extend((c, inner) for c in ast.iter_child_nodes(n))
-    return out
+        if isinstance(n, _OPENERS):
+            kind, outside, inside = _split(n)
+            if kind == "function":
+                when = _LATER
+            else:
+                when = b.when | (_LATER if isinstance(n, ast.GeneratorExp) else 0)
+            inner = _Block(kind, b, when)
+            splits[id(n)] = (inner, outside, inside)
+            if kind == "function":
+                inner.bound.update(_parameters(n))
+            if not isinstance(n, (ast.Lambda,) + _COMPREHENSIONS):
+                b.bound.add(n.name)
+            stack.extend((c, b) for c in outside)
+            stack.extend((c, inner) for c in inside)
+            continue
+        if isinstance(n, ast.NamedExpr):
+            b.home.bound.add(n.target.id)
+            if b.home is module:
+                walrus.append((n.target.id, bool(b.when & _LATER)))
+            stack.append((n.value, b))
+            continue
+        if isinstance(n, ast.AnnAssign) and not n.simple and n.value is None:
+            stack.append((n.annotation, b))  # ``(x): int``: evaluates an annotation, binds nothing
+            if not isinstance(n.target, ast.Name):
+                stack.append((n.target, b))
+            continue
+        if isinstance(n, (ast.Import, ast.ImportFrom)):
+            b.bound.update(a.asname or a.name.split(".")[0] for a in n.names if a.name != "*")
+        elif isinstance(n, ast.Global):
+            b.glob.update(n.names)
+        elif isinstance(n, ast.Nonlocal):
+            b.nonlocal_.update(n.names)
+        elif isinstance(n, (ast.ExceptHandler,) + _CAPTURES):
+            if n.name:
+                b.bound.add(n.name)
+        elif type(n).__name__ == "MatchMapping":
+            if n.rest:
+                b.bound.add(n.rest)
+        stack.extend((c, b) for c in ast.iter_child_nodes(n))
+    return module, splits, walrus
 
 
 class _Facts:
-    """What one node's code does, found in one walk over it: linear in its size, whatever it holds."""
+    """What one node's code does, found in two walks over it (its scopes, then its loads): linear in its size,
+    whatever it holds. The node is code at module level: a def or class statement, an assigned value ..."""
 
-    __slots__ = ("imports", "string", "now", "later", "names", "rebinds")
+    __slots__ = ("imports", "string", "now", "later", "names", "rebinds", "walrus")
 
     def __init__(self, node):
-        self.imports = []  # (module, line) of the imports that reach a forbidden package, in walk order
+        self.imports = []  # (module, line) of the imports that reach a forbidden package, by line
         self.string = False  # names a forbidden package in a string (a dynamic import); a docstring never does
-        now, later_loaded, stored, declared, rebinds = set(), set(), set(), set(), set()
-        # a name loaded inside a function or lambda is looked up when it is called; one loaded elsewhere (in an
-        # assigned value, a class body) when the node runs, while the module loads
-        all_later = isinstance(node, _SCOPES)
-        later, docstrings = set(), set()
-        shadowed, forced = _parameter_uses(node)
-        forced_loads = set()
-        for n in ast.walk(node):
-            if id(n) in shadowed:  # a parameter of a lambda or def inside: not a module-level name
-                continue
-            if not all_later and (id(n) in later or (n is not node and isinstance(n, _SCOPES))):
-                later.update(id(c) for c in ast.iter_child_nodes(n))
-            if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
-                if n is not node:
-                    stored.add(n.name)
-                first = n.body[0] if n.body else None
-                if isinstance(first, ast.Expr) and isinstance(first.value, ast.Constant):
-                    docstrings.add(id(first.value))
-            if isinstance(n, ast.Name):
-                if id(n) in forced:  # declared global in its own scope: the module's, whatever node binds
-                    forced_loads.add(n.id)
-                if not isinstance(n.ctx, ast.Load):
-                    stored.add(n.id)
-                elif all_later or id(n) in later:
-                    later_loaded.add(n.id)
+        module, splits, walrus = _scopes(node)
+        # a module-level name loaded inside a def or lambda is looked up when it is called; one loaded elsewhere
+        # (in an assigned value, a class body, a def's decorators and defaults) when the node runs
+        now, later, docstrings = set(), set(), set()
+        # name -> for each def, lambda or comprehension around the walk's position that binds or declares it
+        # (innermost last), whether that makes it the module's (``global``)
+        seen = {}
+        stack = [(node, module)]
+        while stack:
+            n, b = stack.pop()
+            if b is None:  # a marker: entering (n: the names and what they are) or leaving (n: the names) a scope
+                if isinstance(n, dict):
+                    for name, glob in n.items():
+                        seen.setdefault(name, []).append(glob)
                 else:
-                    now.add(n.id)
-            elif isinstance(n, ast.Import):
+                    for name in n:
+                        seen[name].pop()
+                continue
+            if isinstance(n, ast.Name):
+                if isinstance(n.ctx, ast.Load) and self._module_level(n.id, b, seen):
+                    if b.when & _NOW:
+                        now.add(n.id)
+                    if b.when & _LATER:
+                        later.add(n.id)
+                continue
+            if isinstance(n, ast.Constant):
+                self.string = self.string or (isinstance(n.value, str) and id(n) not in docstrings
+                                              and _FORBIDDEN_STRING.fullmatch(n.value.strip()) is not None)
+                continue
+            split = splits.get(id(n)) if isinstance(n, _OPENERS) else None
+            if split is not None:
+                inner, outside, inside = split
+                names = inner.visible()
+                # popped in this order: the code outside the scope, entering it, its code, leaving it
+                if names:
+                    stack.append((names, None))
+                stack.extend((c, inner) for c in inside)
+                if names:
+                    stack.append(({name: name in inner.glob for name in names}, None))
+                stack.extend((c, b) for c in outside)
+                if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+                    first = n.body[0] if n.body else None
+                    if isinstance(first, ast.Expr) and isinstance(first.value, ast.Constant):
+                        docstrings.add(id(first.value))
+                continue
+            if isinstance(n, ast.Import):
                 self.imports += [(a.name, n.lineno) for a in n.names if _is_forbidden_module(a.name)]
-                stored.update(a.asname or a.name.split(".")[0] for a in n.names)
             elif isinstance(n, ast.ImportFrom):
                 if n.level == 0 and _is_forbidden_module(n.module):
                     self.imports.append((n.module, n.lineno))
-                stored.update(a.asname or a.name for a in n.names if a.name != "*")
-            elif isinstance(n, ast.Constant):
-                self.string = self.string or (isinstance(n.value, str) and id(n) not in docstrings
-                                              and _FORBIDDEN_STRING.fullmatch(n.value.strip()) is not None)
-            elif isinstance(n, (ast.Global, ast.Nonlocal)):
-                declared.update(n.names)
-                if isinstance(n, ast.Global):
-                    rebinds.update(n.names)
-        local = set()
-        if isinstance(node, _SCOPES):
-            local = set(_parameters(node)) | (stored - declared)  # a parameter or a local assignment (not global)
-        self.now = now - local  # module-level names looked up when the node runs
-        self.later = (later_loaded - local) | forced_loads  # ... and when the functions in it are called
-        self.names = sorted(self.now | self.later)
-        self.rebinds = sorted(rebinds & stored)  # module-level names it binds through ``global``
+            stack.extend((c, b) for c in ast.iter_child_nodes(n))
+        self.imports.sort(key=lambda i: i[1])  # the first in the source is the one a message names
+        self.now = now  # module-level names looked up when the node runs
+        self.later = later  # ... and when the functions in it are called
+        self.names = sorted(now | later)
+        # module-level names it binds through ``global`` (whenever the code that does runs)
+        self.rebinds = sorted({name for inner, _, _ in splits.values() for name in inner.bound & inner.glob})
+        self.walrus = walrus  # and those it binds with a walrus outside any def or lambda
+
+    @staticmethod
+    def _module_level(name, b, seen):
+        """Whether a load of `name` in the scope `b` may be of the module-level binding."""
+        if b.kind == "module":
+            return True
+        if b.kind == "class":
+            if name in b.glob:
+                return True
+            if name in b.nonlocal_:
+                return False
+            if name in b.bound:  # the class's namespace, then the module's
+                return True
+        around = seen.get(name)  # a def, lambda or comprehension (b itself, unless a class) that binds or declares it
+        return not around or around[-1]
 
 
 class _Bound:
@@ -591,8 +683,10 @@ class _Execution:
     Statements run in cell (source) order. A binding replaces the one before it; ``del`` unbinds. Of the branches
     of an ``if``, a loop (its body runs zero or more times), a ``match`` or a ``try`` (a handler may start after any
     statement of the body), every possible outcome is kept. The body of ``if __name__ == "__main__":`` never runs
-    (the grader loads the submission as the module ``submission``). A function that binds a module-level name
-    through ``global`` may have done so whenever it was called: it stays a possible binding of that name.
+    (the grader loads the submission as the module ``submission``). A walrus at module level and a ``match`` capture
+    bind like the other statements; the name of an ``except ... as`` is unbound when its handler ends. A function
+    that binds a module-level name through ``global`` may have done so whenever it was called: it stays a possible
+    binding of that name.
     """
 
     def __init__(self):
@@ -624,8 +718,31 @@ class _Execution:
         for stmt in stmts:
             self.statement(stmt, scope, label)
 
+    def walrus(self, parts, scope):
+        """Bind the module-level names the walruses in `parts` (code of a statement run at module level) bind: to
+        the code of the part that holds the walrus (and so its value), as a possible binding (``a or (w := b)`` may
+        not run it); one in a generator expression may bind it whenever the generator is iterated."""
+        for part in parts:
+            if isinstance(part, (ast.Name, ast.Constant)):  # no walrus in it (the commonest targets)
+                continue
+            facts = self.facts_of(part)
+            if facts.walrus:
+                value = self.code(part, scope)
+                for name, lazily in facts.walrus:
+                    scope.set(name, _either([scope.get(name), value]))
+                    if lazily:
+                        self.rebound.setdefault(name, []).append(_Bound(node=part))
+
     def statement(self, stmt, scope, label):
         where = f"{label} line {stmt.lineno}"
+        # the code a statement runs itself, not its blocks: a walrus in it binds before the statement does
+        if isinstance(stmt, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            parts = [stmt]  # its decorators, defaults, bases (a walrus in its body binds in its own scope)
+        elif isinstance(stmt, (ast.With, ast.AsyncWith)):
+            parts = [e for item in stmt.items for e in (item.context_expr, item.optional_vars) if e is not None]
+        else:
+            parts = [c for c in ast.iter_child_nodes(stmt) if isinstance(c, ast.expr)]
+        self.walrus(parts, scope)
         if isinstance(stmt, ast.Import):
             for alias in stmt.names:
                 bound = alias.asname or alias.name.split(".")[0]
@@ -693,14 +810,28 @@ class _Execution:
             ends = [body]
             for handler in stmt.handlers:
                 h = _Scope(start)
+                self.walrus([handler.type] if handler.type is not None else [], h)
                 if handler.name:
                     h.set(handler.name, _Bound())
                 self.run(handler.body, h, label)
+                if handler.name:  # unbound when the handler ends
+                    h.set(handler.name, None)
                 ends.append(h)
             self.merge(scope, ends, exhaustive=True)
             self.run(stmt.finalbody, scope, label)
         elif isinstance(stmt, getattr(ast, "Match", ())):
-            self.branches(scope, [case.body for case in stmt.cases], label, exhaustive=False)
+            subject = self.code(stmt.subject, scope)
+
+            def case_of(case):
+                def run(s):  # a case binds its captures to the subject or parts of it, then runs
+                    for n in ast.walk(case.pattern):
+                        name = n.name if isinstance(n, _CAPTURES) else getattr(n, "rest", None)
+                        if name:
+                            s.set(name, subject)
+                    self.walrus([case.guard] if case.guard is not None else [], s)
+                    self.run(case.body, s, label)
+                return run
+            self.branches(scope, [case_of(case) for case in stmt.cases], label, exhaustive=False)
 
     def branches(self, scope, blocks, label, exhaustive):
         """Run each block (statements, or a function of the scope) from `scope`; keep every outcome in it."""
@@ -815,7 +946,9 @@ def forbidden_usage(units, functions):
     the last cell, an assigned value those in force when it ran. So an import of the reference that a later def
     of the same name replaces, or one under ``if __name__ == "__main__":``, is harmless; one that may be the binding
     in force (in either branch of an ``if``, in a ``try`` body or its handler) counts. A name no statement binds,
-    used after ``from slamlib import *``, can only come from that import.
+    used after ``from slamlib import *``, can only come from that import. Which loads are of a module-level name
+    follows Python's scoping rules (`_scopes`): a comprehension's variable, a nested def's or class's name, a
+    function's ``except ... as`` name, ``match`` capture or walrus target is not the module's.
 
     Returns
     -------
