@@ -21,6 +21,20 @@ import sys as _sys
 __all__ = ["grade", "run_public_tests"]
 
 
+def fill_standard_fds():
+    """Open ``/dev/null`` on each of the descriptors 0-2 that is closed (a grader started with ``>&-`` or ``<&-``,
+    as daemons are): else the sandbox's control socket or pipes would be given those numbers, and the child's
+    standard streams would be set over them."""
+    while True:
+        try:
+            fd = _os.open(_os.devnull, _os.O_RDWR)
+        except OSError:
+            return
+        if fd > 2:
+            _os.close(fd)
+            return
+
+
 def _drop_working_directory():
     """Take the working directory off ``sys.path`` unless the grader itself is there.
 
@@ -35,10 +49,13 @@ def _drop_working_directory():
         cwd = _os.getcwd()
     except OSError:  # a working directory that was removed
         cwd = None
+    if cwd is None:  # nothing can be imported from a removed folder; a relative entry cannot be made absolute
+        _sys.path[:] = [entry for entry in _sys.path if entry]
+        return
     keep = []
     for entry in _sys.path:
         where = _os.path.abspath(entry) if entry else cwd
-        if where is not None and where == cwd and _os.path.realpath(where) != _os.path.realpath(home):
+        if where == cwd and _os.path.realpath(where) != _os.path.realpath(home):
             continue
         keep.append(entry)
     _sys.path[:] = keep

@@ -38,6 +38,11 @@ import traceback
 # address-space limit (`ulimit -v 200000`: `import scipy.linalg` never returned). The sandbox sets the same.
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
+# Standard descriptors closed when the command started (a cron line's ``>&-``): /dev/null on them before any file
+# is opened, so that no file, pipe or socket of the grader's gets their numbers.
+from . import fill_standard_fds  # noqa: E402
+
+fill_standard_fds()
 
 __all__ = ["main"]
 

@@ -280,12 +280,12 @@ def _build_root(fs, iso, libc):
     allow = [p for p in fs.get("allow", []) if os.path.exists(p)]
     pins = {p: pin(p) for p in binds + allow}
     _check(libc, libc.mount(None, b"/", None, MS_REC | MS_PRIVATE, None), "make mounts private")
-    _check(libc, libc.mount(b"tmpfs", R.encode(), b"tmpfs", ro_fl, f"size={fs.get('root_size', '8m')},mode=0755".encode()),
+    _check(libc, libc.mount(b"tmpfs", os.fsencode(R), b"tmpfs", ro_fl, f"size={fs.get('root_size', '8m')},mode=0755".encode()),
            "root tmpfs")
     # the private /tmp first: folders of the interpreter, NumPy or SciPy under /tmp (a virtual environment
     # made there, a conda prefix) are bound inside it below instead of being hidden by it
     os.makedirs(f"{R}/tmp", mode=0o755)
-    _check(libc, libc.mount(b"tmpfs", f"{R}/tmp".encode(), b"tmpfs", ro_fl,
+    _check(libc, libc.mount(b"tmpfs", os.fsencode(f"{R}/tmp"), b"tmpfs", ro_fl,
                             f"size={fs.get('tmp_size', '64m')},nr_inodes=4096,mode=1777".encode()), "private /tmp")
 
     def mkpoint(dst, isdir):
@@ -299,13 +299,13 @@ def _build_root(fs, iso, libc):
     def bind(src, fd, ro=True):
         dst = R + src
         mkpoint(dst, os.path.isdir(f"/proc/self/fd/{fd}"))
-        _check(libc, libc.mount(f"/proc/self/fd/{fd}".encode(), dst.encode(), None, MS_BIND | MS_REC, None), f"bind {src}")
+        _check(libc, libc.mount(os.fsencode(f"/proc/self/fd/{fd}"), os.fsencode(dst), None, MS_BIND | MS_REC, None), f"bind {src}")
         if ro:
             st = os.statvfs(dst)
             keep = st.f_flag & (MS_NOSUID | MS_NODEV | MS_NOEXEC | MS_NOATIME | MS_NODIRATIME)
             if st.f_flag & 4096:  # ST_RELATIME
                 keep |= MS_RELATIME
-            _check(libc, libc.mount(None, dst.encode(), None, MS_BIND | MS_REMOUNT | MS_RDONLY | keep, None),
+            _check(libc, libc.mount(None, os.fsencode(dst), None, MS_BIND | MS_REMOUNT | MS_RDONLY | keep, None),
                    f"read-only {src}")
 
     bound = []
@@ -319,7 +319,7 @@ def _build_root(fs, iso, libc):
     hidden = []
     for h in fs.get("hide", []):
         if _under(h, bound) and os.path.isdir(R + h) and not _under(h, hidden):
-            _check(libc, libc.mount(b"tmpfs", (R + h).encode(), b"tmpfs", ro_fl, b"size=64k,mode=0755"), f"hide {h}")
+            _check(libc, libc.mount(b"tmpfs", os.fsencode(R + h), b"tmpfs", ro_fl, b"size=64k,mode=0755"), f"hide {h}")
             hidden.append(h)
     for a in allow:
         if _under(a, bound) and not _under(a, hidden):
@@ -327,32 +327,32 @@ def _build_root(fs, iso, libc):
         if pins.get(a) is not None:
             bind(a, pins[a])
     for h in hidden:
-        libc.mount(None, (R + h).encode(), None, MS_REMOUNT | MS_RDONLY | ro_fl, None)
+        libc.mount(None, os.fsencode(R + h), None, MS_REMOUNT | MS_RDONLY | ro_fl, None)
     for fd in pins.values():
         if fd is not None:
             os.close(fd)
     for d in ("tmp", "dev", "proc", "etc"):
         os.makedirs(f"{R}/{d}", mode=0o755, exist_ok=True)
-    _check(libc, libc.mount(b"tmpfs", f"{R}/dev".encode(), b"tmpfs", MS_NOSUID, b"size=64k,mode=0755"), "/dev")
+    _check(libc, libc.mount(b"tmpfs", os.fsencode(f"{R}/dev"), b"tmpfs", MS_NOSUID, b"size=64k,mode=0755"), "/dev")
     for name in ("null", "zero", "full", "random", "urandom"):
         if os.path.exists(f"/dev/{name}"):
             mkpoint(f"{R}/dev/{name}", False)
-            _check(libc, libc.mount(f"/dev/{name}".encode(), f"{R}/dev/{name}".encode(), None, MS_BIND, None),
+            _check(libc, libc.mount(os.fsencode(f"/dev/{name}"), os.fsencode(f"{R}/dev/{name}"), None, MS_BIND, None),
                    f"/dev/{name}")
     os.makedirs(f"{R}/dev/shm", mode=0o755)
-    _check(libc, libc.mount(b"tmpfs", f"{R}/dev/shm".encode(), b"tmpfs", ro_fl,
+    _check(libc, libc.mount(b"tmpfs", os.fsencode(f"{R}/dev/shm"), b"tmpfs", ro_fl,
                             f"size={fs.get('shm_size', '16m')},nr_inodes=1024,mode=1777".encode()), "private /dev/shm")
     for name, target in (("fd", "/proc/self/fd"), ("stdin", "/proc/self/fd/0"), ("stdout", "/proc/self/fd/1"),
                          ("stderr", "/proc/self/fd/2")):
         os.symlink(target, f"{R}/dev/{name}")
-    libc.mount(None, f"{R}/dev".encode(), None, MS_REMOUNT | MS_RDONLY | MS_NOSUID, None)
-    _check(libc, libc.mount(b"proc", f"{R}/proc".encode(), b"proc", MS_NOSUID | MS_NODEV | MS_NOEXEC, None), "/proc")
+    libc.mount(None, os.fsencode(f"{R}/dev"), None, MS_REMOUNT | MS_RDONLY | MS_NOSUID, None)
+    _check(libc, libc.mount(b"proc", os.fsencode(f"{R}/proc"), b"proc", MS_NOSUID | MS_NODEV | MS_NOEXEC, None), "/proc")
     with open(f"{R}/etc/passwd", "w") as fh:
         fh.write("root:x:0:0:root:/tmp:/bin/false\nstudent:x:65534:65534:student:/tmp:/bin/false\n")
     with open(f"{R}/etc/group", "w") as fh:
         fh.write("root:x:0:\nstudent:x:65534:\n")
     os.makedirs(f"{R}/.old")
-    _check(libc, libc.syscall(SYS_PIVOT_ROOT, R.encode(), f"{R}/.old".encode()), "pivot_root")
+    _check(libc, libc.syscall(SYS_PIVOT_ROOT, os.fsencode(R), os.fsencode(f"{R}/.old")), "pivot_root")
     os.chdir("/")
     _check(libc, libc.umount2(b"/.old", MNT_DETACH), "detach the old root")
     os.rmdir("/.old")

@@ -215,7 +215,7 @@ def _fingerprint(path, problem):
     if path is None:
         return "missing:" + str(problem)
     try:
-        return content_hash(Path(path).read_bytes())
+        return content_hash(path)
     except OSError as exc:
         return f"unreadable:{exc}"
 

@@ -180,6 +180,8 @@ def safe_print(text, file=None):
     from .wire import clean_text
 
     stream = sys.stdout if file is None else file
+    if stream is None:  # Python's stream for a descriptor that was closed when it started
+        return
     text = clean_text(text) + "\n"
     try:
         try:

@@ -113,6 +113,7 @@ from pathlib import Path
 import numpy as np
 
 from . import wire
+from . import fill_standard_fds
 from .submission import MAX_CODE
 from .wire import (ProtocolError, RngSeed, clean_text, control_message, encode_args, pack_frame, parse_result_frame,
                    read_reply)
@@ -240,6 +241,24 @@ class ChildFailed(Exception):
 
 
 # --------------------------------------------------------------------------- what the sandbox may see
+def _mapped_files():
+    """The files mapped into this process (``/proc/self/maps``) that exist, as the file system names them: read as
+    bytes (a path need not be text in the locale's encoding: an install under ``/opt/pé th`` in the C locale),
+    a path with spaces kept whole."""
+    try:
+        with open("/proc/self/maps", "rb") as fh:
+            lines = fh.read().splitlines()
+    except OSError:
+        return []
+    out = []
+    for line in lines:
+        parts = line.split(None, 5)
+        path = os.fsdecode(parts[5].strip()) if len(parts) == 6 else ""
+        if path.startswith("/") and path not in out and os.path.exists(path):
+            out.append(path)
+    return out
+
+
 def _real(p):
     return os.path.realpath(p)
 
@@ -289,14 +308,8 @@ def fs_spec(limits):
     for p in sys.path:
         if p and (p.endswith(".zip") or p.endswith("lib-dynload")) and os.path.exists(p):
             python.append(_real(p))
-    try:  # a shared libpython outside the system trees (a Python built under /opt or /root)
-        with open("/proc/self/maps") as fh:
-            for line in fh:
-                path = line.split()[-1] if len(line.split()) >= 6 else ""
-                if "libpython" in path and os.path.exists(path):
-                    python.append(_real(path))
-    except OSError:
-        pass
+    # a shared libpython outside the system trees (a Python built under /opt or /root)
+    python += [_real(path) for path in _mapped_files() if "libpython" in os.path.basename(path)]
     hide = set()
     try:
         hide.update(site.getsitepackages())
@@ -350,15 +363,8 @@ def _library_dirs(system, site_dirs):
     sites = [_real(p) for p in site_dirs if p and os.path.isdir(p)]
     blocked = [_real(p) for p in _blocked_paths()]
     out = []
-    try:
-        with open("/proc/self/maps") as fh:
-            lines = fh.read().splitlines()
-    except OSError:
-        return out
-    for line in lines:
-        parts = line.split(None, 5)
-        path = parts[5].strip() if len(parts) == 6 else ""
-        if not path.startswith("/") or ".so" not in os.path.basename(path) or not os.path.exists(path):
+    for path in _mapped_files():
+        if ".so" not in os.path.basename(path):
             continue
         d = os.path.dirname(_real(path))
         if any(d == r or d.startswith(r.rstrip("/") + "/") for r in system + sites + blocked):
@@ -670,6 +676,7 @@ class Sandbox:
             "scratch_prefix": self._scratch_prefix,
             "limits": {"cpu": lim.cpu, "as": lim.memory, "fsize": lim.file_size, "nproc": 0, "nofile": 256},
         }
+        fill_standard_fds()  # the control socket and pipes never get the numbers 0-2
         parent_ctl, child_ctl = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
         out_r, out_w = os.pipe()
         try:

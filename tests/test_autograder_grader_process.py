@@ -254,6 +254,29 @@ def test_the_instructors_page_states_the_waiting_and_the_own_noise_figures():
 
 
 # --------------------------------------------------------------------------- the environment's failures are the grader's
+def test_mapped_files_with_non_ascii_names_and_spaces_in_the_c_locale(tmp_path):
+    """``/proc/self/maps`` was read as text in the locale's encoding: a grader installed under ``/opt/pé th`` and
+    started with ``LC_ALL=C PYTHONUTF8=0`` stopped every command, the self-check included (UnicodeDecodeError);
+    and a mapped path with a space was cut at it. The files are read as bytes and named as the file system does."""
+    lib = tmp_path / "pé th" / "libpython3-fake.so"
+    lib.parent.mkdir()
+    lib.write_bytes(b"\0" * 4096)
+    code = (
+        "import mmap, os, sys\n"
+        "from autograder import sandbox\n"
+        "path = os.fsdecode(sys.argv[1].encode('utf-8', 'surrogateescape'))\n"
+        "fd = os.open(path, os.O_RDONLY); m = mmap.mmap(fd, 4096, prot=mmap.PROT_READ)\n"
+        "assert path in sandbox._mapped_files(), sandbox._mapped_files()\n"
+        "spec = dict(sandbox.fs_spec(sandbox.Limits()))\n"
+        "assert os.path.realpath(path) in spec['python'], spec['python']\n"
+        "print(sys.getfilesystemencoding())\n")
+    env = {**os.environ, "LC_ALL": "C", "LANG": "C", "PYTHONUTF8": "0", "PYTHONPATH": str(AG_ROOT)}
+    out = subprocess.run([sys.executable, "-c", code, str(lib)], env=env, capture_output=True, text=True,
+                         errors="replace", timeout=60)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip() == "ascii"  # the locale the failure needs
+
+
 def _run_autograder_script(tmp_path, python_body, root="gs"):
     """Gradescope's ``run_autograder`` of a bundle, with a stand-in for the grader's Python (``python_body``)."""
     from autograder.bundle import RUN_AUTOGRADER
@@ -446,6 +469,65 @@ def test_csv_cells_carry_no_control_characters_and_are_cut_short():
     got = _cell("eve\x1b[2J\x1b[H\rTotal: 100" + "x" * 5000)
     assert "\x1b" not in got and "\r" not in got and len(got) <= 1000 and got.startswith("eve\\x1b[2J")
     assert _cell("\rx").startswith("\\x0d") and _cell(42.0) == 42.0
+
+
+def test_the_grader_starts_in_a_working_directory_that_was_removed(tmp_path):
+    """Started from a folder removed meanwhile (a terminal left in it), with a relative entry on ``sys.path`` (an
+    editable install's path hook), the grader stopped at import: ``abspath`` of the entry needs the working
+    directory. It starts, with the working directory ("") off the path and the other entries kept."""
+    gone = tmp_path / "gone"
+    gone.mkdir()
+    code = ("import os, sys\n"
+            "os.rmdir(os.getcwd())\n"
+            "sys.path.insert(1, '__editable__.hook__path_hook__')\n"
+            "import autograder\n"
+            "assert '' not in sys.path and '__editable__.hook__path_hook__' in sys.path, sys.path\n"
+            "print('started')\n")
+    out = subprocess.run([sys.executable, "-c", code], cwd=gone, capture_output=True, text=True, timeout=60,
+                         env={**os.environ, "PYTHONPATH": str(AG_ROOT)})
+    assert out.returncode == 0 and out.stdout.strip() == "started", out.stderr[-2000:]
+
+
+def test_the_batch_fingerprints_a_huge_submission_in_bounded_memory(tmp_path):
+    """The batch read every submission whole to fingerprint it, before grading: a 3 GB upload made the batch hold
+    3.2 GB, and a larger one would have stopped the batch with a MemoryError. The hash is read in blocks."""
+    from autograder.seeds import content_hash
+
+    big = tmp_path / "bob.py"
+    with open(big, "wb") as fh:  # sparse: no disk
+        fh.truncate(600 << 20)
+    code = ("import resource, sys\n"
+            "from autograder.batch import _fingerprint\n"
+            "resource.setrlimit(resource.RLIMIT_AS, (400 << 20, resource.RLIM_INFINITY))\n"
+            "print(_fingerprint(sys.argv[1], None))\n")
+    import hashlib
+
+    out = subprocess.run([sys.executable, "-c", code, str(big)], capture_output=True, text=True, timeout=120,
+                         env={**os.environ, "PYTHONPATH": str(AG_ROOT)})
+    assert out.returncode == 0, out.stderr[-2000:]
+    h = hashlib.sha256()
+    block = bytes(1 << 20)
+    for _ in range(600):
+        h.update(block)
+    assert out.stdout.strip() == h.hexdigest() == content_hash(big)
+    assert content_hash(b"abc") == hashlib.sha256(b"abc").hexdigest()
+
+
+@pytest.mark.parametrize("closed", ["1", "0 1", "0 1 2"])
+def test_the_grader_runs_with_its_standard_descriptors_closed(tmp_path, closed):
+    """Started with ``>&-`` (a cron line): the report's print raised after results.json was written (exit 1 for a
+    grading that scored 100); with ``<&- >&-`` the sandbox's control socket got descriptor 1 and the child's output
+    pipe was set over it (exit 3: nothing could be graded). The grader opens /dev/null on closed descriptors."""
+    path = tmp_path / "alice.py"
+    path.write_text(solution_text("particle_filter"))
+    out = tmp_path / "out.json"
+    redirect = " ".join(f"{fd}>&-" if fd != "0" else "<&-" for fd in closed.split())
+    cmd = (f'exec "{sys.executable}" -P -m autograder grade "{path}" -e particle_filter '
+           f'-r "{out}" {redirect}')
+    proc = subprocess.run(["sh", "-c", cmd], capture_output=True, text=True, timeout=300,
+                          env={**os.environ, "PYTHONPATH": str(AG_ROOT)})
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert json.loads(out.read_text())["score"] > 0
 
 
 def test_batch_workers_never_import_from_the_working_directory(tmp_path):

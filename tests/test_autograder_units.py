@@ -389,6 +389,46 @@ def test_seeds_follow_secret_exercise_and_content(tmp_path):
                 derive_seed(b"another secret of enough length", "particle_filter", h1)}) == 4
 
 
+def test_graders_that_create_the_secret_at_once_agree_and_never_read_it_empty(tmp_path, monkeypatch):
+    """Two graders creating the default secret at once: the loser read the file the winner had made but not yet
+    written, and graded with the empty key (every seed computable by anyone). The secret is now linked into place
+    whole, and a secret read from the file is checked for its length on every path."""
+    import subprocess
+    import sys
+
+    from autograder import seeds
+
+    # a grader whose file appears between our write and our link, still empty (made by an older grader)
+    path = tmp_path / "race" / "secret"
+    real_link = os.link
+
+    def late(src, dst, *a, **k):
+        Path(dst).touch()
+        return real_link(src, dst, *a, **k)
+
+    monkeypatch.setattr(os, "link", late)
+    with pytest.raises(ValueError, match="too short"):
+        seeds.load_secret(path)
+    monkeypatch.setattr(os, "link", real_link)
+    # ... and written: its secret is ours
+    path = tmp_path / "race2" / "secret"
+    monkeypatch.setattr(os, "link", lambda src, dst, *a, **k: (Path(dst).write_text("w" * 64 + "\n"),
+                                                                 real_link(src, dst, *a, **k)))
+    assert seeds.load_secret(path) == b"w" * 64
+    monkeypatch.setattr(os, "link", real_link)
+    assert [p.name for p in path.parent.iterdir()] == ["secret"]  # no file of ours left behind
+    # real graders started at once: one secret, never empty
+    code = "import sys; from autograder.seeds import load_secret; print(load_secret(sys.argv[1]).decode())"
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    for k in range(5):
+        target = tmp_path / f"at_once{k}" / "secret"
+        procs = [subprocess.Popen([sys.executable, "-c", code, str(target)], stdout=subprocess.PIPE, text=True,
+                                  env=env) for _ in range(6)]
+        outs = {proc.communicate(timeout=60)[0].strip() for proc in procs}
+        assert len(outs) == 1 and len(outs.pop()) == 64, outs
+        assert target.read_text().strip() and len(list(target.parent.iterdir())) == 1
+
+
 def test_python_sources_are_read_as_python_reads_them():
     from autograder.submission import SubmissionError, decode_python_source
 
