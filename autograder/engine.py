@@ -171,13 +171,17 @@ class Budget:
         if self.test_deadline is not None:
             self.test_deadline += seconds
 
-    def give_back_waiting(self, seconds):
-        """Give back ``seconds`` a loaded machine kept a call's worker waiting for a processor: at most
-        ``MAX_STRETCH`` times the submission's budget over the whole grading, so a grading ends however loaded the
-        machine (or however a submission might make its workers wait)."""
+    def give_back_waiting(self, seconds, test=True):
+        """Give back ``seconds`` that were no one's: a loaded machine kept the submission's processes waiting for a
+        processor (during a call or a loading), or the grader itself was paused. At most ``MAX_STRETCH`` times the
+        submission's budget over the whole grading, so a grading ends however loaded the machine (or however a
+        submission might make its workers wait). ``test=False``: to the submission's budget only (the test's got
+        the time back otherwise: :meth:`forgive`)."""
         seconds = min(max(0.0, seconds), max(0.0, MAX_STRETCH * self.submission_budget - self.waited))
         self.waited += seconds
-        self.extend(seconds)
+        self.deadline += seconds
+        if test and self.test_deadline is not None:
+            self.test_deadline += seconds
 
     def message(self, reason):
         if reason == "submission":
@@ -233,22 +237,32 @@ class _WorkerCaller:
             except Exception as exc:  # the grader's machinery (or the machine), not the submission
                 raise GraderFault(f"starting a worker for {self.fn}: {type(exc).__name__}: {exc}") from exc
             self.started += 1
+            if self.budget is not None and hasattr(self.grading, "reload_waited"):
+                self.budget.give_back_waiting(self.grading.reload_waited())
         blame = None
         try:
             with self.grading.calling(self.fn, self.budget):
                 if self.grading.ended_since(self.generation, exclude=self.fn):  # while this call waited its turn
                     out, blame = CallOutcome("crashed", error="the sandbox had ended before the call"), "before"
                 else:
-                    waited = getattr(self.worker, "load_seconds", 0.0)
+                    loaded = getattr(self.worker, "load_seconds", 0.0)
+                    load_waited = getattr(self.worker, "load_waited", 0.0)
                     out = self.worker.call(fn, args, kwargs, timeout=max(limit, 0.001), names=names,
                                            global_seed=global_seed)
+                    first = not self.load_forgiven
                     if (self.budget is not None and not self.load_forgiven
-                            and getattr(self.worker, "load_seconds", 0.0) > waited):
+                            and getattr(self.worker, "load_seconds", 0.0) > loaded):
                         # the function's first worker loading the submission is no test's time (never the
                         # call's: its deadline starts after); once per function, so a submission that makes its
                         # workers end and load again and again pays for it from its budgets
-                        self.budget.forgive(self.worker.load_seconds - waited)
+                        self.budget.forgive(self.worker.load_seconds - loaded)
                         self.load_forgiven = True
+                    if self.budget is not None and getattr(self.worker, "load_waited", 0.0) > load_waited:
+                        # what of the worker's loading was no one's (the machine kept it waiting for a processor,
+                        # or the grader was paused) is given back to the submission's budget, and to the test's
+                        # where forgive() did not give it the whole loading
+                        self.budget.give_back_waiting(self.worker.load_waited - load_waited,
+                                                      test=not (first and self.load_forgiven))
                     if self.budget is not None and getattr(out, "waited", 0.0) > 0:
                         # the time a loaded machine kept the worker waiting for a processor is no one's: the
                         # call's deadline was stretched by it, and so are the test's and the submission's budgets
@@ -412,14 +426,32 @@ class _Grading:
                             raise SandboxLost(f"the sandbox ended {self.reloads + 1} times with no single call to "
                                               "charge it to (the machine's doing)") from None
                         self.reloads += 1
+                    before = getattr(self.box, "waited", 0.0)
                     try:
                         self.box.start()
                     except ChildFailed as exc:  # it loaded before: a loading that fails now is not the code's doing
                         raise SandboxLost(f"the submission could not be loaded again ({exc.outcome.error})") from None
+                    # what of that loading was no one's: given back to the budgets of the thread that waited for it
+                    # (taken by reload_waited)
+                    self._local().reload_waited = (getattr(self._local(), "reload_waited", 0.0)
+                                                   + getattr(self.box, "waited", 0.0) - before)
                 try:
                     return self.box.fork_worker(), self.box.loads
                 except ChildFailed as exc:
                     raise SandboxLost(f"a sandbox loaded a moment ago is gone ({exc.outcome.error})") from None
+
+    def _local(self):
+        local = self.__dict__.get("_thread")
+        if local is None:
+            local = self.__dict__.setdefault("_thread", threading.local())
+        return local
+
+    def reload_waited(self):
+        """Seconds of the sandbox's loadings this thread started again (fork_worker) that were no one's, since the
+        last time it asked."""
+        local = self._local()
+        got, local.reload_waited = getattr(local, "reload_waited", 0.0), 0.0
+        return got
 
     def ended_since(self, generation, exclude=None):
         """True when sandbox ``generation`` has ended (its death, first seen now, is charged to the calls under way,
@@ -707,6 +739,8 @@ def _grade(path, exercise, *, limits, workers, seed, functions, secret, final):
 
         runs = {fn: _FunctionRun(ex, fn, grading, ready, limits, seed, Budget(*budget_args, start=start))
                 for fn in todo}
+        for run in runs.values():  # the budgets ran from before the loading: what of it was no one's comes back
+            run.budget.give_back_waiting(grading.box.waited)
 
         def each(hidden):
             # every function's public tests first, then every function's hidden tests: what a student sees before
