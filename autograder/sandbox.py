@@ -630,7 +630,8 @@ class Sandbox:
         functions defined before are graded. That last loading, and each worker's
         from then on, may take twice ``limits.import_timeout`` (the statements kept
         took up to that time once; the margin is for a busy machine); it is done
-        once per sandbox, and all of it counts in the submission's time budget.
+        once per sandbox, and all of it counts in the submission's time budget but
+        its waiting for a processor and the grader's pauses (``self.waited``).
         A loading whose process ended abruptly (killed, as by the kernel's
         out-of-memory killer) is tried once more.
         """
