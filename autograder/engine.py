@@ -130,16 +130,48 @@ class SandboxLost(GraderFault):
     """
 
 
-class Budget:
-    """Wall-time budgets: one per test (reset by :meth:`start_test`) and one for the whole submission."""
+class NoOnesTime:
+    """The seconds of a grading that were no one's (a loaded machine's waiting for a processor, the grader's own
+    pauses), given back to the submission's budget: shared by its functions' budgets, which all run from the same
+    start (a function graded after another waited through the other's waiting too). At most ``MAX_STRETCH`` times
+    the submission's budget over the grading: waiting measured at once in two functions (graded side by side) may
+    be counted twice, never past that cap."""
 
-    def __init__(self, test_budget, submission_budget, start=None):
+    def __init__(self, submission_budget):
+        self.cap = MAX_STRETCH * float(submission_budget)
+        self.seconds = 0.0
+        self._lock = threading.Lock()
+
+    def take(self, seconds):
+        """Add ``seconds`` (as much of it as the cap leaves); return how much was added."""
+        with self._lock:
+            got = min(max(0.0, float(seconds)), max(0.0, self.cap - self.seconds))
+            self.seconds += got
+            return got
+
+
+class Budget:
+    """Wall-time budgets: one per test (reset by :meth:`start_test`) and one for the whole submission (``shared``:
+    the :class:`NoOnesTime` of the grading, which its functions' budgets share)."""
+
+    def __init__(self, test_budget, submission_budget, start=None, shared=None):
         self.test_budget = float(test_budget)
         self.submission_budget = float(submission_budget)
         self.start = time.monotonic() if start is None else start
-        self.deadline = self.start + self.submission_budget
+        self.shared = shared if shared is not None else NoOnesTime(self.submission_budget)
+        self._deadline = self.start + self.submission_budget  # and what extend() gave this function alone
         self.test_deadline = None
-        self.waited = 0.0  # seconds of a loaded machine's waiting given back so far (give_back_waiting)
+
+    @property
+    def deadline(self):
+        """When the submission's budget ends for this function: its start and budget, the time it waited for other
+        functions' calls (extend), and the grading's time that was no one's (give_back_waiting)."""
+        return self._deadline + self.shared.seconds
+
+    @property
+    def waited(self):
+        """Seconds of no one's time given back to the submission's budget so far, over the grading."""
+        return self.shared.seconds
 
     def start_test(self, budget=None):
         self.test_deadline = time.monotonic() + float(budget or self.test_budget)
@@ -167,19 +199,18 @@ class Budget:
 
     def extend(self, seconds):
         """Give back ``seconds`` the function spent waiting for other functions' calls (not its own time)."""
-        self.deadline += seconds
+        self._deadline += seconds
         if self.test_deadline is not None:
             self.test_deadline += seconds
 
     def give_back_waiting(self, seconds, test=True):
         """Give back ``seconds`` that were no one's: a loaded machine kept the submission's processes waiting for a
-        processor (during a call or a loading), or the grader itself was paused. At most ``MAX_STRETCH`` times the
-        submission's budget over the whole grading, so a grading ends however loaded the machine (or however a
+        processor (during a call or a loading), or the grader itself was paused. To the submission's budget of every
+        function (they share it: :class:`NoOnesTime`), and to this function's test's. At most ``MAX_STRETCH`` times
+        the submission's budget over the whole grading, so a grading ends however loaded the machine (or however a
         submission might make its workers wait). ``test=False``: to the submission's budget only (the test's got
         the time back otherwise: :meth:`forgive`)."""
-        seconds = min(max(0.0, seconds), max(0.0, MAX_STRETCH * self.submission_budget - self.waited))
-        self.waited += seconds
-        self.deadline += seconds
+        seconds = self.shared.take(seconds)
         if test and self.test_deadline is not None:
             self.test_deadline += seconds
 
@@ -737,10 +768,11 @@ def _grade(path, exercise, *, limits, workers, seed, functions, secret, final):
                 result.notes.append(f"while loading: {n}")
         n_workers = workers or min(len(todo), os.cpu_count() or 2) or 1
 
-        runs = {fn: _FunctionRun(ex, fn, grading, ready, limits, seed, Budget(*budget_args, start=start))
+        # the functions' budgets run from before the first loading, and what of it was no one's comes back to them
+        shared = NoOnesTime(budget_args[1])
+        shared.take(grading.box.waited)
+        runs = {fn: _FunctionRun(ex, fn, grading, ready, limits, seed, Budget(*budget_args, start=start, shared=shared))
                 for fn in todo}
-        for run in runs.values():  # the budgets ran from before the loading: what of it was no one's comes back
-            run.budget.give_back_waiting(grading.box.waited)
 
         def each(hidden):
             # every function's public tests first, then every function's hidden tests: what a student sees before

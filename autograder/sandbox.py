@@ -600,6 +600,7 @@ class Sandbox:
         self._skipped_at = []  # (unit, statement, line) of the statements skipped
         self.load_timeout = limits.import_timeout  # what one loading (the probe's, a worker's) may take
         self.loads = 0
+        self._ctl_link = None
         #: seconds of the loadings (all of them so far) that were no one's: their processes' waiting for a
         #: processor and the grader's own pauses, each loading's capped as its deadline's stretch
         self.waited = 0.0
@@ -724,6 +725,10 @@ class Sandbox:
             raise
         finally:
             os.close(out_w)
+            try:  # the sandbox's end of the control socket: its processes but the workers hold it (_own_pids)
+                self._ctl_link = f"socket:[{os.fstat(child_ctl.fileno()).st_ino}]"
+            except OSError:
+                self._ctl_link = None
             child_ctl.close()
         with self._lock:  # published together: a reader sees the old sandbox's state or the new one's, never a mix
             self.proc = proc
@@ -992,8 +997,10 @@ class Worker:
         return bool(((self.sandbox.ready or {}).get("isolation") or {}).get("seccomp"))
 
     def _own_pids(self):
-        """The worker's host process id (the one process below the sandbox that reads this worker's request pipe),
-        else every process of the sandbox (their waiting then counts for each call: only ever more lenient).
+        """The worker's host process id (the one process below the sandbox that reads this worker's request pipe,
+        and not the control socket: the zygote holds both from the fork request until it has forked, and its
+        waiting is not the worker's), else every process of the sandbox (their waiting then counts for each call:
+        only ever more lenient).
 
         None without seccomp: a worker could then change its own scheduling (its priority, its processors)
         between two readings and wait on purpose; its waiting is given back only where it cannot.
@@ -1008,13 +1015,15 @@ class Worker:
             want = f"pipe:[{os.fstat(self._req_w).st_ino}]"
         except (OSError, TypeError):
             want = None
-        for p in tree:
+        ctl = getattr(self.sandbox, "_ctl_link", None)
+        for p in tree if want else ():
             try:
-                if want and any(os.readlink(f"/proc/{p}/fd/{fd}") == want for fd in os.listdir(f"/proc/{p}/fd")):
-                    self._pids = [p]
-                    return self._pids
+                links = {os.readlink(f"/proc/{p}/fd/{fd}") for fd in os.listdir(f"/proc/{p}/fd")}
             except OSError:
                 continue
+            if want in links and (ctl is None or ctl not in links):
+                self._pids = [p]
+                return self._pids
         return ([proc.pid] if proc is not None else []) + tree  # not kept: the worker may not be forked yet
 
     def close(self, kill=True):

@@ -286,3 +286,60 @@ def test_the_first_loading_s_waiting_is_given_back_to_every_function_s_budget(tm
     for b in budgets:
         assert b.waited >= 50.0, b.waited
         assert b.deadline == pytest.approx(b.start + b.submission_budget + b.waited)
+
+
+def test_the_worker_s_waiting_is_its_own_not_the_zygote_s():
+    """F3's measurement: the zygote holds a new worker's request pipe from the fork request until it has forked, and
+    the grader, looking for the process reading that pipe, could take the zygote for the worker: from then on it
+    measured the zygote's waiting (none) for that worker's loading and calls (in the reproducer, 2 workers of 7
+    "did not finish loading within 3 s" with 0.01 s of waiting). A process that holds the control socket too is not
+    the worker. Staged: a "zygote" holding the pipe and the socket, its child holding the pipe alone."""
+    req_r, req_w = os.pipe()
+    mine, theirs = __import__("socket").socketpair()
+    worker_src = "import time; time.sleep(30)"
+    zygote_src = (f"import subprocess, sys, time; subprocess.Popen([sys.executable, '-c', {worker_src!r}], "
+                  f"pass_fds=({req_r},)); time.sleep(30)")
+    runner = subprocess.Popen([sys.executable, "-c", f"import subprocess, sys, time; subprocess.Popen([sys.executable, "
+                               f"'-c', {zygote_src!r}], pass_fds=({req_r}, {theirs.fileno()})); time.sleep(30)"],
+                              pass_fds=(req_r, theirs.fileno()), start_new_session=True)
+    try:
+        os.close(req_r)
+        deadline = time.monotonic() + 15
+        while len(sandbox_mod._descendants(runner.pid)) < 2 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        zygote, worker_pid = sandbox_mod._descendants(runner.pid)[:2]
+        box = _StubSandbox()
+        box.proc, box.ready = runner, {"isolation": {"seccomp": True}}
+        box._ctl_link = f"socket:[{os.fstat(theirs.fileno()).st_ino}]"
+        res_r, res_w = os.pipe()
+        out_r, out_w = os.pipe()
+        worker = Worker(box, 1, req_w, res_r, out_r)
+        assert worker._own_pids() == [worker_pid], (worker._own_pids(), zygote, worker_pid)
+        worker.close(kill=False)
+        for fd in (res_w, out_w):
+            os.close(fd)
+    finally:
+        os.killpg(runner.pid, 9)
+        runner.wait()
+        mine.close()
+        theirs.close()
+
+
+def test_the_functions_share_the_submission_s_no_one_s_time():
+    """The functions' budgets all run from the grading's start: graded one after another (one worker, as on a
+    one-processor machine), the last waited through every earlier function's waiting, but was given back only its
+    own (in the reproducer, 75/100 with every loading's waiting measured and given back). The submission's budget
+    now gets every function's waiting back, for all of them, within the one cap over the grading."""
+    from autograder.sandbox import MAX_STRETCH
+
+    shared = engine_mod.NoOnesTime(100.0)
+    first, last = (engine_mod.Budget(30.0, 100.0, start=0.0, shared=shared) for _ in range(2))
+    last.start_test()
+    test_deadline = last.test_deadline
+    first.give_back_waiting(5.0)
+    assert last.deadline == first.deadline == 105.0 and last.waited == 5.0
+    assert last.test_deadline == test_deadline  # a test's budget gets its own function's waiting only
+    first.extend(2.0)  # time one function waited for another's calls is its own to get back
+    assert first.deadline == 107.0 and last.deadline == 105.0
+    last.give_back_waiting(10 * MAX_STRETCH * 100.0)
+    assert first.deadline == 100.0 + MAX_STRETCH * 100.0 + 2.0 and last.deadline == 100.0 + MAX_STRETCH * 100.0
