@@ -130,16 +130,48 @@ class SandboxLost(GraderFault):
     """
 
 
-class Budget:
-    """Wall-time budgets: one per test (reset by :meth:`start_test`) and one for the whole submission."""
+class NoOnesTime:
+    """The seconds of a grading that were no one's (a loaded machine's waiting for a processor, the grader's own
+    pauses), given back to the submission's budget: shared by its functions' budgets, which all run from the same
+    start (a function graded after another waited through the other's waiting too). At most ``MAX_STRETCH`` times
+    the submission's budget over the grading: waiting measured at once in two functions (graded side by side) may
+    be counted twice, never past that cap."""
 
-    def __init__(self, test_budget, submission_budget, start=None):
+    def __init__(self, submission_budget):
+        self.cap = MAX_STRETCH * float(submission_budget)
+        self.seconds = 0.0
+        self._lock = threading.Lock()
+
+    def take(self, seconds):
+        """Add ``seconds`` (as much of it as the cap leaves); return how much was added."""
+        with self._lock:
+            got = min(max(0.0, float(seconds)), max(0.0, self.cap - self.seconds))
+            self.seconds += got
+            return got
+
+
+class Budget:
+    """Wall-time budgets: one per test (reset by :meth:`start_test`) and one for the whole submission (``shared``:
+    the :class:`NoOnesTime` of the grading, which its functions' budgets share)."""
+
+    def __init__(self, test_budget, submission_budget, start=None, shared=None):
         self.test_budget = float(test_budget)
         self.submission_budget = float(submission_budget)
         self.start = time.monotonic() if start is None else start
-        self.deadline = self.start + self.submission_budget
+        self.shared = shared if shared is not None else NoOnesTime(self.submission_budget)
+        self._deadline = self.start + self.submission_budget  # and what extend() gave this function alone
         self.test_deadline = None
-        self.waited = 0.0  # seconds of a loaded machine's waiting given back so far (give_back_waiting)
+
+    @property
+    def deadline(self):
+        """When the submission's budget ends for this function: its start and budget, the time it waited for other
+        functions' calls (extend), and the grading's time that was no one's (give_back_waiting)."""
+        return self._deadline + self.shared.seconds
+
+    @property
+    def waited(self):
+        """Seconds of no one's time given back to the submission's budget so far, over the grading."""
+        return self.shared.seconds
 
     def start_test(self, budget=None):
         self.test_deadline = time.monotonic() + float(budget or self.test_budget)
@@ -167,17 +199,20 @@ class Budget:
 
     def extend(self, seconds):
         """Give back ``seconds`` the function spent waiting for other functions' calls (not its own time)."""
-        self.deadline += seconds
+        self._deadline += seconds
         if self.test_deadline is not None:
             self.test_deadline += seconds
 
-    def give_back_waiting(self, seconds):
-        """Give back ``seconds`` a loaded machine kept a call's worker waiting for a processor: at most
-        ``MAX_STRETCH`` times the submission's budget over the whole grading, so a grading ends however loaded the
-        machine (or however a submission might make its workers wait)."""
-        seconds = min(max(0.0, seconds), max(0.0, MAX_STRETCH * self.submission_budget - self.waited))
-        self.waited += seconds
-        self.extend(seconds)
+    def give_back_waiting(self, seconds, test=True):
+        """Give back ``seconds`` that were no one's: a loaded machine kept the submission's processes waiting for a
+        processor (during a call or a loading), or the grader itself was paused. To the submission's budget of every
+        function (they share it: :class:`NoOnesTime`), and to this function's test's. At most ``MAX_STRETCH`` times
+        the submission's budget over the whole grading, so a grading ends however loaded the machine (or however a
+        submission might make its workers wait). ``test=False``: to the submission's budget only (the test's got
+        the time back otherwise: :meth:`forgive`)."""
+        seconds = self.shared.take(seconds)
+        if test and self.test_deadline is not None:
+            self.test_deadline += seconds
 
     def message(self, reason):
         if reason == "submission":
@@ -233,22 +268,32 @@ class _WorkerCaller:
             except Exception as exc:  # the grader's machinery (or the machine), not the submission
                 raise GraderFault(f"starting a worker for {self.fn}: {type(exc).__name__}: {exc}") from exc
             self.started += 1
+            if self.budget is not None and hasattr(self.grading, "reload_waited"):
+                self.budget.give_back_waiting(self.grading.reload_waited())
         blame = None
         try:
             with self.grading.calling(self.fn, self.budget):
                 if self.grading.ended_since(self.generation, exclude=self.fn):  # while this call waited its turn
                     out, blame = CallOutcome("crashed", error="the sandbox had ended before the call"), "before"
                 else:
-                    waited = getattr(self.worker, "load_seconds", 0.0)
+                    loaded = getattr(self.worker, "load_seconds", 0.0)
+                    load_waited = getattr(self.worker, "load_waited", 0.0)
                     out = self.worker.call(fn, args, kwargs, timeout=max(limit, 0.001), names=names,
                                            global_seed=global_seed)
+                    first = not self.load_forgiven
                     if (self.budget is not None and not self.load_forgiven
-                            and getattr(self.worker, "load_seconds", 0.0) > waited):
+                            and getattr(self.worker, "load_seconds", 0.0) > loaded):
                         # the function's first worker loading the submission is no test's time (never the
                         # call's: its deadline starts after); once per function, so a submission that makes its
                         # workers end and load again and again pays for it from its budgets
-                        self.budget.forgive(self.worker.load_seconds - waited)
+                        self.budget.forgive(self.worker.load_seconds - loaded)
                         self.load_forgiven = True
+                    if self.budget is not None and getattr(self.worker, "load_waited", 0.0) > load_waited:
+                        # what of the worker's loading was no one's (the machine kept it waiting for a processor,
+                        # or the grader was paused) is given back to the submission's budget, and to the test's
+                        # where forgive() did not give it the whole loading
+                        self.budget.give_back_waiting(self.worker.load_waited - load_waited,
+                                                      test=not (first and self.load_forgiven))
                     if self.budget is not None and getattr(out, "waited", 0.0) > 0:
                         # the time a loaded machine kept the worker waiting for a processor is no one's: the
                         # call's deadline was stretched by it, and so are the test's and the submission's budgets
@@ -412,14 +457,32 @@ class _Grading:
                             raise SandboxLost(f"the sandbox ended {self.reloads + 1} times with no single call to "
                                               "charge it to (the machine's doing)") from None
                         self.reloads += 1
+                    before = getattr(self.box, "waited", 0.0)
                     try:
                         self.box.start()
                     except ChildFailed as exc:  # it loaded before: a loading that fails now is not the code's doing
                         raise SandboxLost(f"the submission could not be loaded again ({exc.outcome.error})") from None
+                    # what of that loading was no one's: given back to the budgets of the thread that waited for it
+                    # (taken by reload_waited)
+                    self._local().reload_waited = (getattr(self._local(), "reload_waited", 0.0)
+                                                   + getattr(self.box, "waited", 0.0) - before)
                 try:
                     return self.box.fork_worker(), self.box.loads
                 except ChildFailed as exc:
                     raise SandboxLost(f"a sandbox loaded a moment ago is gone ({exc.outcome.error})") from None
+
+    def _local(self):
+        local = self.__dict__.get("_thread")
+        if local is None:
+            local = self.__dict__.setdefault("_thread", threading.local())
+        return local
+
+    def reload_waited(self):
+        """Seconds of the sandbox's loadings this thread started again (fork_worker) that were no one's, since the
+        last time it asked."""
+        local = self._local()
+        got, local.reload_waited = getattr(local, "reload_waited", 0.0), 0.0
+        return got
 
     def ended_since(self, generation, exclude=None):
         """True when sandbox ``generation`` has ended (its death, first seen now, is charged to the calls under way,
@@ -705,7 +768,10 @@ def _grade(path, exercise, *, limits, workers, seed, functions, secret, final):
                 result.notes.append(f"while loading: {n}")
         n_workers = workers or min(len(todo), os.cpu_count() or 2) or 1
 
-        runs = {fn: _FunctionRun(ex, fn, grading, ready, limits, seed, Budget(*budget_args, start=start))
+        # the functions' budgets run from before the first loading, and what of it was no one's comes back to them
+        shared = NoOnesTime(budget_args[1])
+        shared.take(grading.box.waited)
+        runs = {fn: _FunctionRun(ex, fn, grading, ready, limits, seed, Budget(*budget_args, start=start, shared=shared))
                 for fn in todo}
 
         def each(hidden):

@@ -524,17 +524,54 @@ def run_delay(pids):
     return sum(got.values()) if got else None
 
 
+#: A wait of the grader's own (a select with a timeout) that returns more than this many seconds after the time it
+#: asked for, or as long between two of its waits, was a pause of the grader: its process was stopped (SIGSTOP,
+#: Ctrl-Z, ``docker pause``) or starved of a processor. The excess is time by which no one's code can be judged.
+LATE = 0.5
+
+
 class _Waiting:
     """The time processes spent waiting for a processor since this was made; ``pids()`` may name processes
-    that started since (all their waiting counts) or have ended (theirs no longer does)."""
+    that started since (all their waiting counts) or have ended (theirs no longer does). With ``late``, the
+    grader's own lateness measured by :func:`_select` counts too (both are no one's time).
 
-    def __init__(self, pids):
+    Both are leniency, and only where the sandbox cannot cause them: ``late`` is asked where seccomp is (no
+    process of the sandbox can then signal the grader, nor change its own scheduling), and every stretch made
+    of them is capped (``MAX_STRETCH``).
+    """
+
+    def __init__(self, pids, late=False):
         self.pids = pids
         self.base = _delays(pids())
+        self.count_late = bool(late)
+        self.late = 0.0  # seconds the grader itself was late (see lap)
+        self._last = time.monotonic()
+
+    def lap(self, asked=0.0):
+        """The grader looks at the clock: the time since it last did, beyond the ``asked`` seconds of a wait it
+        asked for, is the grader's lateness when over ``LATE`` (its own work between two looks takes milliseconds):
+        its process was stopped or starved, wherever it was (in a wait, or before it could send a request)."""
+        now = time.monotonic()
+        over, self._last = now - self._last - asked, now
+        if over > LATE and self.count_late:
+            self.late += over
 
     def since(self):
+        self.lap()
         now = _delays(self.pids())
-        return sum(max(0.0, v - self.base.get(p, 0.0)) for p, v in now.items())
+        return self.late + sum(max(0.0, v - self.base.get(p, 0.0)) for p, v in now.items())
+
+
+def _select(sel, timeout, *waitings):
+    """``sel.select(timeout)``, the grader's lateness before and during it counted in each of ``waitings``."""
+    timeout = max(0.0, timeout)
+    waitings = [w for w in waitings if w is not None]
+    for w in waitings:
+        w.lap()
+    events = sel.select(timeout=timeout)
+    for w in waitings:
+        w.lap(timeout)
+    return events
 
 
 class Sandbox:
@@ -569,6 +606,10 @@ class Sandbox:
         self._skipped_at = []  # (unit, statement, line) of the statements skipped
         self.load_timeout = limits.import_timeout  # what one loading (the probe's, a worker's) may take
         self.loads = 0
+        self._ctl_link = None
+        #: seconds of the loadings (all of them so far) that were no one's: their processes' waiting for a
+        #: processor and the grader's own pauses, each loading's capped as its deadline's stretch
+        self.waited = 0.0
         self._ctl = None
         self._out_r = None
         # guards the control socket and the process handle: a thread closing its worker (kill_worker) must never
@@ -596,7 +637,8 @@ class Sandbox:
         functions defined before are graded. That last loading, and each worker's
         from then on, may take twice ``limits.import_timeout`` (the statements kept
         took up to that time once; the margin is for a busy machine); it is done
-        once per sandbox, and all of it counts in the submission's time budget.
+        once per sandbox, and all of it counts in the submission's time budget but
+        its waiting for a processor and the grader's pauses (``self.waited``).
         A loading whose process ended abruptly (killed, as by the kernel's
         out-of-memory killer) is tried once more.
         """
@@ -690,6 +732,10 @@ class Sandbox:
             raise
         finally:
             os.close(out_w)
+            try:  # the sandbox's end of the control socket: its processes but the workers hold it (_own_pids)
+                self._ctl_link = f"socket:[{os.fstat(child_ctl.fileno()).st_ino}]"
+            except OSError:
+                self._ctl_link = None
             child_ctl.close()
         with self._lock:  # published together: a reader sees the old sandbox's state or the new one's, never a mix
             self.proc = proc
@@ -714,27 +760,39 @@ class Sandbox:
             """Seconds the loading waited for a processor since ``waiting`` began, capped."""
             return min(waiting.since(), MAX_STRETCH * allowed)
 
-        base, waited0 = deadline, _Waiting(tree)
+        base, waited0 = deadline, _Waiting(tree, late=lim.seccomp)
         allowed = max(0.0, deadline - time.monotonic())
         sel = selectors.DefaultSelector()
         sel.register(parent_ctl, selectors.EVENT_READ, "ctl")
         sel.register(out_r, selectors.EVENT_READ, "out")
+        looks, got_ctl = None, False  # once the time is up: the messages that arrived are read first (see below)
         try:
             while True:
                 now = time.monotonic()
+                over = None
                 if now >= deadline:  # a loaded machine's waiting is no loading's time: the deadlines stretch by it
                     deadline = max(deadline, base + stretch(waited0, allowed))
                     if now >= deadline:
-                        return ("timeout", current[:3] if current is not None else None)
+                        over = ("timeout", current[:3] if current is not None else None)
                 limit = deadline
-                if current is not None:
+                if current is not None and over is None:
                     ends = current[3] + lim.statement_timeout
                     if now >= ends:
                         ends += stretch(current[4], lim.statement_timeout)
                     limit = min(limit, ends)
                     if now >= ends:
-                        return ("statement", current[:3])
-                for key, _ in sel.select(timeout=max(0.01, min(limit - now, 1.0))):
+                        over = ("statement", current[:3])
+                if over is None:
+                    looks, wait = None, max(0.01, min(limit - now, 1.0))
+                elif looks is None or (got_ctl and looks < 4096):
+                    # before the time is called, what already arrived is read, without waiting (while messages
+                    # come): a grader that was paused finds the loader's words of the meantime there (the next
+                    # statement, the end) and judges by them, not by a clock that ran while it could not read
+                    looks, wait = (looks or 0) + 1, 0.0
+                else:
+                    return over
+                got_ctl = False
+                for key, _ in _select(sel, wait, waited0, current[4] if current is not None else None):
                     if key.data == "out":
                         try:
                             chunk = os.read(out_r, 1 << 16)
@@ -756,6 +814,7 @@ class Sandbox:
                         continue
                     except OSError:
                         data = b""
+                    got_ctl = True
                     if not data:
                         code = None
                         try:
@@ -776,7 +835,7 @@ class Sandbox:
                         # or not after the last one, is the submission's (it would reset the statement's deadline)
                         if not self._statement_exists(at) or (current is not None and at <= current[:2]):
                             return ("protocol", f"a statement event out of order or for no statement {at}")
-                        current = (*at, int(msg.get("line", 0)), time.monotonic(), _Waiting(tree))
+                        current = (*at, int(msg.get("line", 0)), time.monotonic(), _Waiting(tree, late=lim.seccomp))
                     elif msg.get("ev") == "ready":
                         printed = ([f"the top-level code printed {self._zout_total} bytes while loading; beyond "
                                     f"{lim.output} bytes its output was not kept"] if self._zout_total > lim.output
@@ -787,6 +846,9 @@ class Sandbox:
                         return None
         finally:
             sel.close()
+            # the loading's waiting for a processor and the grader's pauses, as they stretched its deadline: given
+            # back to the budgets (autograder.engine), which ran during the loading
+            self.waited += stretch(waited0, allowed)
 
     def _statement_exists(self, at):
         """Whether ``(unit, statement)`` names a top-level statement of the submission (its count, when the units
@@ -931,19 +993,26 @@ class Worker:
         self.dead = False
         self.loaded = False  # the worker's word that it has loaded the submission (its first frame) has come
         self.load_seconds = 0.0  # how long the grader waited for that word (no call's time)
+        self.load_waited = 0.0  # of it, the no one's: the loading's waiting for a processor, the grader's pauses
         self.zygote_gone = False  # set when the result pipe closed without the zygote's word on the worker's end
         self.gone_before_call = False  # set when not a byte of the request could be written: the worker had ended
         self._pids = None  # the host process ids whose waiting for a processor is this worker's (see _own_pids)
         self._res_seen = False  # a byte has come on the result pipe (a pipe closed empty: the fork failed)
 
+    def _seccomp(self):
+        """Whether the sandbox holds seccomp: then, and only then, is the leniency for waiting given (_own_pids)."""
+        return bool(((self.sandbox.ready or {}).get("isolation") or {}).get("seccomp"))
+
     def _own_pids(self):
-        """The worker's host process id (the one process below the sandbox that reads this worker's request pipe),
-        else every process of the sandbox (their waiting then counts for each call: only ever more lenient).
+        """The worker's host process id (the one process below the sandbox that reads this worker's request pipe,
+        and not the control socket: the zygote holds both from the fork request until it has forked, and its
+        waiting is not the worker's), else every process of the sandbox (their waiting then counts for each call:
+        only ever more lenient).
 
         None without seccomp: a worker could then change its own scheduling (its priority, its processors)
         between two readings and wait on purpose; its waiting is given back only where it cannot.
         """
-        if not ((self.sandbox.ready or {}).get("isolation") or {}).get("seccomp"):
+        if not self._seccomp():
             return []
         if self._pids is not None:
             return self._pids
@@ -953,13 +1022,15 @@ class Worker:
             want = f"pipe:[{os.fstat(self._req_w).st_ino}]"
         except (OSError, TypeError):
             want = None
-        for p in tree:
+        ctl = getattr(self.sandbox, "_ctl_link", None)
+        for p in tree if want else ():
             try:
-                if want and any(os.readlink(f"/proc/{p}/fd/{fd}") == want for fd in os.listdir(f"/proc/{p}/fd")):
-                    self._pids = [p]
-                    return self._pids
+                links = {os.readlink(f"/proc/{p}/fd/{fd}") for fd in os.listdir(f"/proc/{p}/fd")}
             except OSError:
                 continue
+            if want in links and (ctl is None or ctl not in links):
+                self._pids = [p]
+                return self._pids
         return ([proc.pid] if proc is not None else []) + tree  # not kept: the worker may not be forked yet
 
     def close(self, kill=True):
@@ -991,22 +1062,23 @@ class Worker:
             if failed is not None:
                 return failed
         del self._res[:]  # bytes left over from an earlier call are no answer to this one
-        waiting = _Waiting(self._own_pids)
+        waiting = _Waiting(self._own_pids, late=self._seccomp())
         deadline = time.monotonic() + timeout
 
         def stretched():
             # the call's deadline counts the worker's own time, not the time a loaded machine kept it waiting for a
-            # processor (the kernel's accounting), up to MAX_STRETCH times the limit more
+            # processor (the kernel's accounting) nor the grader's own pauses, up to MAX_STRETCH times the limit more
             return deadline + min(waiting.since(), MAX_STRETCH * timeout)
 
-        reply, rpayload, status, err = self._exchange(pack_frame(header, payload), deadline, stretched)
-        waited = waiting.since()
+        reply, rpayload, status, err = self._exchange(pack_frame(header, payload), deadline, stretched, waiting)
+        waited = waiting.since()  # given back to the budgets (capped there over the grading)
         out = self._output_text()
         if reply is None:
             self.close()
             if status == "timeout":
-                extra = (f" (and {waited:.1f} s more while the machine kept it waiting for a processor)"
-                         if waited >= 0.1 else "")
+                more = min(waited, MAX_STRETCH * timeout)
+                extra = (f" (and {more:.1f} s more while the machine kept it waiting for a processor"
+                         + (" or the grader was paused" if waiting.late else "") + ")" if more >= 0.1 else "")
                 return CallOutcome("timeout", error=f"the call did not finish within {timeout:g} s{extra}", output=out,
                                    waited=waited)
             if status == "output":
@@ -1042,8 +1114,9 @@ class Worker:
         t0 = time.monotonic()
         load_timeout = self.sandbox.load_timeout
         deadline = base = t0 + load_timeout
-        waited0 = _Waiting(self._own_pids)
+        waited0 = _Waiting(self._own_pids, late=self._seccomp())
         sel = selectors.DefaultSelector()
+        looked = False  # once the time is up, the result pipe was read once more, without waiting
         try:
             sel.register(self._res_r, selectors.EVENT_READ, "res")
             sel.register(self._out_r, selectors.EVENT_READ, "out")
@@ -1068,11 +1141,15 @@ class Worker:
                 if left <= 0:  # as in call(): the time a loaded machine kept the loading waiting is no one's
                     deadline = max(deadline, base + min(waited0.since(), MAX_STRETCH * load_timeout))
                     left = deadline - time.monotonic()
-                if left <= 0:
+                if left > 0:
+                    looked = False
+                elif looked:
                     status, err = "timeout", None
                     break
+                if left <= 0:  # the word may be in the pipe already (the grader was paused): one look, no waiting
+                    looked, left = True, 0.0
                 res_closed = False
-                for key, _ in sel.select(timeout=min(left, 1.0)):
+                for key, _ in _select(sel, min(left, 1.0), waited0):
                     if key.data == "res":
                         try:
                             chunk = os.read(self._res_r, 1 << 16)
@@ -1103,6 +1180,8 @@ class Worker:
         finally:
             sel.close()
             self.load_seconds = time.monotonic() - t0
+            # no one's time (given back to the budgets, autograder.engine), capped as the deadline's stretch
+            self.load_waited = min(waited0.since(), MAX_STRETCH * load_timeout)
         if status == "ok":
             self.loaded = True
             return None
@@ -1144,16 +1223,22 @@ class Worker:
     def _output_text(self):
         return clean_text(bytes(self._out[-4000:]).decode("utf-8", "replace"))
 
-    def _exchange(self, request, deadline, stretched=None):
+    def _exchange(self, request, deadline, stretched=None, waiting=None):
         """Write ``request``; read until one result frame arrives.
 
         Returns ``(header, payload, status, error)``; ``header`` is None when no
         frame arrived, and ``status`` says why: ``timeout``, ``output``, ``eof``
         (the worker died: its exit status comes from nowhere, so ``error`` says
-        only that) or ``protocol``.
+        only that) or ``protocol``. ``stretched()`` is the deadline stretched by
+        the time that was no one's (asked when the deadline has passed); the
+        grader's own lateness is added to ``waiting`` (a :class:`_Waiting`).
+        Before the time is called, the result pipe is read once more without
+        waiting: a reply that arrived while the grader could not read (it was
+        paused) is the answer.
         """
         pending = memoryview(request)
         sel = selectors.DefaultSelector()
+        looked = False
         try:
             if pending:
                 sel.register(self._req_w, selectors.EVENT_WRITE, "req")
@@ -1182,9 +1267,18 @@ class Worker:
                 if left <= 0 and stretched is not None:
                     deadline = max(deadline, stretched())
                     left = deadline - time.monotonic()
-                if left <= 0:
+                if left > 0:
+                    looked = False
+                elif looked:
                     return None, None, "timeout", None
-                for key, _ in sel.select(timeout=min(left, 1.0)):
+                if left <= 0:
+                    looked, left = True, 0.0
+                    if not pending and res_open:  # the reply may be whole in the pipe already: read it all
+                        res_open = self._drain_result()
+                        if res_open is None:
+                            return None, None, "protocol", "result too large"
+                        continue
+                for key, _ in _select(sel, min(left, 1.0), waiting):
                     if key.data == "req":
                         try:
                             n = os.write(self._req_w, pending)
@@ -1219,6 +1313,22 @@ class Worker:
                             return None, None, "output", None
         finally:
             sel.close()
+
+    def _drain_result(self):
+        """Read what the result pipe holds now, without waiting: True while it is open, False at its end, None when
+        more arrived than any result may hold."""
+        while True:
+            try:
+                chunk = os.read(self._res_r, 1 << 20)
+            except BlockingIOError:
+                return True
+            except OSError:
+                return False
+            if not chunk:
+                return False
+            self._res.extend(chunk)
+            if len(self._res) > wire.MAX_PAYLOAD + wire.MAX_HEADER + 64:
+                return None
 
     def _read_output(self):
         """Read what the worker printed; False at end of file, None when nothing is waiting."""

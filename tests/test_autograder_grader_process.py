@@ -235,7 +235,7 @@ def test_the_instructors_page_states_the_caps():
 def test_the_instructors_page_states_the_waiting_and_the_own_noise_figures():
     """The page's figures for a loaded machine's waiting and for the hidden own-noise test are the grader's."""
     from autograder.exercises.motion_sensor_models import OWN_NOISE_POSES
-    from autograder.sandbox import MAX_STRETCH
+    from autograder.sandbox import LATE, MAX_STRETCH
     from autograder.stats import REPEATED_NOISE_TOL, repeated_noise_false_alarm
 
     words = {2: "two", 3: "three", 4: "four", 5: "five"}
@@ -245,6 +245,9 @@ def test_the_instructors_page_states_the_waiting_and_the_own_noise_figures():
     assert f"stretch by that waiting, up to {times} times the limit more" in page
     assert f"at most {times} times the submission's budget over a grading" in page
     assert f"takes at most {words[int(MAX_STRETCH) + 1]} times its budget" in page
+    assert f"the grader comes back to a clock more than {LATE:g} s later than it asked to" in page
+    assert "the loadings' as the calls'" in page
+    assert f"up to {times} times the limit of the call under way, {times} times the submission's budget" in page
     exponent = round(math.log10(REPEATED_NOISE_TOL))
     assert REPEATED_NOISE_TOL == 10.0**exponent
     bound = repeated_noise_false_alarm(OWN_NOISE_POSES, REPEATED_NOISE_TOL)
