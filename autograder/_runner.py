@@ -1040,6 +1040,9 @@ def _load_submission(job, attempts, ctl):
 
     mod = types.ModuleType("submission")
     mod.__file__ = job.get("display_name", "submission.py")
+    # Jupyter's kernel gives every notebook `display`: a function that calls it (a debugging leftover) runs there,
+    # and must run here too (its output is no part of the grade). A submission's own `display` replaces this one.
+    mod.display = _display
     sys.modules["submission"] = mod
     notes = []
     skip = {(int(u), int(s)) for u, s in job.get("skip", [])}
@@ -1077,6 +1080,11 @@ def _load_submission(job, attempts, ctl):
             if len(attempts) > before:
                 notes.append(f"{label}: refused while loading: {', '.join(attempts[before:])}")
     return mod, notes
+
+
+def _display(*objs, **kwargs):
+    """IPython's ``display``, which shows nothing here and returns None."""
+    return None
 
 
 def _frames(tb):
