@@ -1042,7 +1042,7 @@ def _load_submission(job, attempts, ctl):
     mod.__file__ = job.get("display_name", "submission.py")
     # Jupyter's kernel gives every notebook `display`: a function that calls it (a debugging leftover) runs there,
     # and must run here too (its output is no part of the grade). A submission's own `display` replaces this one.
-    mod.display = _display
+    mod.display = _display()
     sys.modules["submission"] = mod
     notes = []
     skip = {(int(u), int(s)) for u, s in job.get("skip", [])}
@@ -1082,9 +1082,12 @@ def _load_submission(job, attempts, ctl):
     return mod, notes
 
 
-def _display(*objs, **kwargs):
-    """IPython's ``display``, which shows nothing here and returns None."""
-    return None
+def _display():
+    """IPython's ``display``, which shows nothing here and returns None: made in a namespace of its own, so that
+    its ``__globals__`` lead nowhere (not to the runner's module)."""
+    ns = {}
+    exec("def display(*objs, **kwargs):\n    return None\n", ns)  # noqa: S102 - a constant
+    return ns["display"]
 
 
 def _frames(tb):
