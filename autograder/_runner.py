@@ -1040,6 +1040,9 @@ def _load_submission(job, attempts, ctl):
 
     mod = types.ModuleType("submission")
     mod.__file__ = job.get("display_name", "submission.py")
+    # Jupyter's kernel gives every notebook `display`: a function that calls it (a debugging leftover) runs there,
+    # and must run here too (its output is no part of the grade). A submission's own `display` replaces this one.
+    mod.display = _display()
     sys.modules["submission"] = mod
     notes = []
     skip = {(int(u), int(s)) for u, s in job.get("skip", [])}
@@ -1077,6 +1080,14 @@ def _load_submission(job, attempts, ctl):
             if len(attempts) > before:
                 notes.append(f"{label}: refused while loading: {', '.join(attempts[before:])}")
     return mod, notes
+
+
+def _display():
+    """IPython's ``display``, which shows nothing here and returns None: made in a namespace of its own, so that
+    its ``__globals__`` lead nowhere (not to the runner's module)."""
+    ns = {}
+    exec("def display(*objs, **kwargs):\n    return None\n", ns)  # noqa: S102 - a constant
+    return ns["display"]
 
 
 def _frames(tb):

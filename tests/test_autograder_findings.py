@@ -722,6 +722,24 @@ def test_cell_magics_that_run_python_and_help_lines_keep_their_functions(tmp_pat
     assert "!ls" not in kept and "%timeit" not in kept and notes == ["c: 2 IPython magic/shell lines left out"], notes
 
 
+def test_a_function_that_calls_jupyters_display_runs_as_in_jupyter(tmp_path):
+    """Jupyter gives every notebook ``display``: a correct function that displayed an intermediate value (a
+    debugging leftover) raised NameError in every test of the grader. A submission's own ``display`` still wins."""
+    text = solution_text("particle_filter")
+    body = ("def normalize_log_weights(logw):\n    display(logw)\n    return _own_nlw(logw)\n")
+    text = text.replace("def normalize_log_weights(", "def _own_nlw(") + "\n\n" + body
+    nb = nbformat.v4.new_notebook(cells=[nbformat.v4.new_code_cell(text)])
+    path = tmp_path / "display.ipynb"
+    nbformat.write(nb, path)
+    result = grade(path, "particle_filter", functions=["normalize_log_weights"])
+    assert result.score == result.max_score, result.text_report()
+    own = text + "\n\ndef display(x):\n    raise RuntimeError('own display')\n"
+    path = tmp_path / "own.py"
+    path.write_text(own)
+    result = grade(path, "particle_filter", functions=["normalize_log_weights"])
+    assert result.score == 0 and "own display" in result.text_report(), result.text_report()
+
+
 def test_no_public_test_runs_after_a_hidden_one(tmp_path):
     """One worker serves a function's tests in order: a submission counted the calls of the hidden test declared
     between two public ones of ekf_predict and told the count in the later public test's error (shown before the
