@@ -57,7 +57,7 @@ import numpy as np
 from .context import CallError, Ctx, Fail, SkipRest
 from .exercises import EXERCISES, get_exercise
 from .results import GradeResult, TestResult
-from .sandbox import MAX_STRETCH, CallOutcome, ChildFailed, Limits, Sandbox
+from .sandbox import MAX_STRETCH, CallOutcome, ChildFailed, Limits, Sandbox, thread_delay
 from .spec import VISIBILITY
 from .submission import FORBIDDEN, SubmissionError, forbidden_usage, load_submission
 
@@ -161,6 +161,7 @@ class Budget:
         self.shared = shared if shared is not None else NoOnesTime(self.submission_budget)
         self._deadline = self.start + self.submission_budget  # and what extend() gave this function alone
         self.test_deadline = None
+        self._grader_waited = None  # the grader thread's waiting for a processor when last looked at (catch_up)
 
     @property
     def deadline(self):
@@ -176,6 +177,19 @@ class Budget:
     def start_test(self, budget=None):
         self.test_deadline = time.monotonic() + float(budget or self.test_budget)
         self.current = float(budget or self.test_budget)
+        self._grader_waited = thread_delay()
+
+    def catch_up(self):
+        """Give back the time the grader's own thread (this one) has waited for a processor since the test began or
+        since the last call: its computing between a test's calls (scenarios, expected values) on a loaded machine
+        is no one's time either."""
+        before = self._grader_waited
+        if before is None:
+            return
+        now = thread_delay()
+        if now is not None and now > before:
+            self._grader_waited = now
+            self.give_back_waiting(now - before)
 
     @property
     def exhausted(self):
@@ -241,6 +255,8 @@ class _WorkerCaller:
     def call(self, fn, args, kwargs, *, timeout, names=(), global_seed=None, _gone=0):
         if self.broken:
             return CallOutcome("skipped", error=self.broken)
+        if self.budget is not None:
+            self.budget.catch_up()
         limit, reason = self.budget.limit(timeout) if self.budget else (timeout, None)
         if limit <= 0:
             return CallOutcome("timeout", error=self.budget.message(reason), budget=reason)
@@ -373,6 +389,8 @@ def run_tests(ex, fn, caller, *, seed=None, limits=None, budget=None, tests=None
     cap = limits.call_timeout if (limits and limits.call_timeout) else None
     for test in (ex.tests_for(fn) if tests is None else tests):
         vis = VISIBILITY[test.visibility]
+        if budget is not None:
+            budget.catch_up()
         if budget is not None and budget.exhausted and not skip_reason:
             skip_reason = "not run: " + budget.message("submission")
         if skip_reason:

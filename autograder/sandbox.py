@@ -495,6 +495,16 @@ def _scheduling(pid):
         return None
 
 
+def thread_delay():
+    """Seconds the calling thread of the grader has spent runnable but waiting for a processor (the kernel's
+    ``/proc/self/task/<tid>/schedstat``), or None where the kernel does not say."""
+    try:
+        with open(f"/proc/self/task/{threading.get_native_id()}/schedstat", "rb") as fh:
+            return int(fh.read().split()[1]) / 1e9
+    except (OSError, ValueError, IndexError):
+        return None
+
+
 def _delays(pids):
     """``{pid: seconds}`` each process has spent runnable but waiting for a processor, for those the kernel says.
 
