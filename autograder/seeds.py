@@ -56,10 +56,16 @@ def load_secret(path=None, *, create=True):
             raise
         try:
             text = _create_secret(path)
-        except OSError:
+        except OSError as exc:
             if explicit:
                 raise
             if not _EPHEMERAL:
+                import warnings
+
+                warnings.warn(f"the grading secret cannot be kept at {path} ({exc.strerror or exc}): this process "
+                              "uses a secret of its own, so the scenarios' seeds will differ on the next run (each "
+                              "recorded seed still reproduces its grade); pass --secret-file to keep one",
+                              RuntimeWarning, stacklevel=2)
                 _EPHEMERAL.append(new_secret().encode())
             return _EPHEMERAL[0]
     if len(text) < 16:

@@ -429,6 +429,22 @@ def test_graders_that_create_the_secret_at_once_agree_and_never_read_it_empty(tm
         assert target.read_text().strip() and len(list(target.parent.iterdir())) == 1
 
 
+def test_a_secret_that_cannot_be_kept_is_said_so(tmp_path, monkeypatch):
+    """A dangling link (or a read-only home) at the default secret's path made the grader use a secret of its own
+    process without a word: the seeds changed on every run (round 10, O2). It warns, once, naming the path."""
+    from autograder import seeds
+
+    config = tmp_path / "cfg"
+    (config / "slam-autograder").mkdir(parents=True)
+    (config / "slam-autograder" / "secret").symlink_to(tmp_path / "nowhere")
+    monkeypatch.setenv("XDG_CONFIG_HOME", str(config))
+    monkeypatch.delenv(seeds.SECRET_ENV, raising=False)
+    monkeypatch.setattr(seeds, "_EPHEMERAL", [])
+    with pytest.warns(RuntimeWarning, match="cannot be kept at .*slam-autograder/secret"):
+        first = seeds.load_secret()
+    assert len(first) == 64 and seeds.load_secret() == first  # one for the process
+
+
 def test_python_sources_are_read_as_python_reads_them():
     from autograder.submission import SubmissionError, decode_python_source
 
