@@ -906,11 +906,12 @@ class _SlowLoadingWorker:
         self.dead = True
 
 
-def test_a_worker_s_loading_is_given_back_once_per_function_and_never_to_the_submission():
+def test_a_worker_s_loading_is_given_back_once_per_function_and_never_to_the_submission(monkeypatch):
     """A fresh worker loads the submission again, and that wait is no call's time. It is given back to the test's
     budget for the function's first worker only, and never to the submission's: a submission whose workers end
     after every answer and load slowly again pays for it (in the attack that found this, one test ran 232 s
     against its 30 s budget, and the grading 406 s against 240 s, with full marks)."""
+    monkeypatch.setattr(engine_mod, "thread_delay", lambda: 0.0)  # the grader's own waiting: none here
     box = _DeadBox()
     box.dead = False
     box.fork_worker = lambda: _SlowLoadingWorker()

@@ -239,11 +239,12 @@ class _LoadingWorker:
         self.dead = True
 
 
-def test_a_worker_s_waiting_while_loading_is_given_back_to_the_budgets():
+def test_a_worker_s_waiting_while_loading_is_given_back_to_the_budgets(monkeypatch):
     """F3: a correct notebook with slow top-level cells scored 100 idle and 55 with two busy processes beside it: the
     submission's budget paid every loading's waiting for a processor. That waiting now comes back: to the
     submission's budget always, to the test's for the workers after the first (whose whole loading the test gets
     back already); the own loading time stays charged."""
+    monkeypatch.setattr(engine_mod, "thread_delay", lambda: 0.0)  # the grader's own waiting: none here
     g = engine_mod._Grading.__new__(engine_mod._Grading)
     g.box, g.lock, g.reloads, g.inflight, g.deaths, g.serial, g.final = (_Box(_LoadingWorker), threading.Lock(), 0,
                                                                          {}, {}, None, False)
