@@ -857,11 +857,10 @@ class Sandbox:
         finally:
             sel.close()
             # the loading's waiting for a processor and the grader's pauses, as they stretched its deadline: given
-            # back to the budgets (autograder.engine), which ran during the loading; the pauses only where seccomp
-            # was in force (asked for is not enough: the filter may have failed to install)
+            # back to the budgets (autograder.engine), which ran during the loading; only where seccomp was in force
+            # (asked for is not enough: the filter may have failed to install), as for the workers (_own_pids)
             held = bool(((self.ready or {}).get("isolation") or {}).get("seccomp"))
-            gone = waited0.since() - (0.0 if held else waited0.late)
-            self.waited += min(max(0.0, gone), MAX_STRETCH * allowed)
+            self.waited += stretch(waited0, allowed) if held else 0.0
 
     def _statement_exists(self, at):
         """Whether ``(unit, statement)`` names a top-level statement of the submission (its count, when the units

@@ -394,14 +394,15 @@ def test_the_kernel_reports_the_grader_thread_s_waiting():
 
 
 def test_the_first_loading_gives_back_the_grader_s_pauses_only_where_seccomp_held(monkeypatch):
-    """The first loading counted the grader's lateness when seccomp had been asked for, not when it held (a
-    filter that failed to install): its pauses are given back only where the sandbox's report says seccomp held
-    (round 10, O1). The lateness is staged: every look at the clock finds the grader 7 s late."""
+    """The first loading counted the grader's lateness (and its processes' waiting) when seccomp had been asked
+    for, not when it held (a filter that failed to install): they are given back only where the sandbox's report
+    says seccomp held, as for the workers (round 10, O1). Staged: every look at the clock finds the grader 7 s late,
+    and the kernel says every process waits 80 % of the time."""
     def lap(self, asked=0.0):
         self.late = 7.0  # counted whatever was asked for
 
     monkeypatch.setattr(sandbox_mod._Waiting, "lap", lap)
-    monkeypatch.setattr(sandbox_mod, "_delays", lambda pids: {})
+    _fake_waiting(monkeypatch, 0.8)
     box = _box("def f(s):\n    return 1.0\n", Limits(seccomp=False))
     try:
         ready = box.start()
