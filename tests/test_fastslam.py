@@ -788,7 +788,12 @@ def test_unknown_correspondences_recover_the_landmark_count(world):
 @pytest.mark.parametrize("version", [1, 2])
 def test_unknown_correspondences_match_known_ones_for_one_noiseless_particle(version):
     # no control noise in the world either: the one particle is the true path, and with landmarks at
-    # least 3 m apart and 1 cm / 0.01 rad measurements maximum likelihood always picks the right one
+    # least 3 m apart and 1 cm / 0.01 rad measurements maximum likelihood always picks the right one.
+    # The new-landmark rule is set apart: the default p0 (the density at chi-square's 99.9 % quantile)
+    # starts a duplicate landmark on about one measurement in 500 (the innovation's tail), a duplicate in
+    # 45 of 55 simulated worlds (seeds 15-69); p0 at a squared distance of 60 (a tail of e^-30 per
+    # measurement) still starts every real landmark (the nearest other one is ~10^5 away): 50 of 50 worlds
+    # (seeds 0-49) match, for both versions
     rng = np.random.default_rng(18)
     grid = np.stack(np.meshgrid(np.arange(-9.0, 10.0, 4.5), np.arange(-9.0, 10.0, 4.5)), axis=-1).reshape(-1, 2)
     landmarks = grid + rng.uniform(-0.7, 0.7, size=grid.shape)
@@ -797,7 +802,8 @@ def test_unknown_correspondences_match_known_ones_for_one_noiseless_particle(ver
                                    x0=np.array([0.0, -6.5, 0.0]), M=zero, Q=np.diag([0.01, 0.01]) ** 2,
                                    max_range=7.0, fov=np.pi, rng=rng)
     known = sl.run_fastslam(run, n_particles=1, M=zero, version=version, rng=np.random.default_rng(0))
-    unknown = sl.run_fastslam(run, n_particles=1, M=zero, known=False, version=version, rng=np.random.default_rng(0))
+    unknown = sl.run_fastslam(run, n_particles=1, M=zero, known=False, version=version, rng=np.random.default_rng(0),
+                              p0=sl.fastslam_default_p0(run.Q, gate=60.0))
     a = known.landmarks[known.seen]
     b = unknown.landmarks[unknown.seen]
     assert a.shape == b.shape
