@@ -336,14 +336,22 @@ def _kf_and_pf(n_particles, resample, seed, n_steps=15):
 
 @pytest.mark.parametrize("resample", ["systematic", "multinomial", "residual", "stratified"])
 def test_particle_filter_matches_kalman_filter(resample):
+    # Monte-Carlo errors scale with 1 / sqrt(n_eff): sd for the mean, sqrt(2) for the relative variance,
+    # 1 - rho^2 for the correlation, with n_eff the smallest ESS so far (a step whose measurement the
+    # particles explain poorly costs every later step its diversity). The fixed bounds this test had
+    # (n_eff = n / 4, rtol 0.1, atol 0.03) failed in 75 of 800 runs (seeds 200-399, each scheme); in units of
+    # these errors the worst step of a run reached 14.7 (mean), 9.5 (variance) and 13.4 (correlation) over
+    # 1600 runs (seeds 0-399, each scheme): the bounds below failed none of them
     n = 20_000
+    n_eff = n
     for x, P, (mean, cov), info in _kf_and_pf(n, resample, seed=17):
-        sd = np.sqrt(np.diag(P))
-        # Monte-Carlo error of the mean ~ sd / sqrt(n_eff); n_eff >= n / 4 after resampling
-        assert np.all(np.abs(mean - x) < 5 * sd / np.sqrt(n / 4)), (mean, x)
-        np.testing.assert_allclose(np.diag(cov), np.diag(P), rtol=0.1)
-        np.testing.assert_allclose(cov[0, 1] / np.sqrt(cov[0, 0] * cov[1, 1]), P[0, 1] / (sd[0] * sd[1]), atol=0.03)
         assert 1.0 <= info.ess <= n
+        n_eff = min(n_eff, info.ess)
+        sd = np.sqrt(np.diag(P))
+        rho = P[0, 1] / (sd[0] * sd[1])
+        assert np.all(np.abs(mean - x) < 18 * sd / np.sqrt(n_eff)), (mean, x, n_eff)
+        np.testing.assert_allclose(np.diag(cov), np.diag(P), rtol=12 * np.sqrt(2 / n_eff))
+        np.testing.assert_allclose(cov[0, 1] / np.sqrt(cov[0, 0] * cov[1, 1]), rho, atol=16 * (1 - rho**2) / np.sqrt(n_eff))
 
 
 def test_bootstrap_step_handles_huge_log_likelihoods():
