@@ -182,8 +182,12 @@ def test_expected_offspring_is_M_w(name):
     # unbiased: E[N_i] = M w_i. Standardise each mean by its own standard error; with
     # 40 particles a |t| above 4.5 has probability < 3e-4 under the null
     se = np.sqrt(var / n_draws)
+    # a count that never varied need not be M w: Dirichlet(0.7) gives some particles M w ~ 1e-3, drawn on about
+    # M w of the draws, so never in 4000 draws with probability exp(-4000 M w) (0.18 at M w = 4.3e-4: the weights
+    # of seed 125 and 127, which the test's exact M w for never-varying counts failed). Each scheme moves a count off c on a share of about |M w - c| of the draws:
+    # n |M w - c| > 8.1 would leave it constant with probability < 3e-4
     exact = se == 0
-    np.testing.assert_allclose(mean[exact], M * w[exact], atol=1e-9)
+    assert np.all(n_draws * np.abs(mean[exact] - M * w[exact]) < 8.1), (mean[exact], M * w[exact])
     t = (mean[~exact] - M * w[~exact]) / se[~exact]
     assert np.abs(t).max() < 4.5, f"{name}: offspring means deviate from M w (max |t| = {np.abs(t).max():.2f})"
     # no scheme is noisier than multinomial sampling, whose variance is M w (1 - w)
@@ -608,6 +612,8 @@ def test_weighted_pose_mean_is_the_summary_of_the_filters():
     np.testing.assert_allclose(mean[:2], w @ poses[:, :2], rtol=1e-14)
     assert mean[2] == sl.circular_mean(poses[:, 2], w)  # the same core, bit for bit
     assert -np.pi <= mean[2] < np.pi
-    np.testing.assert_array_equal(mean, sl.particle_summary(poses, log_w)[0])
+    # MCL's summary normalises with scipy's logsumexp, normalize_log_weights with its own shifted sum: the
+    # weights, and so the means, may differ in the last bits (in 152 of 200 seeds, by at most 7 eps relative)
+    np.testing.assert_allclose(sl.particle_summary(poses, log_w)[0], mean, rtol=32 * np.finfo(float).eps, atol=0)
     g = sl.particle_gaussian(poses, log_w, angles=(2,))
     np.testing.assert_allclose(g.mean, mean, rtol=1e-14)
