@@ -613,7 +613,10 @@ def test_block_summaries_match_the_blocks_they_summarise(world, version, known, 
     np.testing.assert_array_equal(read, maps.pool.summary[maps.table])
     assert read[..., fs._S_N].sum() > 0
     if not known and max_range is None:
-        assert fresh.mean() > 0.5  # the steps read (most) summaries
+        # the steps read summaries (the check above is not vacuous): the share up to date at the end was
+        # 0.19-0.75 over 50 worlds, clutter and filters (seeds 7+k, 6+k, 2+k, k < 50, version 2), above 0.5 in
+        # only 21 of them
+        assert fresh.mean() > 0.1
 
 
 def test_block_summaries_survive_the_pure_steps_compactions(corridor, monkeypatch):
