@@ -510,7 +510,12 @@ class RangeTable:
                 src = np.column_stack([centre, (todo % n) * (2.0 * np.pi / n)])
                 flat[todo] = _dda(self.occ, g.resolution, g.origin, src, np.zeros(1), self.max_range, 0.0)[:, 0]
                 vals = flat[lin]
-            out[cached] = np.where(vals >= self.table.dtype.type(self.max_range), self.max_range, vals)
+            # a beam that hit nothing is stored as max_range's half-precision neighbour: give back max_range
+            # (np.where with a float16 array would round it back to the neighbour)
+            top = vals >= self.table.dtype.type(self.max_range)
+            vals = vals.astype(np.float64)
+            vals[top] = self.max_range
+            out[cached] = vals
         return out
 
 

@@ -753,12 +753,20 @@ def test_fast_jcbb_equals_the_dense_one_with_pending_updates(run):
 def test_jcbb_equals_nn_when_landmarks_are_well_separated(run):
     nn = sl.run_ekf_slam(run, known=False)
     jc = sl.run_ekf_slam(run, known=False, association="jcbb")
-    assert sum(len(z) > 1 for z in run.z) > 20  # the joint test runs on many steps
+    # the joint test runs on many steps (19 to 157 of the 160 over 50 worlds: more than 10)
+    assert sum(len(z) > 1 for z in run.z) > 10
+    # the joint test is stricter than NN's measurement-by-measurement one: now and then it gates out a
+    # measurement NN keeps (a joint NIS beyond its quantile). Over 50 worlds (make_run(1) to make_run(50))
+    # that happened to 20 of 17 000 measurements, at most 2 in a run (16 runs; seed 1 had none); the
+    # landmarks were always the same and the paths within 0.042 (a count above 4 has probability ~1e-4)
     np.testing.assert_array_equal(jc.landmark_ids, nn.landmark_ids)
+    differ = 0
     for a, b in zip(jc.associations, nn.associations):
-        np.testing.assert_array_equal(a, b)
-    np.testing.assert_allclose(jc.x, nn.x, rtol=1e-9, atol=1e-9)
-    assert jc.n_gated == 0
+        d = a != b
+        assert np.all(a[d] == -1), (a, b)  # JCBB only ever gates out where NN associates
+        differ += np.count_nonzero(d)
+    assert differ <= jc.n_gated <= 4
+    np.testing.assert_allclose(jc.x, nn.x, rtol=0, atol=1e-9 if differ == 0 else 0.1)
     plain = sl.run_ekf_slam(run, known=False, association="jcbb", fast=False)
     np.testing.assert_allclose(plain.x, jc.x, rtol=1e-7, atol=1e-7)
 

@@ -728,7 +728,13 @@ def test_log_error_equals_gtsam_logmap_near_zero_and_pi():
     e, _, _ = _log_edges(xi, xj, z)
     for k in range(40):
         rel = gtsam.Pose2(*z[k]).between(gtsam.Pose2(*xi[k]).between(gtsam.Pose2(*xj[k])))
-        np.testing.assert_allclose(e[k], gtsam.Pose2.Logmap(rel), rtol=1e-9, atol=1e-12)
+        # GTSAM's Logmap divides cancelling differences (cos theta - 1, R^T t - t) by theta: its own rounding
+        # error is about eps |t| / |theta|, up to 1e-9 relative at theta ~ 1e-6 (ours stays within 5e-11 of an
+        # 80-bit reference). Measured over 300 seeds: |ours - GTSAM| <= 1.3 eps |t| / |theta| beyond 1e-9
+        # (the plain rtol=1e-9 failed in 287 of the 300); 8 eps |t| / |theta| leaves the margin, and is
+        # below 1e-15 wherever theta is not small
+        unit = np.finfo(float).eps * np.hypot(rel.x(), rel.y()) / max(abs(rel.theta()), 1e-300)
+        np.testing.assert_allclose(e[k], gtsam.Pose2.Logmap(rel), rtol=1e-9, atol=1e-12 + 8 * unit)
 
 
 def test_log_error_jacobians_match_finite_differences_of_the_local_perturbation():

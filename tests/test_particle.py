@@ -182,8 +182,12 @@ def test_expected_offspring_is_M_w(name):
     # unbiased: E[N_i] = M w_i. Standardise each mean by its own standard error; with
     # 40 particles a |t| above 4.5 has probability < 3e-4 under the null
     se = np.sqrt(var / n_draws)
+    # a count that never varied need not be M w: Dirichlet(0.7) gives some particles M w ~ 1e-3, drawn on about
+    # M w of the draws, so never in 4000 draws with probability exp(-4000 M w) (0.18 at M w = 4.3e-4: the weights
+    # of seed 125 and 127, which the test's exact M w for never-varying counts failed). Each scheme moves a count off c on a share of about |M w - c| of the draws:
+    # n |M w - c| > 8.1 would leave it constant with probability < 3e-4
     exact = se == 0
-    np.testing.assert_allclose(mean[exact], M * w[exact], atol=1e-9)
+    assert np.all(n_draws * np.abs(mean[exact] - M * w[exact]) < 8.1), (mean[exact], M * w[exact])
     t = (mean[~exact] - M * w[~exact]) / se[~exact]
     assert np.abs(t).max() < 4.5, f"{name}: offspring means deviate from M w (max |t| = {np.abs(t).max():.2f})"
     # no scheme is noisier than multinomial sampling, whose variance is M w (1 - w)
@@ -336,14 +340,22 @@ def _kf_and_pf(n_particles, resample, seed, n_steps=15):
 
 @pytest.mark.parametrize("resample", ["systematic", "multinomial", "residual", "stratified"])
 def test_particle_filter_matches_kalman_filter(resample):
+    # Monte-Carlo errors scale with 1 / sqrt(n_eff): sd for the mean, sqrt(2) for the relative variance,
+    # 1 - rho^2 for the correlation, with n_eff the smallest ESS so far (a step whose measurement the
+    # particles explain poorly costs every later step its diversity). The fixed bounds this test had
+    # (n_eff = n / 4, rtol 0.1, atol 0.03) failed in 75 of 800 runs (seeds 200-399, each scheme); in units of
+    # these errors the worst step of a run reached 14.7 (mean), 9.5 (variance) and 13.4 (correlation) over
+    # 1600 runs (seeds 0-399, each scheme): the bounds below failed none of them
     n = 20_000
+    n_eff = n
     for x, P, (mean, cov), info in _kf_and_pf(n, resample, seed=17):
-        sd = np.sqrt(np.diag(P))
-        # Monte-Carlo error of the mean ~ sd / sqrt(n_eff); n_eff >= n / 4 after resampling
-        assert np.all(np.abs(mean - x) < 5 * sd / np.sqrt(n / 4)), (mean, x)
-        np.testing.assert_allclose(np.diag(cov), np.diag(P), rtol=0.1)
-        np.testing.assert_allclose(cov[0, 1] / np.sqrt(cov[0, 0] * cov[1, 1]), P[0, 1] / (sd[0] * sd[1]), atol=0.03)
         assert 1.0 <= info.ess <= n
+        n_eff = min(n_eff, info.ess)
+        sd = np.sqrt(np.diag(P))
+        rho = P[0, 1] / (sd[0] * sd[1])
+        assert np.all(np.abs(mean - x) < 18 * sd / np.sqrt(n_eff)), (mean, x, n_eff)
+        np.testing.assert_allclose(np.diag(cov), np.diag(P), rtol=12 * np.sqrt(2 / n_eff))
+        np.testing.assert_allclose(cov[0, 1] / np.sqrt(cov[0, 0] * cov[1, 1]), rho, atol=16 * (1 - rho**2) / np.sqrt(n_eff))
 
 
 def test_bootstrap_step_handles_huge_log_likelihoods():
@@ -600,6 +612,8 @@ def test_weighted_pose_mean_is_the_summary_of_the_filters():
     np.testing.assert_allclose(mean[:2], w @ poses[:, :2], rtol=1e-14)
     assert mean[2] == sl.circular_mean(poses[:, 2], w)  # the same core, bit for bit
     assert -np.pi <= mean[2] < np.pi
-    np.testing.assert_array_equal(mean, sl.particle_summary(poses, log_w)[0])
+    # MCL's summary normalises with scipy's logsumexp, normalize_log_weights with its own shifted sum: the
+    # weights, and so the means, may differ in the last bits (in 152 of 200 seeds, by at most 7 eps relative)
+    np.testing.assert_allclose(sl.particle_summary(poses, log_w)[0], mean, rtol=32 * np.finfo(float).eps, atol=0)
     g = sl.particle_gaussian(poses, log_w, angles=(2,))
     np.testing.assert_allclose(g.mean, mean, rtol=1e-14)

@@ -259,8 +259,11 @@ def test_range_table_does_not_depend_on_the_order_of_asking():
     rb = np.vstack([b.ranges(poses[200:], angles, sensor_offset=0.25), b.ranges(poses[:200], angles, sensor_offset=0.25)])
     np.testing.assert_array_equal(ra, np.vstack([rb[200:], rb[:200]]))
     np.testing.assert_array_equal(np.isnan(a.table), np.isnan(b.table))
-    # max-range beams come back as max_range exactly (not its half-precision neighbour)
-    assert np.any(ra == 81.83) and np.all(ra <= 81.83)
+    # max-range beams come back as max_range exactly (not its half-precision neighbour 81.8125): about 900 of
+    # the 7600 beams hit nothing (743-1159 by ray_cast over seeds 0-39), not only the few cast from outside the
+    # table's region (np.where with the float16 table once rounded max_range back to the neighbour)
+    assert np.count_nonzero(ra == 81.83) > 300 and not np.any(ra == float(np.float16(81.83)))
+    assert np.all(ra <= 81.83)
 
 
 def test_range_table_outside_its_region_casts_exactly():
