@@ -184,8 +184,9 @@ def test_expected_offspring_is_M_w(name):
     se = np.sqrt(var / n_draws)
     # a count that never varied need not be M w: Dirichlet(0.7) gives some particles M w ~ 1e-3, drawn on about
     # M w of the draws, so never in 4000 draws with probability exp(-4000 M w) (0.18 at M w = 4.3e-4: the weights
-    # of seed 125 and 127, which the test's exact M w for never-varying counts failed). Each scheme moves a count off c on a share of about |M w - c| of the draws:
-    # n |M w - c| > 8.1 would leave it constant with probability < 3e-4
+    # of seeds 125 and 127, which the test's exact M w for never-varying counts failed). Each scheme moves a count
+    # off c on a share of about |M w - c| of the draws: n |M w - c| > 8.1 would leave it constant with
+    # probability < 3e-4
     exact = se == 0
     assert np.all(n_draws * np.abs(mean[exact] - M * w[exact]) < 8.1), (mean[exact], M * w[exact])
     t = (mean[~exact] - M * w[~exact]) / se[~exact]
