@@ -853,7 +853,15 @@ def test_run_tracks_ancestry_and_ess(world):
     always = sl.run_fastslam(run, n_particles=30, resample_threshold=1.0, rng=np.random.default_rng(16))
     uneven = always.ess[:-1] < 30 * (1 - 1e-12)  # threshold 1: resample whenever the weights are uneven
     np.testing.assert_array_equal(always.resampled[:-1], uneven)
-    assert uneven.sum() > 0.9 * (run.n_steps - 1) and not always.resampled[-1]
+    # the weights turn uneven only where a landmark is seen again (a first sighting weighs 1 in every
+    # particle), and nearly everywhere it is: over 50 worlds at most one such step of ~245 kept even weights;
+    # the share of such steps itself ranged 0.81-0.996 (steps without a sighting)
+    before, again = set(), []
+    for ids in run.ids[:-1]:
+        again.append(bool(before & set(ids.tolist())))
+        before |= set(ids.tolist())
+    again = np.array(again)
+    assert np.all(again[uneven]) and uneven.sum() > 0.95 * again.sum() and not always.resampled[-1]
     assert np.all(np.diff(always.n_ancestors) >= 0)  # lineages only merge going back in time
     assert always.n_ancestors[0] == 1 and always.n_ancestors[-1] <= 30
     for res in (never, always):
