@@ -971,18 +971,30 @@ def test_map_moments_are_the_mixture_moments():
         sl.fastslam_map_moments(st._replace(seen=np.zeros_like(st.seen)), slots)
 
 
-def test_many_particles_reproduce_the_ekf_slam_posterior(world):
+def test_many_particles_reproduce_the_ekf_slam_posterior():
     # Early in a run, where linearisation is good and depletion has not set in, FastSLAM's particle set
-    # (pose moments, and map moments by the law of total covariance) matches EKF SLAM's Gaussian.
-    run = world
-    T = 20
+    # (pose moments, and map moments by the law of total covariance) matches EKF SLAM's Gaussian. Where
+    # linearisation is good: landmarks at least 1.5 m off the loop; in `world`-like worlds with landmarks on
+    # it (sighted from 0.2 m) EKF SLAM's Gaussian was off by up to 0.94 standard deviations and 85 % in a
+    # standard deviation at step 20. Early: step 10; at step 20 with 5000 particles the worst of 50 worlds was
+    # 0.11-0.28 (the bounds' measures below), from the particles' spread. At step 10 with 10000 particles
+    # (seeds 7-56, filter seeds 20-69) the worst were 0.073 (pose) and 0.039 (map) relative in the standard
+    # deviations, 0.14 and 0.12 standard deviations in the means and 0.063 in the correlations
+    rng = np.random.default_rng(7)
+    landmarks = rng.uniform(-12, 12, size=(60, 2))
+    radius = 1.0 / 0.12
+    landmarks = landmarks[np.abs(np.linalg.norm(landmarks - [0.0, -8.0 + radius], axis=1) - radius) > 1.5][:25]
+    run = sl.simulate_landmark_run(landmarks, sl.loop_controls(250, v=1.0, omega=0.12), 0.2, x0=np.array([0.0, -8.0, 0.0]),
+                                   M=np.diag([0.1, 0.05]) ** 2, Q=np.diag([0.2, 0.03]) ** 2, max_range=8.0, fov=np.pi,
+                                   rng=rng)
+    T = 10
     ekf = sl.run_ekf_slam(run, snapshots=(T,))
-    state = sl.fastslam_initial_state(run.x0, 5000, 25)
+    state = sl.fastslam_initial_state(run.x0, 10_000, 25)
     rng = np.random.default_rng(20)
     for t in range(T):
         state = sl.fastslam_predict(state, run.u[t], run.dt, M=run.M, rng=rng)
         state = sl.fastslam_update_known(state, run.z[t], run.ids[t], run.Q)
-        if sl.effective_sample_size(state.weights) < 2500 and t < T - 1:
+        if sl.effective_sample_size(state.weights) < 5000 and t < T - 1:
             state, _ = sl.fastslam_resample(state, rng=rng)
     pose, _ = sl.fastslam_estimate(state)
     d = sl.pose_error(state.poses, pose)
