@@ -1077,16 +1077,23 @@ def _with_blunders(run, every, rng):
 @pytest.mark.parametrize("version", [1, 2])
 def test_gate_in_the_run_counts_and_survives_gross_errors(world, version):
     bad, n_bad = _with_blunders(world, 40, np.random.default_rng(0))
-    ate = {}
+    hit = np.array([np.any(a != b) for a, b in zip(bad.z, world.z)])  # the steps with a blunder
+    ess = {}
     for gate in (np.inf, sl.fastslam.DEFAULT_GATE):
         res = sl.run_fastslam(bad, n_particles=30, gate=gate, version=version, rng=np.random.default_rng(5))
-        ate[gate] = sl.ate_rmse(res.x_est, world.x_true)
+        ess[gate] = np.median(res.ess[hit])
         if gate == np.inf:
             assert res.rejected.sum() == 0 and res.gate is None
         else:
-            # every blunder of a landmark seen before is rejected by (nearly) every particle, and few good ones
-            assert 0.8 * n_bad <= res.rejected.sum() <= n_bad + 0.01 * sum(len(z) for z in world.z)
-    assert ate[sl.fastslam.DEFAULT_GATE] < 0.5 * ate[np.inf]
+            # every blunder of a landmark seen before is rejected by (nearly) every particle, and few good ones:
+            # over 30 worlds (seeds 7-36, filter seeds 5-34, either version) 1.0-1.6 times the blunders, the
+            # excess at most 1.5 % of the sightings
+            assert 0.8 * n_bad <= res.rejected.sum() <= n_bad + 0.03 * sum(len(z) for z in world.z)
+    # Without the gate each blunder collapses the weights onto the particle that explains it best: a median
+    # effective sample size at the blunders' steps of 1.0-1.9 (of 30) in those worlds, 13.5-21 with the gate.
+    # That collapse loses the path, though not in every run: the gated path's error was under half the
+    # ungated one's in 51 of 60 runs, but above it in 2 (collapses onto good particles)
+    assert ess[np.inf] < 3.0 and ess[sl.fastslam.DEFAULT_GATE] > 8.0
     # default: off on a simulated LandmarkRun, which carries no gate (its noise is the Gaussian the filter assumes)
     assert not hasattr(world, "gate")
     assert sl.run_fastslam(world, n_particles=3, version=version, rng=np.random.default_rng(1)).gate is None
