@@ -577,8 +577,10 @@ def test_fastslam_counter_keeps_landmarks_that_misread_barcodes_would_lose():
         fs = [sl.run_fastslam(bad, n_particles=20, rng=np.random.default_rng(s), reinit_lost=reinit) for s in range(3)]
         ate[reinit] = np.median([sl.score_trajectory(f.x_est, run.x_true).ate for f in fs])
         rejected[reinit] = np.median([f.rejected.sum() for f in fs])
-    assert rejected[True] < 0.5 * rejected[False], rejected  # without the counter: true sightings rejected
-    assert ate[True] < ate[False], ate
+    # without the counter: true sightings rejected. Over 19 draws of the misreadings (seeds 1003-1021, filter
+    # seeds shifted alike) the ratio was 0.14-0.26. The path's error is no per-draw criterion: the counter's
+    # median was the lower in 15 of the 19 (ratios 0.25-1.43), so it is only reported here
+    assert rejected[True] < 0.5 * rejected[False], (rejected, ate)
 
 
 def test_table_and_study_files_report_fastslam_over_ten_seeds_with_failures_counted():
