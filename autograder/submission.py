@@ -533,6 +533,27 @@ def _scopes(node):
     return module, splits, walrus
 
 
+def _sure_walruses(part):
+    """Names bound by the walruses that code run at module level (`part`, a part of a statement) always
+    evaluates when it runs to its end: not those in a ``BoolOp``'s later operands, an ``IfExp``'s branches, a
+    comprehension (but its first iterable) or the body of a def, lambda or class."""
+    sure, stack = set(), [part]
+    while stack:
+        n = stack.pop()
+        if isinstance(n, ast.NamedExpr):
+            sure.add(n.target.id)
+            stack.append(n.value)
+        elif isinstance(n, _OPENERS):
+            stack.extend(_split(n)[1])  # evaluated where it stands: decorators, defaults, bases, first iterable
+        elif isinstance(n, ast.BoolOp):
+            stack.append(n.values[0])
+        elif isinstance(n, ast.IfExp):
+            stack.append(n.test)
+        else:
+            stack.extend(ast.iter_child_nodes(n))
+    return sure
+
+
 class _Facts:
     """What one node's code does, found in two walks over it (its scopes, then its loads): linear in its size,
     whatever it holds. The node is code at module level: a def or class statement, an assigned value ..."""
@@ -733,18 +754,22 @@ class _Execution:
         for stmt in stmts:
             self.statement(stmt, scope, label)
 
-    def walrus(self, parts, scope):
+    def walrus(self, parts, scope, surely=True):
         """Bind the module-level names the walruses in `parts` (code of a statement run at module level) bind: to
-        the code of the part that holds the walrus (and so its value), as a possible binding (``a or (w := b)`` may
-        not run it); one in a generator expression may bind it whenever the generator is iterated."""
+        the code of the part that holds the walrus (and so its value). A walrus the statement always evaluates
+        replaces the binding before it (`_sure_walruses`; `surely` False: none does, as in a ``match`` guard or
+        an ``except`` clause's type, after which other cases and clauses run); one it may skip
+        (``a or (w := b)``) is a possible binding; one in a generator expression may bind whenever the generator
+        is iterated."""
         for part in parts:
             if isinstance(part, (ast.Name, ast.Constant)):  # no walrus in it (the commonest targets)
                 continue
             facts = self.facts_of(part)
             if facts.walrus:
                 value = self.code(part, scope)
+                sure = _sure_walruses(part) if surely else ()
                 for name, lazily in facts.walrus:
-                    scope.set(name, _either([scope.get(name), value]))
+                    scope.set(name, value if name in sure else _either([scope.get(name), value]))
                     if lazily:
                         self.rebound.setdefault(name, []).append(_Bound(node=part))
 
@@ -757,6 +782,9 @@ class _Execution:
             parts = [e for item in stmt.items for e in (item.context_expr, item.optional_vars) if e is not None]
         else:
             parts = [c for c in ast.iter_child_nodes(stmt) if isinstance(c, ast.expr)]
+        if isinstance(stmt, ast.Assert):  # its message is evaluated only when the test fails
+            parts, maybe = [stmt.test], [stmt.msg] if stmt.msg is not None else []
+            self.walrus(maybe, scope, surely=False)
         self.walrus(parts, scope)
         if isinstance(stmt, ast.Import):
             for alias in stmt.names:
@@ -840,7 +868,7 @@ class _Execution:
             ends = [body]
             for handler in stmt.handlers:
                 h = _Scope(start)
-                self.walrus([handler.type] if handler.type is not None else [], h)
+                self.walrus([handler.type] if handler.type is not None else [], h, surely=False)
                 if handler.name:
                     h.set(handler.name, _Bound())
                 self.run(handler.body, h, label)
@@ -858,7 +886,7 @@ class _Execution:
                         name = n.name if isinstance(n, _CAPTURES) else getattr(n, "rest", None)
                         if name:
                             s.set(name, subject)
-                    self.walrus([case.guard] if case.guard is not None else [], s)
+                    self.walrus([case.guard] if case.guard is not None else [], s, surely=False)
                     self.run(case.body, s, label)
                 return run
             self.branches(scope, [case_of(case) for case in stmt.cases], label, exhaustive=False)

@@ -920,6 +920,23 @@ SCOPES = [
      "calls `w`, which uses `slamlib` (import slamlib"),
     ("module-level-match-capture", "import slamlib\nmatch slamlib.wrap_angle:\n    case w:\n        pass\n"
      "def f(x):\n    return w(x)\n", "calls `w`, which uses `slamlib` (import slamlib"),
+    # a walrus the statement always evaluates replaces the binding before it; one it may skip does not
+    ("module-level-walrus-replaces", "from slamlib import wrap_angle as w\n_ = print((w := abs))\n"
+     "def f(x):\n    return w(x)\n", None),
+    ("module-level-walrus-in-if-test-and-default", "from slamlib import wrap_angle as w\nif (w := abs):\n"
+     "    pass\nfrom slamlib import wrap_angle as v\ndef g(a=(v := abs)):\n    pass\n"
+     "def f(x):\n    return w(v(x))\n", None),
+    ("module-level-walrus-maybe-skipped", "from slamlib import wrap_angle as w\n_ = 0 or (w := abs)\n"
+     "def f(x):\n    return w(x)\n", "uses `w` (from slamlib"),
+    ("module-level-walrus-in-branch", "from slamlib import wrap_angle as w\n_ = (w := abs) if len('') else 0\n"
+     "def f(x):\n    return w(x)\n", "uses `w` (from slamlib"),
+    ("module-level-walrus-in-assert-message", "from slamlib import wrap_angle as w\nassert 1, (w := abs)\n"
+     "def f(x):\n    return w(x)\n", "uses `w` (from slamlib"),
+    ("module-level-walrus-in-failed-guard", "from slamlib import wrap_angle as w\nmatch 1:\n"
+     "    case 2 if (w := abs):\n        pass\ndef f(x):\n    return w(x)\n", "uses `w` (from slamlib"),
+    ("module-level-walrus-after-a-raise", "from slamlib import wrap_angle as w\ntry:\n"
+     "    _ = (1 // 0, (w := abs))\nexcept ZeroDivisionError:\n    pass\ndef f(x):\n    return w(x)\n",
+     "uses `w` (from slamlib"),
     # a decorator runs when the def does: the binding then counts, not the last one
     ("decorator-at-def-time", "from slamlib import wrap_angle as d\n@d\ndef f(x):\n    return x\nd = abs\n",
      "uses `d` (from slamlib"),

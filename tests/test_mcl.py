@@ -193,8 +193,16 @@ def kidnapped():
 def test_augmented_mcl_recovers_from_kidnapping_plain_mcl_does_not(kidnapped):
     grid, truth, odom, z = kidnapped
     model = mcl.prepare_mcl(grid, mcl.MCLParams(**SIM_PARAMS))
-    runs = {v: mcl.run_mcl(model, odom, z, ANGLES, rng=np.random.default_rng(5), variant=v)
-            for v in ("mcl", "augmented")}
+    # both start localized (a cloud of 0.1 m around the start): from a uniform cloud plain MCL itself settles
+    # on a look-alike place in about a third of the worlds (test_mcl_converges_from_a_uniform_cloud), which is
+    # not what this test is about. Over 50 worlds and seeds: augmented MCL back below 0.3 m by scan 42-43,
+    # plain MCL by scan 80-100 or never, plain MCL at least 2.5 m off over scans 40-59, at most 2 particles
+    # injected before the kidnapping
+    runs = {}
+    for v in ("mcl", "augmented"):
+        rng = np.random.default_rng(5)
+        start = truth[0] + rng.normal(0.0, [0.1, 0.1, 0.05], (2000, 3))
+        runs[v] = mcl.run_mcl(model, odom, z, ANGLES, rng=rng, variant=v, init=start)
     after = {v: r.scan_index >= 40 for v, r in runs.items()}
     err = {v: _error(r, truth) for v, r in runs.items()}
 
