@@ -786,9 +786,9 @@ def test_unknown_correspondences_recover_the_landmark_count():
     rng = np.random.default_rng(7)
     grid = np.stack(np.meshgrid(np.arange(-10.0, 11.0, 5.0), np.arange(-10.0, 11.0, 5.0)), axis=-1).reshape(-1, 2)
     landmarks = grid + rng.uniform(-1.0, 1.0, size=grid.shape)
-    run = sl.simulate_landmark_run(landmarks, sl.loop_controls(250, v=1.0, omega=0.12), 0.2, x0=np.array([0.0, -8.0, 0.0]),
-                                   M=np.diag([0.05, 0.02]) ** 2, Q=np.diag([0.2, 0.03]) ** 2, max_range=8.0, fov=np.pi,
-                                   rng=rng)
+    run = sl.simulate_landmark_run(landmarks, sl.loop_controls(250, v=1.0, omega=0.12), 0.2,
+                                   x0=np.array([0.0, -8.0, 0.0]), M=np.diag([0.05, 0.02]) ** 2,
+                                   Q=np.diag([0.2, 0.03]) ** 2, max_range=8.0, fov=np.pi, rng=rng)
     res = sl.run_fastslam(run, n_particles=60, known=False, rng=np.random.default_rng(15),
                           max_range=run.max_range, fov=run.fov)
     seen_ids = np.unique(np.concatenate(run.ids))
@@ -984,9 +984,9 @@ def test_many_particles_reproduce_the_ekf_slam_posterior():
     landmarks = rng.uniform(-12, 12, size=(60, 2))
     radius = 1.0 / 0.12
     landmarks = landmarks[np.abs(np.linalg.norm(landmarks - [0.0, -8.0 + radius], axis=1) - radius) > 1.5][:25]
-    run = sl.simulate_landmark_run(landmarks, sl.loop_controls(250, v=1.0, omega=0.12), 0.2, x0=np.array([0.0, -8.0, 0.0]),
-                                   M=np.diag([0.1, 0.05]) ** 2, Q=np.diag([0.2, 0.03]) ** 2, max_range=8.0, fov=np.pi,
-                                   rng=rng)
+    run = sl.simulate_landmark_run(landmarks, sl.loop_controls(250, v=1.0, omega=0.12), 0.2,
+                                   x0=np.array([0.0, -8.0, 0.0]), M=np.diag([0.1, 0.05]) ** 2,
+                                   Q=np.diag([0.2, 0.03]) ** 2, max_range=8.0, fov=np.pi, rng=rng)
     T = 10
     ekf = sl.run_ekf_slam(run, snapshots=(T,))
     state = sl.fastslam_initial_state(run.x0, 10_000, 25)
