@@ -362,8 +362,9 @@ def test_clutter_creates_fake_landmarks_and_the_provisional_list_rejects_them():
         cluttered = sl.add_clutter(r, 0.5, rng=np.random.default_rng(12 + 2 * k))
         n_clutter = sum(int(np.sum(i < 0)) for i in cluttered.ids)
         assert n_clutter > 60
-        naive = sl.run_ekf_slam(cluttered, known=False)
-        assert np.sum(naive.landmark_ids < 0) > 30, "plain Algorithm 2 turns clutter into landmarks"
+        if k == 0:
+            naive = sl.run_ekf_slam(cluttered, known=False)
+            assert np.sum(naive.landmark_ids < 0) > 30, "plain Algorithm 2 turns clutter into landmarks"
         robust = sl.run_ekf_slam(cluttered, known=False, confirm=3, window=5)
         fake += int(np.sum(robust.landmark_ids < 0))
         # every landmark the list can confirm (3 sightings within 5 steps) is in the map, once, under its own id
