@@ -280,7 +280,7 @@ def test_step_functions_equal_predict_then_sequential_updates():
 def test_ekf_localization_nees_inside_chi2_band():
     n_runs = 40
     # a landmark on the path (range ~0) breaks the linearisation of its bearing: in 25 of 150 worlds a run's NEES
-    # reached 10-7000 as the robot drove over one. Landmarks within 1.5 m of the nominal circle are left out
+    # reached hundreds to 7000 as the robot drove over one. Landmarks within 1.5 m of the nominal circle are left out
     landmarks = _world()
     landmarks = landmarks[np.abs(np.linalg.norm(landmarks, axis=1) - 5.0) > 1.5]
     runs, starts = zip(*(_run(1000 + k, landmarks=landmarks) for k in range(n_runs)))
