@@ -808,21 +808,31 @@ def test_jcbb_equals_nn_when_landmarks_are_well_separated(run):
     np.testing.assert_allclose(plain.x, jc.x, rtol=1e-7, atol=1e-7)
 
 
+@pytest.mark.slow
 def test_jcbb_run_beats_nn_on_close_landmark_pairs():
-    rng = np.random.default_rng(35)
-    base = sl.make_landmark_world(6, extent=14.0, min_separation=4.0, rng=rng)
-    landmarks = np.vstack([base, base + [0.6, 0.0]])  # six pairs of landmarks 0.6 m apart
+    """Six pairs of landmarks 0.6 m apart, one run in each of 16 worlds.
+
+    A pair first seen as one landmark stays merged for both methods, and every sighting of its second
+    landmark is then wrong for both alike; the claim is about the landmarks the map holds by the end
+    of the run. Over 158 worlds JCBB made 0.40 of NN's wrong associations of those (0.73 of all); a
+    set of 16 worlds gave 0.28-0.60 over 110 sets, and resampling the 158 worlds put the ratio of a
+    set at or above 0.95 with probability 6e-4. Without JCBB's one-landmark-per-measurement rule
+    the ratio is 0.93 (here 1.19); with NN itself it is 1.
+    """
     u = sl.loop_controls(250, v=1.0, omega=0.15)
     Mb = np.diag([0.15**2, np.deg2rad(6.0) ** 2])
-    wrong = {"nn": [], "jcbb": []}
-    for seed in range(6):
+    wrong = {"nn": 0, "jcbb": 0}
+    for seed in range(35, 51):
+        base = sl.make_landmark_world(6, extent=14.0, min_separation=4.0, rng=np.random.default_rng(seed))
+        landmarks = np.vstack([base, base + [0.6, 0.0]])
         r = sl.simulate_landmark_run(landmarks, u, DT, x0=[0.0, -6.7, 0.0], M=Mb, Q=Q, max_range=6.0, fov=np.pi,
-                                     rng=np.random.default_rng(100 + seed))
+                                     rng=np.random.default_rng(10_000 + seed))
         for assoc in wrong:
             res = sl.run_ekf_slam(r, known=False, association=assoc)
-            n_bad = sum(int(np.sum(res.landmark_ids[s[s >= 0]] != i[s >= 0])) for s, i in zip(res.associations, r.ids))
-            wrong[assoc].append(n_bad)
-    assert sum(wrong["jcbb"]) < 0.75 * sum(wrong["nn"])  # 200 against 359 wrong associations
+            for s, i in zip(res.associations, r.ids):
+                s, i = s[s >= 0], i[s >= 0]
+                wrong[assoc] += int(np.sum((res.landmark_ids[s] != i) & np.isin(i, res.landmark_ids)))
+    assert wrong["jcbb"] < 0.95 * wrong["nn"], wrong
 
 
 def test_run_rejects_an_unknown_association_and_a_bad_gate(run):
