@@ -115,10 +115,16 @@ def test_robust_kernel_resists_wrong_observations():
     T0, P0 = _perturbed(rng, T, P)
     plain = sl.bundle_adjust(T0, P0, K, cam, point, uv, fix_scale=True)
     robust = sl.bundle_adjust(T0, P0, K, cam, point, uv, fix_scale=True, robust="cauchy")
-    err_plain = np.median(np.linalg.norm(plain.points - P, axis=1))
-    err_robust = np.median(np.linalg.norm(robust.points - P, axis=1))
-    assert err_robust < 0.5 * err_plain
-    assert robust.weights[bad].max() < 0.05 and np.median(robust.weights) > 0.8
+    good = np.ones(len(uv), bool)
+    good[bad] = False
+    clean = sl.bundle_adjust(T0, P0, K, cam[good], point[good], uv[good], fix_scale=True)
+    # the error against the truth is mostly the gauge (the scale is held at camera 1's perturbed position), so
+    # the reference is the adjustment without the wrong observations, which shares it: over 300 scenes the
+    # robust points' median deviation from it was 0.0006-0.07 times the plain points'
+    dev_plain = np.median(np.linalg.norm(plain.points - clean.points, axis=1))
+    dev_robust = np.median(np.linalg.norm(robust.points - clean.points, axis=1))
+    assert dev_robust < 0.25 * dev_plain
+    assert robust.weights[bad].max() < 0.05 and np.median(robust.weights) > 0.8  # 300 scenes: <= 0.0033, >= 0.95
 
 
 def test_hooks_equal_the_library_and_are_called():
