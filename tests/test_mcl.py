@@ -87,14 +87,28 @@ def test_simulated_route_is_in_free_space(sim):
     assert grid.is_free(truth[:, :2]).all()
 
 
-def test_mcl_converges_from_a_uniform_cloud(sim):
+@pytest.fixture(scope="module")
+def global_run(sim):
+    """Augmented MCL (sensor resetting) with 2000 particles from Table 8.2's uniform start, tempering 0.1.
+
+    Plain MCL (Table 8.2) from the same start is not reliable here: over 50 simulated worlds and seeds, with
+    these 2000 particles it ended about 10 m off, on a look-alike place heading the other way, in 16 runs at
+    tau = 0.3 (13 of them with all the mass in that one mode) and in 9 at tau = 0.1; with 5000 in 4.
+    """
     grid, truth, odom, z = sim
-    model = mcl.prepare_mcl(grid, mcl.MCLParams(**SIM_PARAMS))
-    res = mcl.run_mcl(model, odom, z, ANGLES, rng=np.random.default_rng(0), snapshots=2, variant="mcl")
+    aug = mcl.AugmentedParams(candidates=5000)
+    params = mcl.MCLParams(**{**SIM_PARAMS, "likelihood_exponent": 0.1, "augmented": aug})
+    return mcl.run_mcl(mcl.prepare_mcl(grid, params), odom, z, ANGLES, rng=np.random.default_rng(0), snapshots=2)
+
+
+def test_mcl_converges_from_a_uniform_cloud(sim, global_run):
+    # over 50 worlds and seeds: final error 0.056-0.083 m, spread 0.073-0.082 m, heading error <= 0.007 rad
+    grid, truth, odom, z = sim
+    res = global_run
     err = _error(res, truth)
-    assert res.spread[0] > 2.0  # starts spread over the whole map
+    assert res.spread[0] > 2.0  # starts spread over the whole map (3.5-4.1 m measured)
     assert err[-1] < 0.3, err
-    assert np.all(err[len(err) // 2:] < 0.3)
+    assert np.all(err[-len(err) // 4:] < 0.3), err
     assert res.spread[-1] < 0.3
     assert abs(sl.angle_diff(res.mean[-1, 2], truth[res.scan_index[-1], 2])) < 0.1
     assert len(res.snapshots) == 2 and res.snapshots[0].poses.shape == (2000, 3)
@@ -606,14 +620,18 @@ def test_estimate_hysteresis_keeps_the_previous_mode_until_another_clearly_wins(
         mcl.MCLParams(estimate_hysteresis=0.5)
 
 
-def test_run_mcl_reports_its_ambiguity(sim):
-    grid, truth, odom, z = sim
-    model = mcl.prepare_mcl(grid, mcl.MCLParams(**SIM_PARAMS))
-    res = mcl.run_mcl(model, odom, z, ANGLES, rng=np.random.default_rng(0), variant="mcl")
+def test_run_mcl_reports_its_ambiguity(sim, global_run):
+    _, truth, _, _ = sim
+    res = global_run
     mass, n_modes = res.ambiguity()
     assert mass.shape == n_modes.shape == (len(res),)
-    assert mass[0] < 0.9 and n_modes[0] > 1  # the start: spread over several modes
-    assert mass[-1] > 0.95 and n_modes[-1] == 1  # converged on the truth: one mode
+    # the start: spread over several modes (over 50 worlds and seeds, 8 modes, the heaviest with 0.10-0.51)
+    assert mass[0] < 0.9 and n_modes[0] > 1
+    # converged on the truth: one mode (mass 1.0 in all 50). The mass is the particles' belief, not a calibrated
+    # probability: a run can also be sure of a look-alike for a while (updates 3-20 of one of 13 seeds checked)
+    # until sensor resetting brings the right place back
+    assert mass[-1] > 0.95 and n_modes[-1] == 1
+    assert np.hypot(*(res.estimate[-1, :2] - truth[res.scan_index[-1], :2])) < 0.3
 
 
 # --------------------------------------------------------------------------- mode-preserving resampling
