@@ -464,9 +464,10 @@ def test_cmu_run_settled_in_the_wrong_corridor_recovers(wean):
 
     Seed 1 of plain MCL (Table 8.2) from a uniform cloud, with the sharper tempering tau = 0.2 that
     settles sooner, sits 18.8 m from the reference after 40 updates with a spread of 0.24 m: sure and
-    wrong. Such runs are a minority (seeds 0-49: 5 more than 10 m off with a spread under 0.5 m, 0, 1, 5,
-    19 and 36), so the seed is fixed: the test needs one of them. Continued from that particle set, plain MCL stays wrong; the default filter (sensor
-    resetting) leaves the wrong place and ends near the reference.
+    wrong. Such runs are a minority (of seeds 0-49, five end more than 10 m off with a spread under
+    0.5 m: 0, 1, 5, 19 and 36), so the seed is fixed: the test needs one of them. Continued from that
+    particle set, plain MCL stays wrong; the default filter (sensor resetting) leaves the wrong place
+    and ends near the reference.
     """
     grid, log, params, model, ref = wean
     s0 = 39
