@@ -1180,9 +1180,10 @@ def test_wean_log_2_beam_skipping_keeps_the_right_place_where_the_map_disagrees(
 
     From about update 43 the robot passes openings that the map shows closed: one or two of the 18 beams the
     filter uses end more than a metre past the mapped wall for several scans, and a place some 10 m away with the opposite heading
-    explains them. Without beam skipping, sensor resetting brings that place in and it takes about half
-    of the mass (the estimate is then a coin toss between the two); with it, those beams are left out
-    while no part of the belief explains them, and the right place keeps all the mass.
+    explains them. Without beam skipping, sensor resetting brings that place in and it takes part of the
+    mass (over seeds 0-19: 8-63%, a third or more in 14 of 20, and the estimate jumped to it at one of the
+    checks in 9 of 20); with it, those beams are left out while no part of the belief explains them, and
+    the right place keeps the mass (it lost at most 0.6%).
     """
     from slamlib.datasets import cmu
 
@@ -1201,5 +1202,8 @@ def test_wean_log_2_beam_skipping_keeps_the_right_place_where_the_map_disagrees(
                           max_steps=95)
         lowest[share] = float(res.mode_mass[40:60].min())
         err[share] = [float(np.hypot(*(res.estimate[k, :2] - xy))) for k, xy in checks.items()]
-    assert lowest[skip] > 0.95 and max(err[skip]) < 0.5, (lowest, err)
-    assert lowest[0.0] < 0.7, lowest  # without skipping a look-alike takes a third of the mass or more
+    # lowest mass of the main mode over updates 40-59, seeds 0-19: 0.994-0.999 with skipping, 0.37-0.92
+    # without; the bound 0.98 lies between them (a log-normal fitted to each side puts the chance of a
+    # seed on the wrong side of it at about 1e-5 with skipping and 1e-4 without)
+    assert lowest[skip] > 0.98 and max(err[skip]) < 0.5, (lowest, err)  # estimate errors 0.04 m or less
+    assert lowest[0.0] < 0.98, lowest  # without skipping the look-alike takes 2% of the mass or more
