@@ -87,14 +87,28 @@ def test_simulated_route_is_in_free_space(sim):
     assert grid.is_free(truth[:, :2]).all()
 
 
-def test_mcl_converges_from_a_uniform_cloud(sim):
+@pytest.fixture(scope="module")
+def global_run(sim):
+    """Augmented MCL (sensor resetting) with 2000 particles from Table 8.2's uniform start, tempering 0.1.
+
+    Plain MCL (Table 8.2) from the same start is not reliable here: over 50 simulated worlds and seeds, with
+    these 2000 particles it ended about 10 m off, on a look-alike place heading the other way, in 16 runs at
+    tau = 0.3 (13 of them with all the mass in that one mode) and in 9 at tau = 0.1; with 5000 in 4.
+    """
     grid, truth, odom, z = sim
-    model = mcl.prepare_mcl(grid, mcl.MCLParams(**SIM_PARAMS))
-    res = mcl.run_mcl(model, odom, z, ANGLES, rng=np.random.default_rng(0), snapshots=2, variant="mcl")
+    aug = mcl.AugmentedParams(candidates=5000)
+    params = mcl.MCLParams(**{**SIM_PARAMS, "likelihood_exponent": 0.1, "augmented": aug})
+    return mcl.run_mcl(mcl.prepare_mcl(grid, params), odom, z, ANGLES, rng=np.random.default_rng(0), snapshots=2)
+
+
+def test_mcl_converges_from_a_uniform_cloud(sim, global_run):
+    # over 50 worlds and seeds: final error 0.056-0.083 m, spread 0.073-0.082 m, heading error <= 0.007 rad
+    grid, truth, odom, z = sim
+    res = global_run
     err = _error(res, truth)
-    assert res.spread[0] > 2.0  # starts spread over the whole map
+    assert res.spread[0] > 2.0  # starts spread over the whole map (3.5-4.1 m measured)
     assert err[-1] < 0.3, err
-    assert np.all(err[len(err) // 2:] < 0.3)
+    assert np.all(err[-len(err) // 4:] < 0.3), err
     assert res.spread[-1] < 0.3
     assert abs(sl.angle_diff(res.mean[-1, 2], truth[res.scan_index[-1], 2])) < 0.1
     assert len(res.snapshots) == 2 and res.snapshots[0].poses.shape == (2000, 3)
@@ -239,8 +253,14 @@ def test_kld_particle_count_drops_after_convergence(sim):
     grid, truth, odom, z = sim
     kld = mcl.KLDParams(n_min=100, n_max=5000, epsilon=0.05, delta=0.01)
     params = mcl.MCLParams(**{**SIM_PARAMS, "n_particles": 5000, "kld": kld})
-    res = mcl.run_mcl(mcl.prepare_mcl(grid, params), odom, z, ANGLES, rng=np.random.default_rng(1), variant="kld")
-    assert res.n_particles[0] == 5000  # a uniform cloud fills many bins
+    # From a cloud over the whole map, KLD-sampling keeps only a few hundred particles after the first scans and
+    # settled on the look-alike place 10 m away in 17 of 50 worlds and seeds; here the cloud covers a 4 m square
+    # around the start with every heading (over 2000 bins). Over 50 worlds and seeds: 5000 particles at the start,
+    # 321-444 at most over the second half, final error 0.02-0.05 m.
+    rng = np.random.default_rng(1)
+    cloud = truth[0] + rng.uniform([-2.0, -2.0, -np.pi], [2.0, 2.0, np.pi], (5000, 3))
+    res = mcl.run_mcl(mcl.prepare_mcl(grid, params), odom, z, ANGLES, rng=rng, variant="kld", init=cloud)
+    assert res.n_particles[0] == 5000  # a spread-out cloud fills many bins
     late = res.n_particles[len(res) // 2:]
     assert np.all(late >= 100) and late.max() < 0.1 * 5000
     assert _error(res, truth)[-1] < 0.3
@@ -452,8 +472,10 @@ def test_cmu_run_settled_in_the_wrong_corridor_recovers(wean):
 
     Seed 1 of plain MCL (Table 8.2) from a uniform cloud, with the sharper tempering tau = 0.2 that
     settles sooner, sits 18.8 m from the reference after 40 updates with a spread of 0.24 m: sure and
-    wrong. Continued from that particle set, plain MCL stays wrong; the default filter (sensor
-    resetting) leaves the wrong place and ends near the reference.
+    wrong. Such runs are a minority (of seeds 0-49, five end more than 10 m off with a spread under
+    0.5 m: 0, 1, 5, 19 and 36), so the seed is fixed: the test needs one of them. Continued from that
+    particle set, plain MCL stays wrong; the default filter (sensor resetting) leaves the wrong place
+    and ends near the reference.
     """
     grid, log, params, model, ref = wean
     s0 = 39
@@ -614,14 +636,18 @@ def test_estimate_hysteresis_keeps_the_previous_mode_until_another_clearly_wins(
         mcl.MCLParams(estimate_hysteresis=0.5)
 
 
-def test_run_mcl_reports_its_ambiguity(sim):
-    grid, truth, odom, z = sim
-    model = mcl.prepare_mcl(grid, mcl.MCLParams(**SIM_PARAMS))
-    res = mcl.run_mcl(model, odom, z, ANGLES, rng=np.random.default_rng(0), variant="mcl")
+def test_run_mcl_reports_its_ambiguity(sim, global_run):
+    _, truth, _, _ = sim
+    res = global_run
     mass, n_modes = res.ambiguity()
     assert mass.shape == n_modes.shape == (len(res),)
-    assert mass[0] < 0.9 and n_modes[0] > 1  # the start: spread over several modes
-    assert mass[-1] > 0.95 and n_modes[-1] == 1  # converged on the truth: one mode
+    # the start: spread over several modes (over 50 worlds and seeds, 8 modes, the heaviest with 0.10-0.51)
+    assert mass[0] < 0.9 and n_modes[0] > 1
+    # converged on the truth: one mode (mass 1.0 in all 50). The mass is the particles' belief, not a calibrated
+    # probability: a run can also be sure of a look-alike for a while (updates 3-20 of one of 13 seeds checked)
+    # until sensor resetting brings the right place back
+    assert mass[-1] > 0.95 and n_modes[-1] == 1
+    assert np.hypot(*(res.estimate[-1, :2] - truth[res.scan_index[-1], :2])) < 0.3
 
 
 # --------------------------------------------------------------------------- mode-preserving resampling
@@ -1162,9 +1188,10 @@ def test_wean_log_2_beam_skipping_keeps_the_right_place_where_the_map_disagrees(
 
     From about update 43 the robot passes openings that the map shows closed: one or two of the 18 beams the
     filter uses end more than a metre past the mapped wall for several scans, and a place some 10 m away with the opposite heading
-    explains them. Without beam skipping, sensor resetting brings that place in and it takes about half
-    of the mass (the estimate is then a coin toss between the two); with it, those beams are left out
-    while no part of the belief explains them, and the right place keeps all the mass.
+    explains them. Without beam skipping, sensor resetting brings that place in and it takes part of the
+    mass (over seeds 0-19: 8-63%, a third or more in 14 of 20, and the estimate jumped to it at one of the
+    checks in 9 of 20); with it, those beams are left out while no part of the belief explains them, and
+    the right place keeps the mass (it lost at most 0.6%).
     """
     from slamlib.datasets import cmu
 
@@ -1183,5 +1210,8 @@ def test_wean_log_2_beam_skipping_keeps_the_right_place_where_the_map_disagrees(
                           max_steps=95)
         lowest[share] = float(res.mode_mass[40:60].min())
         err[share] = [float(np.hypot(*(res.estimate[k, :2] - xy))) for k, xy in checks.items()]
-    assert lowest[skip] > 0.95 and max(err[skip]) < 0.5, (lowest, err)
-    assert lowest[0.0] < 0.7, lowest  # without skipping a look-alike takes a third of the mass or more
+    # lowest mass of the main mode over updates 40-59, seeds 0-19: 0.994-0.999 with skipping, 0.37-0.92
+    # without; the bound 0.98 lies between them (a log-normal fitted to each side puts the chance of a
+    # seed on the wrong side of it at about 1e-5 with skipping and 1e-4 without)
+    assert lowest[skip] > 0.98 and max(err[skip]) < 0.5, (lowest, err)  # estimate errors 0.04 m or less
+    assert lowest[0.0] < 0.98, lowest  # without skipping the look-alike takes 2% of the mass or more
