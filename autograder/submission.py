@@ -823,6 +823,8 @@ class _Execution:
             # of the one before: one recursion per elif reached Python's limit at ~340 of them)
             blocks, node = [], stmt
             while True:
+                if node is not stmt:  # an elif's test runs only when the tests before it were false
+                    self.walrus([node.test], scope, surely=False)
                 guard = _main_guard(node.test)
                 if guard is None:
                     blocks.append(node.body)

@@ -937,6 +937,8 @@ SCOPES = [
     ("module-level-walrus-after-a-raise", "from slamlib import wrap_angle as w\ntry:\n"
      "    _ = (1 // 0, (w := abs))\nexcept ZeroDivisionError:\n    pass\ndef f(x):\n    return w(x)\n",
      "uses `w` (from slamlib"),
+    ("module-level-walrus-in-an-elif-test", "import slamlib\nif len(''):\n    pass\n"
+     "elif (w := slamlib.wrap_angle):\n    pass\ndef f(x):\n    return w(x)\n", "calls `w`, which uses `slamlib`"),
     # a decorator runs when the def does: the binding then counts, not the last one
     ("decorator-at-def-time", "from slamlib import wrap_angle as d\n@d\ndef f(x):\n    return x\nd = abs\n",
      "uses `d` (from slamlib"),
