@@ -240,9 +240,9 @@ def test_scans_line_up_with_walls_in_chosen_orientation(grid, log):
     at_start = _scan_log_likelihood(grid, log, START[None])[0]
     # START is a local optimum of the chosen map ...
     assert at_start >= _scan_log_likelihood(grid, log, _around(START)).max() - 1e-9
-    # ... far better than anywhere the robot is not (random free poses more than 1 m from it; one in a few
-    # hundred lands next to the robot and scores nearly as well). Over 60 draws of 200 poses the best of the
-    # others scored 1568-3141 below the start.
+    # ... far better than anywhere the robot is not (random free poses more than 1 m from it: in one of 60
+    # draws of 200 poses, one pose fell next to the robot and scored nearly as well). Over those 60 draws the
+    # best of the others scored 1568-3141 below the start.
     poses = sl.sample_free_poses(grid, 200, rng=np.random.default_rng(0))
     poses = poses[np.hypot(*(poses[:, :2] - START[:2]).T) > 1.0]
     elsewhere = _scan_log_likelihood(grid, log, poses)
