@@ -136,21 +136,42 @@ def test_eight_point_uses_hartley_normalisation():
     np.testing.assert_allclose(s * E, E_ref, atol=1e-9)
 
 
-def test_ransac_finds_the_inliers_and_stops_early():
-    rng = np.random.default_rng(8)
-    x1, x2, rel = _normalized_matches(rng, n=200, noise=0.5)
-    out = rng.choice(200, 60, replace=False)
-    x2 = x2.copy()
-    x2[out] = rng.uniform(-0.6, 0.6, (60, 2))
-    res = sl.essential_ransac(x1, x2, threshold=2.0 / 520, rng=np.random.default_rng(0))
-    truth = np.ones(200, bool)
-    truth[out] = False
-    # no outlier accepted; the eight-point fit's algebraic error costs a few true matches at 4 sigma
-    assert (res.inliers & ~truth).sum() <= 2 and (truth & ~res.inliers).sum() <= 14
-    assert res.iterations < 2000  # the adaptive count stopped it before max_iter
-    T, _, _ = sl.recover_pose(res.E, x1[res.inliers], x2[res.inliers])
-    ang = np.linalg.norm(sl.lie.so3_log(T[:3, :3].T @ rel[:3, :3]))
-    assert ang < 0.01
+def _true_essential(rel):
+    """``E = [t]x R`` of the motion ``x2 = R x1 + t`` between the cameras of ``rel`` (camera 2 in camera 1's frame)."""
+    R, t = rel[:3, :3].T, -rel[:3, :3].T @ rel[:3, 3]
+    return sl.lie.hat(t / np.linalg.norm(t)) @ R
+
+
+def test_ransac_finds_the_true_consensus_and_stops_early():
+    """30 % outliers, 0.5 px noise, a threshold of 2 px: RANSAC's inliers are the true geometry's.
+
+    A scene is right when RANSAC's inliers differ from the matches the true ``E`` accepts
+    (outliers that fall near their epipolar line included) by at most 3, and its rotation
+    is within 0.015 rad (the eight-point fit to all true matches: at most 0.012 over 1000
+    scenes). Measured over 1500 scenes (seeds 1408-2907, not the ones the method was
+    developed on): 5 not right (two a wrong local optimum missing 17 and 21 true matches,
+    three 3-4 accepted outliers pulling the rotation 0.018-0.024 rad). At most one of
+    four scenes may be wrong: false failure ~6 (0.0033)^2 ~ 7e-5. Without the refinement
+    (``refine=False``) 104 of 300 scenes are not right by the old bounds (68 miss more than
+    14 true matches).
+    """
+    wrong, iterations = 0, []
+    for seed in range(8, 12):
+        rng = np.random.default_rng(seed)
+        x1, x2, rel = _normalized_matches(rng, n=200, noise=0.5)
+        out = rng.choice(200, 60, replace=False)
+        x2 = x2.copy()
+        x2[out] = rng.uniform(-0.6, 0.6, (60, 2))
+        res = sl.essential_ransac(x1, x2, threshold=2.0 / 520, rng=np.random.default_rng(seed - 8))
+        np.testing.assert_allclose(np.linalg.svd(res.E)[1], [1.0, 1.0, 0.0], atol=1e-9)  # still essential
+        truth_accepts = sl.sampson_distance(_true_essential(rel), x1, x2) < (2.0 / 520) ** 2
+        T, _, _ = sl.recover_pose(res.E, x1[res.inliers], x2[res.inliers])
+        ang = np.linalg.norm(sl.lie.so3_log(T[:3, :3].T @ rel[:3, :3]))
+        wrong += (res.inliers != truth_accepts).sum() > 3 or ang > 0.015
+        iterations.append(res.iterations)
+    assert wrong <= 1
+    # the adaptive count stops near N(0.7) = 117 samples, far before max_iter (at most 634 over the 1500 scenes)
+    assert max(iterations) < 2000 and np.median(iterations) < 300
 
 
 def test_ransac_adaptive_count_stops_after_one_sample_without_outliers():
@@ -182,6 +203,15 @@ def test_ransac_skips_degenerate_samples():
 
     res = sl.essential_ransac(x1, x2, threshold=1e-4, rng=np.random.default_rng(0), eight_point=flaky)
     assert res.inliers.all() and res.iterations == 3
+
+
+def test_ransac_refuses_a_refine_that_is_not_a_bool():
+    rng = np.random.default_rng(13)
+    x1, x2, _ = _normalized_matches(rng, n=30)
+    with pytest.raises(TypeError, match="refine must be a bool"):
+        sl.essential_ransac(x1, x2, threshold=1e-4, rng=rng, refine="no")
+    with pytest.raises(TypeError, match="refine must be a bool"):
+        sl.two_view_reconstruction(K, x1 * 520 + 320, x2 * 500 + 240, threshold=1.0, rng=rng, refine=0)
 
 
 def test_ransac_iterations_formula():
