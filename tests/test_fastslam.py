@@ -55,14 +55,18 @@ def _particles(rng, n):
     return x
 
 
-@pytest.fixture(scope="module")
-def world():
-    rng = np.random.default_rng(7)
+def _loop_world(seed):
+    """25 uniform landmarks, one loop of 250 steps around them (the module's default world is seed 7)."""
+    rng = np.random.default_rng(seed)
     landmarks = rng.uniform(-12, 12, size=(25, 2))
     u = sl.loop_controls(250, v=1.0, omega=0.12)
-    run = sl.simulate_landmark_run(landmarks, u, 0.2, x0=np.array([0.0, -8.0, 0.0]), M=np.diag([0.1, 0.05]) ** 2,
-                                   Q=np.diag([0.2, 0.03]) ** 2, max_range=8.0, fov=np.pi, rng=rng)
-    return run
+    return sl.simulate_landmark_run(landmarks, u, 0.2, x0=np.array([0.0, -8.0, 0.0]), M=np.diag([0.1, 0.05]) ** 2,
+                                    Q=np.diag([0.2, 0.03]) ** 2, max_range=8.0, fov=np.pi, rng=rng)
+
+
+@pytest.fixture(scope="module")
+def world():
+    return _loop_world(7)
 
 
 # --------------------------------------------------------------------------- contract functions
@@ -874,13 +878,27 @@ def test_run_tracks_ancestry_and_ess(world):
         assert step.max() < 1.0 * run.dt + 0.1  # one particle's own path: no jumps between lineages
 
 
-def test_known_correspondences_beat_dead_reckoning(world):
-    run = world
-    res = sl.run_fastslam(run, n_particles=300, rng=np.random.default_rng(17))
-    ate = sl.ate_rmse(res.x_est, run.x_true)
-    assert ate < 0.75 * sl.ate_rmse(_dead_reckoning(run), run.x_true)
-    assert sl.landmark_rmse(res.landmarks[res.seen], run.landmarks[res.seen]) < 0.5
-    assert np.all(np.isfinite(res.x_cov)) and np.all(np.linalg.eigvalsh(res.x_cov) >= -1e-12)
+@pytest.mark.slow
+def test_known_correspondences_beat_dead_reckoning():
+    """Over 11 worlds: FastSLAM 1.0 (300 particles) beats dead reckoning in sum and in most worlds.
+
+    One world decides nothing: over 250 worlds dead reckoning's error ranged 0.18-2.8 m and
+    FastSLAM's 0.1-1.5 m; FastSLAM was worse in 9.6 % of them and its landmark RMSE, which
+    follows its path error (median ratio 1.0), exceeded 0.5 m in 32 %. Resampling 11 of those
+    250 worlds, the three assertions below fail together with probability ~4e-4.
+    """
+    ate, dr, lm = [], [], []
+    for k in range(11):
+        run = _loop_world(7 + k)
+        res = sl.run_fastslam(run, n_particles=300, rng=np.random.default_rng(17 + k))
+        ate.append(sl.ate_rmse(res.x_est, run.x_true))
+        dr.append(sl.ate_rmse(_dead_reckoning(run), run.x_true))
+        lm.append(sl.landmark_rmse(res.landmarks[res.seen], run.landmarks[res.seen]))
+        assert np.all(np.isfinite(res.x_cov)) and np.all(np.linalg.eigvalsh(res.x_cov) >= -1e-12)
+    ate, dr, lm = map(np.array, (ate, dr, lm))
+    assert ate.sum() < 0.9 * dr.sum()  # P(fail) ~ 2e-4
+    assert (ate < dr).sum() >= 6  # better in most worlds: P(fail) ~ 2e-4
+    assert lm.sum() < 1.1 * dr.sum()  # the map is no worse than dead reckoning's path: P(fail) ~ 1e-4
 
 
 # --------------------------------------------------------------------------- bad input
