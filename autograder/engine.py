@@ -57,7 +57,7 @@ import numpy as np
 from .context import CallError, Ctx, Fail, SkipRest
 from .exercises import EXERCISES, get_exercise
 from .results import GradeResult, TestResult
-from .sandbox import MAX_STRETCH, CallOutcome, ChildFailed, Limits, Sandbox, thread_delay
+from .sandbox import LATE, MAX_STRETCH, CallOutcome, ChildFailed, Limits, Sandbox, thread_delay
 from .spec import VISIBILITY
 from .submission import FORBIDDEN, SubmissionError, forbidden_usage, load_submission
 
@@ -152,9 +152,15 @@ class NoOnesTime:
 
 class Budget:
     """Wall-time budgets: one per test (reset by :meth:`start_test`) and one for the whole submission (``shared``:
-    the :class:`NoOnesTime` of the grading, which its functions' budgets share)."""
+    the :class:`NoOnesTime` of the grading, which its functions' budgets share).
 
-    def __init__(self, test_budget, submission_budget, start=None, shared=None):
+    ``count_pauses``: the grader thread's time between calls that was neither its computing nor its waiting for a
+    processor (its process stopped, ``docker pause``, or the thread kept from running by the grader's other
+    threads) is given back too (:meth:`catch_up`). Only where seccomp holds: elsewhere a process of the sandbox
+    could stop the grader itself and compute meanwhile.
+    """
+
+    def __init__(self, test_budget, submission_budget, start=None, shared=None, count_pauses=False):
         self.test_budget = float(test_budget)
         self.submission_budget = float(submission_budget)
         self.start = time.monotonic() if start is None else start
@@ -162,6 +168,8 @@ class Budget:
         self._deadline = self.start + self.submission_budget  # and what extend() gave this function alone
         self.test_deadline = None
         self._grader_waited = None  # the grader thread's waiting for a processor when last looked at (catch_up)
+        self.count_pauses = bool(count_pauses)
+        self._between = None  # (wall, thread CPU, thread waiting) when the grader's thread last stopped calling
 
     @property
     def deadline(self):
@@ -178,18 +186,31 @@ class Budget:
         self.test_deadline = time.monotonic() + float(budget or self.test_budget)
         self.current = float(budget or self.test_budget)
         self._grader_waited = thread_delay()
+        self.between_calls()
+
+    def between_calls(self):
+        """The grader's thread is between calls (a call returned, or a test starts): until its next call it computes
+        the test's scenarios and expected values, none of the submission's work."""
+        self._between = (time.monotonic(), time.thread_time(), thread_delay()) if self.count_pauses else None
 
     def catch_up(self):
         """Give back the time the grader's own thread (this one) has waited for a processor since the test began or
         since the last call: its computing between a test's calls (scenarios, expected values) on a loaded machine
-        is no one's time either."""
+        is no one's time either. With ``count_pauses``, so is the time between calls that the thread neither
+        computed nor waited for a processor, when over ``LATE`` (a pause: the grader's own work between calls does
+        not block)."""
         before = self._grader_waited
-        if before is None:
-            return
-        now = thread_delay()
-        if now is not None and now > before:
-            self._grader_waited = now
-            self.give_back_waiting(now - before)
+        if before is not None:
+            now = thread_delay()
+            if now is not None and now > before:
+                self._grader_waited = now
+                self.give_back_waiting(now - before)
+        if self._between is not None:
+            (t0, c0, d0), (t1, c1, d1) = self._between, (time.monotonic(), time.thread_time(), thread_delay())
+            self._between = (t1, c1, d1)
+            paused = (t1 - t0) - (c1 - c0) - (d1 - d0 if d0 is not None and d1 is not None else 0.0)
+            if paused > LATE:
+                self.give_back_waiting(paused)
 
     @property
     def exhausted(self):
@@ -252,7 +273,14 @@ class _WorkerCaller:
         self.retried = False  # a call of this function was run again after a death shared with other calls
         self.forgiven = False  # ... after a death during its call alone
 
-    def call(self, fn, args, kwargs, *, timeout, names=(), global_seed=None, _gone=0):
+    def call(self, fn, args, kwargs, **kw):
+        try:
+            return self._call(fn, args, kwargs, **kw)
+        finally:
+            if self.budget is not None:
+                self.budget.between_calls()
+
+    def _call(self, fn, args, kwargs, *, timeout, names=(), global_seed=None, _gone=0):
         if self.broken:
             return CallOutcome("skipped", error=self.broken)
         if self.budget is not None:
@@ -789,7 +817,10 @@ def _grade(path, exercise, *, limits, workers, seed, functions, secret, final):
         # the functions' budgets run from before the first loading, and what of it was no one's comes back to them
         shared = NoOnesTime(budget_args[1])
         shared.take(grading.box.waited)
-        runs = {fn: _FunctionRun(ex, fn, grading, ready, limits, seed, Budget(*budget_args, start=start, shared=shared))
+        # the grader's pauses between calls are given back only where no process of the sandbox can cause them
+        pauses = bool(((ready or {}).get("isolation") or {}).get("seccomp"))
+        runs = {fn: _FunctionRun(ex, fn, grading, ready, limits, seed,
+                                 Budget(*budget_args, start=start, shared=shared, count_pauses=pauses))
                 for fn in todo}
 
         def each(hidden):

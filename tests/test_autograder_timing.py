@@ -410,3 +410,63 @@ def test_the_first_loading_gives_back_the_grader_s_pauses_only_where_seccomp_hel
         assert box.waited == 0.0, box.waited
     finally:
         box.close()
+
+
+# --------------------------------------------------------------------------- a pause between calls
+def test_a_pause_of_the_grader_between_calls_is_given_back():
+    """Between two calls the grader's thread computes (scenarios, expected values): time it neither computed nor
+    waited for a processor in was a pause of the grader, given back with ``count_pauses`` (where seccomp holds)
+    and only when over LATE; its own computing stays charged."""
+    b = engine_mod.Budget(10.0, 100.0, count_pauses=True)
+    b.start_test()
+    test_end, end = b.test_deadline, b.deadline
+    time.sleep(1.0)  # neither computing nor waiting for a processor: as a stopped process
+    b.catch_up()
+    assert 0.9 <= b.test_deadline - test_end <= 1.5 and b.deadline - end == pytest.approx(b.test_deadline - test_end)
+    b.between_calls()
+    got = b.waited
+    t = time.thread_time() + 1.0
+    while time.thread_time() < t:  # the grader's own computing: no one gives that back
+        pass
+    b.catch_up()
+    assert b.waited - got < 0.5
+    b = engine_mod.Budget(10.0, 100.0)  # count_pauses=False: nothing of it
+    b.start_test()
+    time.sleep(1.0)
+    b.catch_up()
+    assert b.waited < 0.5
+
+
+@pytest.mark.parametrize("seccomp", [True, False])
+def test_a_pause_of_the_grader_computing_expected_values_costs_no_test(tmp_path, monkeypatch, seccomp):
+    """The grader's process stopped for 2 s (SIGSTOP) while it computed an expected value between two calls of a
+    test whose budget is 1 s: the correct submission keeps the test where seccomp holds. Without seccomp a process
+    of the sandbox could stop the grader, so the pause is charged (the test then runs out of its budget)."""
+    import slamlib as sl
+
+    real, paused = sl.normalize_log_weights, []
+
+    def pausing(log_w):
+        if not paused:
+            paused.append(1)
+            _stop([os.getpid()], 0.0, 2.0).wait()
+        return real(log_w)
+
+    path = tmp_path / "sub.py"
+    path.write_text(solution_text("particle_filter"))
+    limits = Limits(test_budget=1.0, seccomp=seccomp)
+    probe = _box(SLEEPER, Limits(seccomp=seccomp))
+    try:
+        held = _seccomp(probe.start())
+    finally:
+        probe.close()
+    if seccomp and not held:
+        pytest.skip("seccomp is not available here")
+    monkeypatch.setattr(sl, "normalize_log_weights", pausing)
+    result = engine_mod.grade(path, "particle_filter", functions=["normalize_log_weights"], limits=limits, workers=1)
+    first = result.tests[0]
+    assert paused
+    if seccomp:
+        assert result.score == result.max_score, [t.output for t in result.tests]
+    else:
+        assert first.score == 0 and "time budget of 1 s was used up" in first.output, first.output
