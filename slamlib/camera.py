@@ -512,7 +512,10 @@ def essential_ransac(x1, x2, *, threshold, rng, confidence=0.999, max_iter=2000,
     beyond it have no weight), over ``E = U Exp(a) diag(1, 1, 0) Exp(b)^T V^T``
     (five degrees of freedom, so ``E`` stays essential). The refinement replaces the
     sample when it explains more matches, and polishes the final refit when it
-    explains at least as many.
+    explains at least as many. It maximises the consensus better than the linear
+    fit, so where a wrong model explains as many matches as the true one (a
+    threshold of many noise deviations, a second rigidly moving object, a planar
+    scene) it finds that one as readily.
 
     References
     ----------
