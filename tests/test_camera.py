@@ -150,7 +150,7 @@ def test_ransac_finds_the_true_consensus_and_stops_early():
     is within 0.015 rad (the eight-point fit to all true matches: at most 0.012 over 1000
     scenes). Measured over 1500 scenes (seeds 1408-2907, not the ones the method was
     developed on): 5 not right (two a wrong local optimum missing 17 and 21 true matches,
-    three 3-4 accepted outliers pulling the rotation 0.018-0.024 rad). At most one of
+    three with 3-4 accepted outliers, two of them pulling the rotation 0.018 and 0.024 rad). At most one of
     four scenes may be wrong: false failure ~6 (0.0033)^2 ~ 7e-5. Without the refinement
     (``refine=False``) 104 of 300 scenes are not right by the old bounds (68 miss more than
     14 true matches).

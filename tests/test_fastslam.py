@@ -882,8 +882,8 @@ def test_run_tracks_ancestry_and_ess(world):
 def test_known_correspondences_beat_dead_reckoning():
     """Over 11 worlds: FastSLAM 1.0 (300 particles) beats dead reckoning in sum and in most worlds.
 
-    One world decides nothing: over 250 worlds dead reckoning's error ranged 0.18-2.8 m and
-    FastSLAM's 0.1-1.5 m; FastSLAM was worse in 9.6 % of them and its landmark RMSE, which
+    One world decides nothing: over 250 worlds (these 11 among them) dead reckoning's error
+    ranged 0.15-2.9 m and FastSLAM's 0.10-1.54 m; FastSLAM was worse in 9.6 % of them and its landmark RMSE, which
     follows its path error (median ratio 1.0), exceeded 0.5 m in 32 %. Resampling 11 of those
     250 worlds, the three assertions below fail together with probability ~4e-4.
     """
