@@ -191,7 +191,12 @@ class Budget:
     def between_calls(self):
         """The grader's thread is between calls (a call returned, or a test starts): until its next call it computes
         the test's scenarios and expected values, none of the submission's work."""
-        self._between = (time.monotonic(), time.thread_time(), thread_delay()) if self.count_pauses else None
+        if self.count_pauses:  # waiting and computing read before the wall clock here, after it in catch_up: they
+            # bracket the wall interval, so a wait between two readings is subtracted, never counted twice
+            d, c = thread_delay(), time.thread_time()
+            self._between = (time.monotonic(), c, d)
+        else:
+            self._between = None
 
     def catch_up(self):
         """Give back the time the grader's own thread (this one) has waited for a processor since the test began or
@@ -206,8 +211,11 @@ class Budget:
                 self._grader_waited = now
                 self.give_back_waiting(now - before)
         if self._between is not None:
-            (t0, c0, d0), (t1, c1, d1) = self._between, (time.monotonic(), time.thread_time(), thread_delay())
-            self._between = (t1, c1, d1)
+            t1 = time.monotonic()
+            c1 = time.thread_time()
+            d1 = thread_delay()
+            t0, c0, d0 = self._between
+            self.between_calls()  # counted once
             paused = (t1 - t0) - (c1 - c0) - (d1 - d0 if d0 is not None and d1 is not None else 0.0)
             if paused > LATE:
                 self.give_back_waiting(paused)
