@@ -62,7 +62,7 @@ from ._checks import (as_array, as_covariance, as_index, as_indices, as_returned
                       as_slam_state, as_threshold, check_callable)
 from .angles import _wrap, _wrap1, wrap_angle
 from .motion import STRAIGHT_LINE_OMEGA, _arc1, velocity_motion
-from .sensors import _landmark_measurement, _rb1, landmark_from_measurement, landmark_measurement
+from .sensors import MIN_RANGE, _landmark_measurement, _rb1, landmark_from_measurement, landmark_measurement
 
 __all__ = [
     "ekf_slam_predict",
@@ -212,11 +212,12 @@ def _jcbb(mu, sub_sigma, Z, d, Q, alpha):
     by_i = [np.flatnonzero(pi == i) for i in range(K)]
     best_pairs, best_d2 = [], math.inf
 
+    QQ = np.kron(np.eye(K), Q)  # blockdiag(Q, ..., Q)
+    pair_rows = 2 * np.arange(P)[:, None] + np.arange(2)
+
     def joint(sel):
-        rows = (2 * np.asarray(sel)[:, None] + np.arange(2)).ravel()
-        S = C[np.ix_(rows, rows)]
-        for b in range(len(sel)):  # + blockdiag(Q, ..., Q)
-            S[2 * b:2 * b + 2, 2 * b:2 * b + 2] += Q
+        rows = pair_rows[sel].ravel()
+        S = C[rows[:, None], rows] + QQ[:rows.size, :rows.size]
         v = nu[rows]
         # D^2 = nu_H^T S_H^-1 nu_H, the joint Mahalanobis distance  (Neira & Tardos 2001)
         return float(v @ np.linalg.solve(S, v))
@@ -781,6 +782,12 @@ class EKFSLAM:
     * The buffers have room for `capacity` landmarks and double when full:
       adding a landmark writes two rows and columns, it does not copy the
       covariance.
+    * :meth:`associate` and :meth:`jcbb` compute the distance
+      ``nu^T S_k^-1 nu`` only for the landmarks a lower bound does not
+      already put beyond the threshold: ``d >= nu_i^2 / S_k,ii`` and each
+      ``S_k,ii`` is bounded by variances on the diagonal of ``S`` (``O(N)``
+      per measurement, no pending terms, no angle wrapping); the choice is
+      the same as over every landmark's distance.
 
     The views `mu` and `Sigma` change as the filter runs; copy them to keep a
     snapshot.
@@ -794,9 +801,6 @@ class EKFSLAM:
 
     #: Motion model ``motion(x, u, dt) -> (x_next, G, V)``; None is the velocity model (exact arc).
     _motion = None
-    #: The blocks of ``Sigma`` that association reads (:meth:`_blocks`), kept up to date through the
-    #: updates of one scan (rank-2 downdates); None: compute them again (after a prediction or a new landmark).
-    _bc = None
 
     def __init__(self, x0, Sigma0=None, *, capacity=16, prior_var=DEFAULT_PRIOR_VAR):
         x0 = as_array(x0, "x0", (3,))
@@ -853,7 +857,6 @@ class EKFSLAM:
         self._S = np.zeros((size, size))
         self._Pt = np.zeros((_PENDING_COLS, size))  # P^T: pending corrections, one per row
         self._k = 0
-        self._bc = None
 
     def _grow(self):
         self._flush()
@@ -918,7 +921,6 @@ class EKFSLAM:
         new = object.__new__(EKFSLAM)
         new.__dict__.update(self.__dict__)
         new._mu, new._S, new._Pt = self._mu.copy(), self._S.copy(), self._Pt.copy()
-        new._bc = None
         return new
 
     # ----------------------------------------------------------------- steps
@@ -952,7 +954,6 @@ class EKFSLAM:
 
     def _predict(self, u, dt, M):
         n, k, S = self._n, self._k, self._S
-        self._bc = None  # the robot rows change
         if self._motion is None:
             x_next, G, V = _arc1(self._mu[:3], u, dt)
         else:  # a pluggable motion model, e.g. slamlib.AckermannModel: (x_next, G, V) of the pose
@@ -1004,10 +1005,6 @@ class EKFSLAM:
         self._mu[a:a + 2] = landmark_from_measurement(self._mu[:3], z)
         self._S[a, a] = self._S[a + 1, a + 1] = self.prior_var
         self._Pt[:, a:a + 2] = 0.0
-        if self._bc is not None:  # the blocks association reads gain the new landmark's: no correlation, prior_var I
-            Sxx, Sxm, Smm = self._bc
-            self._bc = (Sxx, np.concatenate([Sxm, np.zeros((1, 3, 2))]),
-                        np.concatenate([Smm, [[[self.prior_var, 0.0], [0.0, self.prior_var]]]]))
         self._n += 2
         return j
 
@@ -1067,17 +1064,7 @@ class EKFSLAM:
             Pt = self._Pt[:k]
             R -= Pt.take(idx, 1).T.dot(Pt[:, :n])  # minus the pending terms
         HP = h.dot(R)  # (Sigma H^T)^T, shape (2, n)  (Eq. 17.3: H = h F_{x,j})
-        (b00, b01), (b10, b11) = HP.take(idx, 1).dot(h.T).tolist()
-        (q00, q01), (_, q11) = Q.tolist()
-        # S = H Sigma_bar H^T + Q  (Table 10.1 line 17), factored S = L L^T by hand
-        s00, s01, s11 = b00 + q00, 0.5 * (b01 + b10) + q01, b11 + q11
-        l00 = math.sqrt(s00) if s00 > 0 else _not_pd()
-        l10 = s01 / l00
-        rest = s11 - l10 * l10
-        l11 = math.sqrt(rest) if rest > 0 else _not_pd()
-        i00, i11, i10 = 1.0 / l00, 1.0 / l11, -l10 / (l00 * l11)  # L^-1
-        nu0, nu1 = z[0] - r_hat, _wrap1(z[1] - phi_hat)  # nu = z - z_hat, bearing wrapped
-        e0, e1 = i00 * nu0, i10 * nu0 + i11 * nu1  # L^-1 nu
+        i00, i10, i11, e0, e1 = _whiten(HP.take(idx, 1).dot(h.T), Q, z, r_hat, phi_hat)
         if e0 * e0 + e1 * e1 > gate:  # validation gate: nu^T S^-1 nu = |L^-1 nu|^2 > gate
             return False
         Wt = np.array([[i00, 0.0], [i10, i11]]).dot(HP)  # W^T = L^-1 (Sigma H^T)^T: W W^T = K S K^T
@@ -1085,12 +1072,6 @@ class EKFSLAM:
         mu[2] = _wrap1(mu.item(2))
         self._Pt[k:k + 2, :n] = Wt  # Sigma -= W W^T, applied in _flush  (Table 10.1 line 19)
         self._k = k + 2
-        if self._bc is not None:  # the same downdate of the blocks association reads, O(N)
-            Sxx, Sxm, Smm = self._bc
-            W3, Wl = Wt[:, :3], Wt[:, 3:n].reshape(2, -1, 2)
-            Sxx -= W3.T @ W3
-            Sxm -= np.einsum("ri,rlc->lic", W3, Wl)
-            Smm -= np.einsum("rli,rlj->lij", Wl, Wl)
         return True
 
     def step(self, u, dt, M, z, j, Q):
@@ -1183,9 +1164,7 @@ class EKFSLAM:
         N = self.n_landmarks
         if N == 0:
             return np.empty((Z.shape[0], 0))
-        if self._bc is None:  # once per scan: the updates of its detections keep the blocks up to date
-            self._bc = self._blocks()
-        z_hat, Sk = _predicted(self._mu[:self._n], *self._bc, Q)
+        z_hat, Sk = _predicted(self._mu[:self._n], *self._blocks(), Q)
         return _nis(Z, z_hat, Sk)
 
     def jcbb(self, z, Q, alpha):
@@ -1213,9 +1192,14 @@ class EKFSLAM:
         return self._jcbb(as_array(z, "z", (None, 2)), as_covariance(Q, "Q", 2), as_threshold(alpha, "alpha"))
 
     def _jcbb(self, Z, Q, alpha):
-        if self.n_landmarks == 0:
+        N = self.n_landmarks
+        if N == 0:
             return np.full(Z.shape[0], JCBB_NEW)
-        return _jcbb(self._mu[:self._n], self._sub_sigma, Z, self._distances(Z, Q), Q, alpha)[0]
+        # only the distances within alpha count (individual compatibility): the others stay infinite
+        d = np.full((Z.shape[0], N), np.inf)
+        for i, j in zip(*np.nonzero(self._in_reach(Z, Q, alpha))):
+            d[i, j] = self._nis1(Z[i], int(j), Q)
+        return _jcbb(self._mu[:self._n], self._sub_sigma, Z, d, Q, alpha)[0]
 
     def associate(self, z, Q, alpha):
         """Data association of Algorithm 2, vectorised over landmarks.
@@ -1244,11 +1228,63 @@ class EKFSLAM:
         return self._associate(as_array(z, "z", (2,)), as_covariance(Q, "Q", 2), as_threshold(alpha, "alpha"))
 
     def _associate(self, z, Q, alpha):
-        d = self._mahalanobis(z, Q)
-        if d.size == 0:
-            return 0
-        best = int(np.argmin(d))  # argmin returns the first (smallest) index among ties
-        return best if d[best] <= alpha else self.n_landmarks  # (Table 10.2 lines 19-20)
+        N = self.n_landmarks
+        best, d_best = N, alpha
+        for j in np.flatnonzero(self._in_reach(z[None], Q, alpha)).tolist():
+            # ascending: a tie goes to the smallest index  (Table 10.2 lines 16-20)
+            d = self._nis1(z, j, Q)
+            if d < d_best or (d == d_best and best == N):
+                best, d_best = j, d
+        return best
+
+    def _in_reach(self, Z, Q, alpha):
+        """Mask ``(K, N)`` of the landmarks whose squared Mahalanobis distance to each of ``Z (K, 2)`` may be ``<= alpha``.
+
+        Every landmark the exact test would find within `alpha` is in the mask; most that are not, are not.
+        """
+        N, n, mu = self.n_landmarks, self._n, self._mu
+        x, y, th = mu[:3].tolist()
+        lm = mu[3:n].reshape(N, 2)
+        dx, dy = lm[:, 0] - x, lm[:, 1] - y
+        q = dx * dx + dy * dy
+        r = np.sqrt(q)
+        if N and r.min() < MIN_RANGE:
+            raise ValueError("m coincides with the pose x (range 0): bearing and Jacobians are undefined")
+        if math.isinf(alpha):
+            return np.ones((Z.shape[0], N), dtype=bool)
+        # For a positive definite S, d = nu^T S^-1 nu >= nu_i^2 / S_ii (Cauchy-Schwarz), and each S_ii has
+        # an upper bound from variances alone: with T = tr Cov(p) + tr Cov(m_k) (p the robot's position),
+        #   range:   S_00 = Var(u^T (m_k - p)) + Q_00 <= 2 T + Q_00                       (u a unit vector)
+        #   bearing: S_11 = Var(v^T (m_k - p) / r - theta) + Q_11 <= 4 T / q + 2 Var(theta) + Q_11
+        # (Var(a + b) <= 2 Var a + 2 Var b). The diagonal of the dense S bounds Sigma's from above (the
+        # pending terms only subtract), and nu_1^2 >= 2 (1 - cos nu_1) = 2 (1 - (c dx + s dy) / r) with
+        # (c, s) the measured bearing's direction: an O(KN) test with no angle wrapping and no pending terms.
+        diag = np.diagonal(self._S)
+        T = diag[3:n:2] + diag[4:n:2]
+        T += diag.item(0) + diag.item(1)
+        a = alpha * (1.0 + 1e-9)  # rounding of the bound never drops a landmark the exact test keeps
+        nu0 = r - Z[:, :1]
+        near = nu0 * nu0 <= (2.0 * a) * T + a * Q.item(0, 0)
+        z1 = Z[:, 1:] + th
+        one_minus_cos = 1.0 - (np.cos(z1) * dx + np.sin(z1) * dy) / r
+        near &= one_minus_cos <= (2.0 * a) * T / q + (a * (diag.item(2) + 0.5 * Q.item(1, 1)) + 1e-12)
+        return near
+
+    def _nis1(self, z, j, Q):
+        """``nu^T S^-1 nu`` of measurement `z` against landmark `j` alone, from the five rows of ``H``."""
+        k, a = self._k, 3 + 2 * j
+        idx = _ROWS.get(a)
+        if idx is None:
+            idx = _rows(a)
+        r_hat, phi_hat, dx, dy, q = _rb1(*self._mu.take(idx).tolist())
+        h = np.array([[-dx / r_hat, -dy / r_hat, 0.0, dx / r_hat, dy / r_hat],
+                      [dy / q, -dx / q, -1.0, -dy / q, dx / q]])  # h_t^j  (Eq. 17.3)
+        B = self._S.take(idx, 0).take(idx, 1)  # the (robot, landmark j) block of Sigma
+        if k:
+            P = self._Pt[:k].take(idx, 1)
+            B -= P.T.dot(P)  # minus the pending terms
+        _, _, _, e0, e1 = _whiten(h.dot(B).dot(h.T), Q, z, r_hat, phi_hat)
+        return e0 * e0 + e1 * e1
 
 
 #: Index rows ``[0, 1, 2, a, a+1]`` of the landmark at state offset ``a``, built once per offset by :func:`_rows`.
@@ -1264,6 +1300,25 @@ def _rows(a):
 
 def _not_pd():
     raise ValueError("innovation covariance S = H Sigma H^T + Q is not positive definite")
+
+
+def _whiten(HSH, Q, z, r_hat, phi_hat):
+    """Factor ``S = H Sigma H^T + Q = L L^T`` (2 x 2, by hand) and whiten the innovation of `z`.
+
+    Returns the entries ``i00, i10, i11`` of ``L^-1`` (lower triangular) and ``e = L^-1 nu``
+    (``nu = z - z_hat``, bearing wrapped), so that ``nu^T S^-1 nu = e0^2 + e1^2``; Python floats.
+    """
+    (b00, b01), (b10, b11) = HSH.tolist()
+    (q00, q01), (_, q11) = Q.tolist()
+    # S = H Sigma_bar H^T + Q  (Table 10.1 line 17)
+    s00, s01, s11 = b00 + q00, 0.5 * (b01 + b10) + q01, b11 + q11
+    l00 = math.sqrt(s00) if s00 > 0 else _not_pd()
+    l10 = s01 / l00
+    rest = s11 - l10 * l10
+    l11 = math.sqrt(rest) if rest > 0 else _not_pd()
+    i00, i11, i10 = 1.0 / l00, 1.0 / l11, -l10 / (l00 * l11)  # L^-1
+    nu0, nu1 = float(z[0]) - r_hat, _wrap1(float(z[1]) - phi_hat)  # nu = z - z_hat, bearing wrapped
+    return i00, i10, i11, i00 * nu0, i10 * nu0 + i11 * nu1  # L^-1 nu
 
 
 # --------------------------------------------------------------------------- provisional list
@@ -1586,11 +1641,13 @@ def run_ekf_slam(run, *, known=True, fast=True, alpha=DEFAULT_ALPHA, confirm=1, 
     n_rejected = n_gated = 0
     used = []
 
-    def record(t):
+    def record(t, changed=True):
         xs[t] = filt.x
         Sxs[t] = filt.Sigma_x
         n_lm[t] = filt.n_landmarks
-        variances.append(filt.landmark_variances())
+        # the prediction leaves the landmark blocks alone (Table 10.1 line 5): without an update or a new
+        # landmark the variances are the last step's (the teaching version's steps may be a student's: always read)
+        variances.append(filt.landmark_variances() if changed or not fast else variances[-1])
         if t in keep:
             kept[t] = (np.array(filt.mu), np.array(filt.Sigma), np.array(landmark_ids, dtype=int))
 
@@ -1630,7 +1687,7 @@ def run_ekf_slam(run, *, known=True, fast=True, alpha=DEFAULT_ALPHA, confirm=1, 
             else:
                 n_gated += 1  # validation gate: an outlier
         used.append(slots)
-        record(t + 1)
+        record(t + 1, filt.n_landmarks != n_lm[t] or bool((slots >= 0).any()))
 
     L = filt.n_landmarks
     var = np.full((T + 1, L), np.nan)

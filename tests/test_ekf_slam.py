@@ -996,46 +996,111 @@ def test_predicted_measurements_are_H_Sigma_Ht_plus_Q_with_the_full_jacobian():
         np.testing.assert_allclose(Sk[k], H @ Sigma @ H.T + Q, rtol=1e-12, atol=1e-12)
 
 
-_Q_BLOCKS = np.diag([0.05, 0.01])
-_Z_BLOCKS = np.array([4.0, 0.2])
+def _pending_filter(rng):
+    """A filter in the middle of a scan (pending rank-2 terms), drawn over scales and geometries.
+
+    Landmarks 0.05-20 m from the robot, covariances from 1e-4 to 10 times a random SPD matrix with
+    strong robot-landmark correlations, a measurement noise with correlated components.
+    """
+    N = int(rng.integers(1, 25))
+    x = np.array([*rng.uniform(-5, 5, 2), rng.uniform(-np.pi, np.pi)])
+    ang, rad = rng.uniform(-np.pi, np.pi, N), np.exp(rng.uniform(np.log(0.05), np.log(20.0), N))
+    mu = np.concatenate([x, (x[:2] + np.column_stack([rad * np.cos(ang), rad * np.sin(ang)])).ravel()])
+    B = rng.standard_normal((3 + 2 * N, 3 + 2 * N)) * np.exp(rng.uniform(-1, 1, 3 + 2 * N))
+    Sigma = 10.0 ** rng.uniform(-4, 1) * (B @ B.T / (3 + 2 * N) + 0.01 * np.eye(3 + 2 * N))
+    c = rng.uniform(-0.9, 0.9)
+    sr, sb = 10.0 ** rng.uniform(-2, 0), 10.0 ** rng.uniform(-3, -1)
+    Qr = np.array([[sr * sr, c * sr * sb], [c * sr * sb, sb * sb]])
+    f = sl.EKFSLAM.from_state(mu, Sigma)
+    for k in rng.integers(0, N, int(rng.integers(0, 5))):  # updates left pending in the filter
+        f.update(sl.ekf_slam_measurement(np.array(f.mu), int(k))[0] + rng.normal(0, [sr, sb]), int(k), Qr)
+    return f, Qr
 
 
-def _filter_in_a_scan(n_landmarks, **options):
-    """A filter with `n_landmarks` mapped, after a prediction and the first association of a scan."""
-    f = sl.EKFSLAM(np.zeros(3), 0.01 * np.eye(3), **options)
-    for k in range(n_landmarks):
-        zk = np.array([3.0 + k, -1.5 + 0.4 * k])
-        f.update(zk, f.add_landmark(zk), _Q_BLOCKS)
-    f.predict(np.array([1.0, 0.1]), 0.5, np.diag([0.01, 0.001]))
-    f.mahalanobis(_Z_BLOCKS, _Q_BLOCKS)  # computes the blocks for this scan
-    assert f._bc is not None
-    return f
+def _exact_distances(f, z, Q):
+    """nu^T S^-1 nu of `z` to every landmark, from the filter's dense state (reference implementation)."""
+    g = f.copy()
+    mu, Sigma = np.array(g.mu), np.array(g.Sigma)
+    out = []
+    for k in range(g.n_landmarks):
+        z_hat, H = sl.ekf_slam_measurement(mu, k)
+        nu = z - z_hat
+        nu[1] = sl.wrap_angle(nu[1])
+        out.append(nu @ np.linalg.solve(H @ Sigma @ H.T + Q, nu))
+    return np.array(out)
 
 
-def test_association_blocks_follow_the_updates_of_a_scan():
-    # the blocks association reads are computed once per scan and downdated with each update: the
-    # distances after some updates equal those of a filter rebuilt from the same state
-    rng = np.random.default_rng(4)
-    f, Q, z = _filter_in_a_scan(8), _Q_BLOCKS, _Z_BLOCKS
-    for k in (2, 5, 5):
-        f.update(np.array([3.0 + k, -1.5 + 0.4 * k]) + rng.normal(scale=0.05, size=2), k, Q)
-        fresh = sl.EKFSLAM.from_state(f.mu, f.Sigma)
-        np.testing.assert_allclose(f.mahalanobis(z, Q), fresh.mahalanobis(z, Q), rtol=1e-9)
+def test_association_reach_keeps_every_landmark_within_alpha():
+    # the cheap O(N) bound association uses to skip landmarks never drops one the exact test finds
+    # within alpha, also at alpha equal to a landmark's distance (the bound is tight there to 1e-9),
+    # with pending terms, landmarks close to the robot and correlated noise
+    rng = np.random.default_rng(61)
+    for _ in range(150):
+        f, Qr = _pending_filter(rng)
+        assert f._k > 0 or f.n_landmarks > 0
+        mu = np.array(f.mu)
+        N = f.n_landmarks
+        for _ in range(3):
+            k = int(rng.integers(N))  # near a landmark, or anywhere
+            z = sl.ekf_slam_measurement(mu, k)[0] + rng.normal(0, 3.0 * np.sqrt(np.diag(Qr)))
+            if rng.random() < 0.3:
+                z = np.array([rng.uniform(0.1, 25.0), rng.uniform(-np.pi, np.pi)])
+            d = _exact_distances(f, z, Qr)
+            for alpha in [*d, es.DEFAULT_ALPHA, 5.99]:
+                reach = f._in_reach(z[None], Qr, alpha)[0]
+                assert reach.shape == (N,)
+                missed = np.flatnonzero((d <= alpha) & ~reach)
+                assert missed.size == 0, (alpha, d[missed])
 
 
-def test_association_blocks_gain_each_new_landmark_of_a_scan():
-    # a landmark added within a scan extends the blocks association reads (no correlation, prior_var I)
-    # instead of dropping them: they equal the blocks of the filter's covariance, before and after the
-    # new landmark's first update, and the distances equal those of a rebuilt filter
-    f, Q, z = _filter_in_a_scan(3, capacity=8, prior_var=50.0), _Q_BLOCKS, _Z_BLOCKS
-    for zk in (np.array([2.5, 1.2]), np.array([6.0, -0.7])):
-        j = f.add_landmark(zk)
-        for when in ("added", "updated"):
-            assert f._bc is not None  # kept through the scan, not computed again
-            for cached, exact in zip(f._bc, f._blocks()):
-                np.testing.assert_allclose(cached, exact, rtol=1e-12, atol=1e-12)
-            fresh = sl.EKFSLAM.from_state(f.mu, f.Sigma, prior_var=50.0)
-            np.testing.assert_allclose(f.mahalanobis(z, Q), fresh.mahalanobis(z, Q), rtol=1e-9)
-            if when == "added":
-                f.update(zk, j, Q)
-    assert f.n_landmarks == 5
+@pytest.mark.parametrize("axis", ["range", "bearing"])
+def test_association_reach_is_kept_where_its_bound_is_tight(axis):
+    # the bound's worst case: robot and landmark errors along one axis, perfectly anti-correlated with
+    # equal variances (Var(a + b) = 2 Var a + 2 Var b, and the trace is the largest eigenvalue). A
+    # landmark at exactly alpha is still kept, so a bound any tighter (a factor 2 less) would drop it
+    s, eps = 0.5, 1e-12
+    mu = np.array([0.0, 0.0, 0.0, 5.0, 0.0])  # landmark 5 m ahead: u = (1, 0), v = (0, 1)
+    if axis == "range":  # Var(m_x - p_x) = 4 s^2 = 2 (tr Cov(p) + tr Cov(m))
+        b, z = np.array([-s, 0.0, 0.0, s, 0.0]), np.array([5.0 + 3 * s, 0.0])
+    else:  # (m_y - p_y) / r and -theta perfectly correlated, with equal variances: the bearing bound's case
+        b, z = np.array([0.0, -s, -2 * s / 5, 0.0, s]), np.array([5.0, 0.02])
+    f = sl.EKFSLAM.from_state(mu, np.outer(b, b) + eps * np.eye(5))
+    Qr = np.diag([1e-4, 1e-6])
+    d = _exact_distances(f, z, Qr)[0]
+    assert f._in_reach(z[None], Qr, d)[0, 0]
+    assert f.associate(z, Qr, d * (1 + 1e-9)) == 0 and f.associate(z, Qr, d * (1 - 1e-9)) == 1
+
+
+def test_association_reach_skips_most_landmarks_of_a_mapped_world():
+    # what the bound is for: once the map is built, a measurement is within reach of few landmarks
+    counts = []
+    for seed in (1, 2, 3):
+        run = make_run(seed, n_landmarks=40, extent=24.0)
+        T = run.u.shape[0]
+        mu, Sigma, _ = sl.run_ekf_slam(run, known=False, snapshots=[T]).snapshots[T]
+        f = sl.EKFSLAM.from_state(mu, Sigma)
+        counts.append(f._in_reach(np.vstack(run.z[-40:]), Q, es.DEFAULT_ALPHA).sum(axis=1) / f.n_landmarks)
+    # measured: 6-8 % of the 16-19 landmarks mapped on average, at most 3 landmarks for one measurement
+    assert np.mean(np.concatenate(counts)) < 0.15
+
+
+def test_associate_equals_nearest_neighbour_over_every_landmark():
+    # EKFSLAM.associate and .jcbb, which compute distances only for the landmarks in reach, choose what
+    # Algorithm 2 and the dense JCBB choose from every landmark's distance
+    rng = np.random.default_rng(62)
+    for _ in range(100):
+        f, Qr = _pending_filter(rng)
+        mu, Sigma = np.array(f.mu), np.array(f.copy().Sigma)  # the copy flushes, f keeps its pending terms
+        N = f.n_landmarks
+        Z = np.array([sl.ekf_slam_measurement(mu, int(k))[0] for k in rng.integers(0, N, 3)])
+        Z += rng.normal(0, 2.0 * np.sqrt(np.diag(Qr)), Z.shape)
+        for z in Z:
+            d = _exact_distances(f, z, Qr)
+            cuts = np.sort(d)
+            # thresholds between the distances (an exact tie with alpha is a matter of rounding)
+            for alpha in [*(0.5 * (cuts[1:] + cuts[:-1])), 0.5 * cuts[0], 2 * cuts[-1], es.DEFAULT_ALPHA, np.inf]:
+                want = int(np.argmin(d)) if d.min() <= alpha else N
+                assert f.associate(z, Qr, alpha) == want
+                if np.isfinite(alpha):
+                    assert sl.ekf_slam_associate(mu, Sigma, z, N, Qr, alpha) == want
+        np.testing.assert_array_equal(f.jcbb(Z, Qr, es.JCBB_ALPHA), sl.jcbb_associate(mu, Sigma, Z, N, Qr, es.JCBB_ALPHA))
