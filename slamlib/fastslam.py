@@ -54,11 +54,11 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .particle import _normalized, effective_sample_size, low_variance_resample, normalize_log_weights, particle_gaussian
+from .particle import _normalized, low_variance_resample, normalize_log_weights, particle_gaussian
 from ._checks import (as_array, as_count, as_covariance, as_invertible_covariance, as_poses, as_range_bearing,
                       as_returned, as_rows, as_scalar, as_threshold, check_callable, check_choice, check_field_shapes,
                       check_log_weights, check_rng, check_type)
-from .angles import _wrap, wrap_angle
+from .angles import _circular_mean, _wrap, wrap_angle
 from .motion import _arc, _arc_pose, _control_sqrt, sample_motion_model_velocity, velocity_motion
 from .sensors import _landmark_measurement, landmark_from_measurement, landmark_measurement
 
@@ -1598,7 +1598,7 @@ def _update2_known_core(state, u, dt, L, z, ids, Q, rng, gate=None, copy=True, m
     outliers = np.zeros((n, ids.size), dtype=bool)
     x_hat, B = _motion_terms(x_prev, u, dt, L, motion)
     if ids.size == 0:
-        eta = _sample_eta((np.ones(n), np.zeros(n), np.ones(n)), (np.zeros(n), np.zeros(n)), rng, n)
+        eta = rng.standard_normal((n, 2))  # eta ~ N(0, I): _sample_eta with P = I, b = 0, bit for bit
         return state._replace(poses=_move(x_prev, u, dt, L, eta, motion)), outliers
     maps = state._blocks()
     cols, ids = np.unique(ids, return_inverse=True)  # the slots this step touches; ids: their columns
@@ -1847,7 +1847,7 @@ def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rn
     K = z.shape[0]
     x_prev = state.poses
     if K == 0 and max_range is None:  # nothing to associate or prune: the motion sample, the maps unchanged
-        eta = _sample_eta((np.ones(n), np.zeros(n), np.ones(n)), (np.zeros(n), np.zeros(n)), rng, n)
+        eta = rng.standard_normal((n, 2))  # eta ~ N(0, I): _sample_eta with P = I, b = 0, bit for bit
         return FastSLAMState._from_maps(_move(x_prev, u, dt, L, eta, motion), state._blocks(),
                                         _normalized(state.log_weights.copy()))
     x_hat, B = _motion_terms(x_prev, u, dt, L, motion)
@@ -2337,10 +2337,10 @@ def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=Non
             rejected[t] = prior_w @ out.sum(axis=1)  # measurements rejected, averaged over the prior weights
         poses_hist[t + 1] = state.poses
         w = np.exp(state.log_weights)  # normalised: logsumexp(log_weights) = 0
-        x_est[t + 1], x_cov[t + 1] = particle_gaussian(state.poses, state.log_weights, angles=(2,))
+        x_est[t + 1], x_cov[t + 1] = _pose_moments(state.poses, state.log_weights)
         best = int(np.argmax(w))
         n_lm[t + 1] = _n_seen(state, best)
-        ess[t] = effective_sample_size(w)
+        ess[t] = _ess(w)
         if t == T - 1:
             break  # keep the last weights: they pick the final most likely particle
         if ess[t] < thr * n:
@@ -2349,6 +2349,24 @@ def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=Non
         else:
             parents[t + 2] = identity
     return _finish(state, poses_hist, parents, x_est, x_cov, ess, resampled, n_lm, rejected, gate)
+
+
+def _pose_moments(poses, log_weights):
+    """``particle_gaussian(poses, log_weights, angles=(2,))`` without its argument checks: the same operations in
+    the same order (the same result, bit for bit), for the per-step summary of :func:`run_fastslam`."""
+    w = np.exp(_normalized(log_weights))
+    mean = w @ poses
+    mean[2] = _circular_mean(poses[:, 2], w)  # atan2(sum w sin theta, sum w cos theta)
+    e = poses - mean
+    e[:, 2] = _wrap(e[:, 2])
+    cov = (e * w[:, None]).T @ e  # sum_m w_m e_m e_m^T
+    return mean, 0.5 * (cov + cov.T)
+
+
+def _ess(w):
+    """``effective_sample_size(w)`` without its argument checks (the same operations): ``(sum w)^2 / sum w^2``."""
+    s = w / w.max()
+    return float(s.sum() ** 2 / np.sum(s * s))
 
 
 def _finish(last, poses_hist, parents, x_est, x_cov, ess, resampled, n_lm, rejected, gate):
