@@ -58,7 +58,7 @@ from .particle import _normalized, low_variance_resample, normalize_log_weights,
 from ._checks import (as_array, as_count, as_covariance, as_invertible_covariance, as_poses, as_range_bearing,
                       as_returned, as_rows, as_scalar, as_threshold, check_callable, check_choice, check_field_shapes,
                       check_log_weights, check_rng, check_type)
-from .angles import _circular_mean, _wrap, wrap_angle
+from .angles import _wrap, wrap_angle
 from .motion import _arc, _arc_pose, _control_sqrt, sample_motion_model_velocity, velocity_motion
 from .sensors import _landmark_measurement, landmark_from_measurement, landmark_measurement
 
@@ -1267,11 +1267,24 @@ def _within_reach(z, zb0, zb1, seen, s0, s1, f):
     :func:`_reach_factor`), so its likelihood is below ``p0`` and it can
     never be chosen.
     """
-    y0 = np.abs(z[:, 0, None, None] - zb0)
-    # |wrap(phi_i - zb1)| <= f s1 with both bearings in [-pi, pi]: |phi_i - zb1| <= f s1 or >= 2 pi - f s1
-    t1 = f * s1
-    y1 = np.abs(_wrap(z[:, 1])[:, None, None] - zb1)
-    return (seen & (y0 <= f * s0) & ((y1 <= t1) | (y1 >= 2.0 * np.pi - t1))).any(axis=1)
+    K, C = z.shape[0], zb0.shape[1]
+    t0, t1 = f * s0, f * s1
+    # a cheaper necessary condition first, per (measurement, candidate): the range must lie in the union of
+    # the particles' intervals [zb0 - f s0, zb0 + f s0], widened by far more than the rounding of either
+    # test (relative 1e-9 of the largest magnitude involved) so that it never drops a pair the exact test keeps
+    lo = np.where(seen, zb0 - t0, np.inf).min(axis=0)
+    hi = np.where(seen, zb0 + t0, -np.inf).max(axis=0)
+    slack = 1e-9 * (1.0 + np.abs(z[:, 0]).max(initial=0.0) + np.where(seen, np.abs(zb0) + t0, 0.0).max(axis=0))
+    i, j = np.nonzero((z[:, 0, None] >= lo - slack) & (z[:, 0, None] <= hi + slack))  # (pairs,)
+    out = np.zeros((K, C), dtype=bool)
+    if i.size:
+        # the exact test on those pairs only, every particle
+        y0 = np.abs(z[i, 0, None] - zb0.T[j])  # (pairs, M)
+        # |wrap(phi_i - zb1)| <= f s1 with both bearings in [-pi, pi]: |phi_i - zb1| <= f s1 or >= 2 pi - f s1
+        y1 = np.abs(_wrap(z[:, 1])[i, None] - zb1.T[j])
+        t1 = t1.T[j]
+        out[i, j] = (seen.T[j] & (y0 <= t0.T[j]) & ((y1 <= t1) | (y1 >= 2.0 * np.pi - t1))).any(axis=1)
+    return out
 
 
 #: Maps of at most this many blocks are gathered whole by :func:`_unknown_window`: below it, reading the
@@ -2356,7 +2369,8 @@ def _pose_moments(poses, log_weights):
     the same order (the same result, bit for bit), for the per-step summary of :func:`run_fastslam`."""
     w = np.exp(_normalized(log_weights))
     mean = w @ poses
-    mean[2] = _circular_mean(poses[:, 2], w)  # atan2(sum w sin theta, sum w cos theta)
+    # atan2(sum w sin theta, sum w cos theta), wrapped (_circular_mean without wrap_angle's checks)
+    mean[2] = _wrap(np.arctan2(np.sum(w * np.sin(poses[:, 2]), axis=0), np.sum(w * np.cos(poses[:, 2]), axis=0)))
     e = poses - mean
     e[:, 2] = _wrap(e[:, 2])
     cov = (e * w[:, None]).T @ e  # sum_m w_m e_m e_m^T

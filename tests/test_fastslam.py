@@ -1699,3 +1699,25 @@ def test_run_summaries_equal_the_checked_functions_bit_for_bit():
         np.testing.assert_array_equal(cov, g.cov)
         w = np.exp(lw)
         assert fs._ess(w) == sl.effective_sample_size(w)
+
+
+def test_within_reach_equals_the_test_over_every_pair():
+    # _within_reach tests the range against the union of the particles' intervals first and runs the
+    # exact test only on the (measurement, candidate) pairs that pass; the result must be the exact test's
+    from slamlib import fastslam as fs
+
+    rng = np.random.default_rng(8)
+    for K, M, C in [(0, 5, 4), (6, 1, 9), (9, 30, 40), (4, 7, 0)]:
+        z = np.column_stack([rng.uniform(0.5, 40.0, K), rng.uniform(-np.pi, np.pi, K)])
+        zb0, zb1 = rng.uniform(0.0, 45.0, (M, C)), rng.uniform(-np.pi, np.pi, (M, C))
+        seen = rng.random((M, C)) < 0.7
+        s0, s1 = rng.uniform(0.01, 0.3, (M, C)), rng.uniform(0.001, 0.05, (M, C))
+        s1[rng.random((M, C)) < 0.1] = np.inf  # a landmark on the pose: any bearing
+        f = 12.0
+        y0 = np.abs(z[:, 0, None, None] - zb0)
+        y1 = np.abs(z[:, 1, None, None] - zb1)
+        t1 = f * s1
+        every = (seen & (y0 <= f * s0) & ((y1 <= t1) | (y1 >= 2.0 * np.pi - t1))).any(axis=1)
+        got = fs._within_reach(z, zb0, zb1, seen, s0, s1, f)
+        np.testing.assert_array_equal(got, every)
+        assert M == 1 or K == 0 or C == 0 or 0 < got.sum() < got.size  # both outcomes occur
