@@ -54,7 +54,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .particle import _normalized, low_variance_resample, normalize_log_weights, particle_gaussian
+from .particle import (_ess, _normalized, _particle_moments, low_variance_resample, normalize_log_weights,
+                       particle_gaussian)
 from ._checks import (as_array, as_count, as_covariance, as_invertible_covariance, as_poses, as_range_bearing,
                       as_returned, as_rows, as_scalar, as_threshold, check_callable, check_choice, check_field_shapes,
                       check_log_weights, check_rng, check_type)
@@ -2350,7 +2351,7 @@ def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=Non
             rejected[t] = prior_w @ out.sum(axis=1)  # measurements rejected, averaged over the prior weights
         poses_hist[t + 1] = state.poses
         w = np.exp(state.log_weights)  # normalised: logsumexp(log_weights) = 0
-        x_est[t + 1], x_cov[t + 1] = _pose_moments(state.poses, state.log_weights)
+        x_est[t + 1], x_cov[t + 1] = _particle_moments(state.poses, np.exp(_normalized(state.log_weights)), (2,))
         best = int(np.argmax(w))
         n_lm[t + 1] = _n_seen(state, best)
         ess[t] = _ess(w)
@@ -2362,25 +2363,6 @@ def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=Non
         else:
             parents[t + 2] = identity
     return _finish(state, poses_hist, parents, x_est, x_cov, ess, resampled, n_lm, rejected, gate)
-
-
-def _pose_moments(poses, log_weights):
-    """``particle_gaussian(poses, log_weights, angles=(2,))`` without its argument checks: the same operations in
-    the same order (the same result, bit for bit), for the per-step summary of :func:`run_fastslam`."""
-    w = np.exp(_normalized(log_weights))
-    mean = w @ poses
-    # atan2(sum w sin theta, sum w cos theta), wrapped (_circular_mean without wrap_angle's checks)
-    mean[2] = _wrap(np.arctan2(np.sum(w * np.sin(poses[:, 2]), axis=0), np.sum(w * np.cos(poses[:, 2]), axis=0)))
-    e = poses - mean
-    e[:, 2] = _wrap(e[:, 2])
-    cov = (e * w[:, None]).T @ e  # sum_m w_m e_m e_m^T
-    return mean, 0.5 * (cov + cov.T)
-
-
-def _ess(w):
-    """``effective_sample_size(w)`` without its argument checks (the same operations): ``(sum w)^2 / sum w^2``."""
-    s = w / w.max()
-    return float(s.sum() ** 2 / np.sum(s * s))
 
 
 def _finish(last, poses_hist, parents, x_est, x_cov, ess, resampled, n_lm, rejected, gate):

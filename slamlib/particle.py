@@ -33,7 +33,7 @@ import numpy as np
 
 from ._checks import (as_array, as_covariance, as_indices, as_log_weights, as_poses, as_probabilities, as_returned,
                       as_rows, as_scalar, as_weights, check_callable, check_log_weights, check_rng, check_rows)
-from .angles import _circular_mean, wrap_angle
+from .angles import _circular_mean, _wrap, wrap_angle
 from .gaussian import _gaussian
 from .motion import _arc_pose, _control_sqrt
 
@@ -183,9 +183,12 @@ def effective_sample_size(w):
     Thrun, Burgard & Fox (2005), Sec. 4.3.4 (variance reduction: resample only
     when the weights' variance is high); Kong, Liu & Wong (1994).
     """
-    w = as_weights(w, "w", normalize=False)
-    top = w.max()
-    s = w / top  # scale-free, so huge or tiny weights neither overflow nor underflow
+    return _ess(as_weights(w, "w", normalize=False))
+
+
+def _ess(w):
+    """Unchecked core of :func:`effective_sample_size` (the filters' per-step hot path)."""
+    s = w / w.max()  # scale-free, so huge or tiny weights neither overflow nor underflow
     # ESS = (sum w)^2 / sum w^2
     return float(s.sum() ** 2 / np.sum(s * s))
 
@@ -845,11 +848,17 @@ def particle_gaussian(particles, log_weights=None, *, angles=()):
         if isinstance(a, bool) or not isinstance(a, (int, np.integer)) or not 0 <= a < d:
             raise ValueError(f"angles must hold column indices in [0, {d}), got {a!r}")
         cols.append(int(a))
+    return _gaussian(*_particle_moments(p, w, cols))
+
+
+def _particle_moments(p, w, cols):
+    """Unchecked core of :func:`particle_gaussian`: ``(mean, cov)`` of particles ``p`` with normalised weights
+    ``w``, the columns `cols` angles (the filters' per-step hot path)."""
     mean = w @ p
     for a in cols:
         mean[a] = _circular_mean(p[:, a], w)  # atan2(sum w sin a, sum w cos a)
     e = p - mean
     for a in cols:
-        e[:, a] = wrap_angle(e[:, a])
+        e[:, a] = _wrap(e[:, a])
     cov = (e * w[:, None]).T @ e  # sum_m w_m e_m e_m^T
-    return _gaussian(mean, 0.5 * (cov + cov.T))
+    return mean, 0.5 * (cov + cov.T)

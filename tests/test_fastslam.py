@@ -1683,24 +1683,6 @@ def test_a_set_built_with_no_landmark_slots_grows_on_its_first_step():
     assert st.capacity == 0  # the input is unchanged
 
 
-def test_run_summaries_equal_the_checked_functions_bit_for_bit():
-    # run_fastslam's per-step pose summary and ESS skip the argument checks of particle_gaussian and
-    # effective_sample_size; they must compute the same numbers, bit for bit
-    from slamlib import fastslam as fs
-
-    rng = np.random.default_rng(3)
-    for n in (1, 7, 100):
-        poses = rng.normal(size=(n, 3)) * [5.0, 5.0, 3.0]
-        poses[:, 2] = _wrap(poses[:, 2])
-        lw = sl.normalize_log_weights(rng.normal(scale=4.0, size=n), log=True)
-        mean, cov = fs._pose_moments(poses, lw)
-        g = sl.particle_gaussian(poses, lw, angles=(2,))
-        np.testing.assert_array_equal(mean, g.mean)
-        np.testing.assert_array_equal(cov, g.cov)
-        w = np.exp(lw)
-        assert fs._ess(w) == sl.effective_sample_size(w)
-
-
 def test_within_reach_equals_the_test_over_every_pair():
     # _within_reach tests the range against the union of the particles' intervals first and runs the
     # exact test only on the (measurement, candidate) pairs that pass; the result must be the exact test's
