@@ -459,7 +459,8 @@ class EssentialResult(NamedTuple):
         Essential matrix of the best sample, refitted (eight-point) on its inliers and
         refined (unless ``refine=False``); singular values ``(1, 1, 0)``.
     inliers : ndarray of bool, shape (N,)
-        Matches whose Sampson distance to ``E`` is below the threshold.
+        Matches whose Sampson distance to ``E`` is below the threshold (and, with
+        ``cheirality=True``, in front of both cameras for ``E``'s best decomposition).
     iterations : int
         Samples drawn.
     """
@@ -469,7 +470,8 @@ class EssentialResult(NamedTuple):
     iterations: int
 
 
-def essential_ransac(x1, x2, *, threshold, rng, confidence=0.999, max_iter=2000, eight_point=None, refine=True):
+def essential_ransac(x1, x2, *, threshold, rng, confidence=0.999, max_iter=2000, eight_point=None, refine=True,
+                     cheirality=False):
     """The essential matrix of matches with outliers: eight-point inside RANSAC, refined robustly.
 
     Parameters
@@ -494,6 +496,12 @@ def essential_ransac(x1, x2, *, threshold, rng, confidence=0.999, max_iter=2000,
         Refine samples on the essential manifold (local optimisation, see Notes).
         ``False`` gives plain RANSAC with Chum's simplest local optimisation: each
         sample that beats the best so far is refitted (eight-point) on its inliers.
+    cheirality : bool, keyword-only
+        Count as inliers only the matches within the threshold that also lie in front
+        of both cameras, for the one of ``E``'s four decompositions with the most such
+        matches (:func:`recover_pose`'s test, from the signs of the two depths). It
+        scores every sample, the refinement and the final refit. ``False`` counts
+        every match within the threshold.
 
     Returns
     -------
@@ -515,7 +523,13 @@ def essential_ransac(x1, x2, *, threshold, rng, confidence=0.999, max_iter=2000,
     explains at least as many. It maximises the consensus better than the linear
     fit, so where a wrong model explains as many matches as the true one (a
     threshold of many noise deviations, a second rigidly moving object, a planar
-    scene) it finds that one as readily.
+    scene) it finds that one as readily. Counting as inliers only the matches in front
+    of both cameras (``cheirality=True``) rejects many such models: over 300 scenes
+    with a threshold of 8 noise deviations the rotation was off by more than 5 deg in
+    30 % of them without it and 2.3 % with it, and on a nearly planar scene in 98 % and
+    43 %. It is off by default because at a short baseline (a twentieth of the scene's
+    depth) the depths of noisy matches change sign, and the true model loses more than
+    10 of its matches in 15 % of scenes (0 % without), at up to twice the time.
 
     References
     ----------
@@ -533,10 +547,24 @@ def essential_ransac(x1, x2, *, threshold, rng, confidence=0.999, max_iter=2000,
     max_iter = as_count(max_iter, "max_iter", minimum=1)
     if not isinstance(refine, (bool, np.bool_)):
         raise TypeError(f"refine must be a bool, got {type(refine).__name__}")
+    if not isinstance(cheirality, (bool, np.bool_)):
+        raise TypeError(f"cheirality must be a bool, got {type(cheirality).__name__}")
     fit = _eight_point if eight_point is None else (lambda a, b: np.asarray(eight_point(a, b), dtype=float))
     n = len(x1)
 
-    def consensus(idx):
+    def score(E, floor=-1):
+        """The inliers of ``E``: within the threshold and, with `cheirality`, in front of both cameras.
+
+        The cheirality test is skipped when no more than `floor` matches are within the threshold (the caller
+        then rejects ``E`` either way: the test only removes inliers).
+        """
+        inl = _sampson(E, x1, x2) < thr2
+        if cheirality and inl.sum() > floor:
+            idx = np.flatnonzero(inl)
+            inl[idx] = _in_front(E, x1[idx], x2[idx])
+        return inl
+
+    def consensus(idx, floor=-1):
         """``(E, inliers)`` of a fit to the matches ``idx``, or None for a degenerate set (no finite fit)."""
         if len(idx) < 8:
             return None
@@ -547,19 +575,20 @@ def essential_ransac(x1, x2, *, threshold, rng, confidence=0.999, max_iter=2000,
             return None
         if not np.all(np.isfinite(E)):
             return None  # e.g. repeated keypoints
-        return E, _sampson(E, x1, x2) < thr2
+        return E, score(E, floor)
 
     def polish(E):
         """``(E, inliers)`` refined robustly from ``E``, or None for a non-finite result."""
         E = _refine_essential(E, x1, x2, _TUKEY_SCALE * math.sqrt(thr2))
-        return (E, _sampson(E, x1, x2) < thr2) if np.all(np.isfinite(E)) else None
+        return (E, score(E)) if np.all(np.isfinite(E)) else None
 
     best, best_E = np.zeros(n, dtype=bool), None
     needed, it = max_iter, 0
     while it < min(needed, max_iter):
         it += 1
-        cand = consensus(rng.choice(n, 8, replace=False))
-        if cand is None or cand[1].sum() <= (_LO_SHARE if refine else 1.0) * best.sum():
+        floor = (_LO_SHARE if refine else 1.0) * best.sum()
+        cand = consensus(rng.choice(n, 8, replace=False), floor)
+        if cand is None or cand[1].sum() <= floor:
             continue
         # local optimisation (Chum et al. 2003), kept if it explains more: the robust refinement from the new
         # best or, without it, the eight-point refit on its inliers
@@ -609,6 +638,30 @@ def _decompose(E):
     Ra, Rb = U @ W @ Vt, U @ W.T @ Vt
     u3 = U[:, 2]
     return np.stack([Ra, Ra, Rb, Rb]), np.stack([u3, -u3, u3, -u3])
+
+
+def _in_front(E, x1, x2):
+    """Mask ``(N,)`` of the matches in front of both cameras for the decomposition of ``E`` that has the most.
+
+    For ``x2 = R x1 + t`` the depths ``l1``, ``l2`` of the rays ``f1 = [x1, 1]``, ``f2 = [x2, 1]`` solve
+    ``l2 f2 = l1 R f1 + t``; crossing with ``f2`` and with ``R f1`` gives them up to the positive factor
+    ``|R f1 x f2|^2``: ``l1 ~ (f2 x t) . c``, ``l2 ~ (R f1 x t) . c``, ``c = R f1 x f2``. Negating ``t``
+    negates both, so two rotations give the four decompositions' tests (HZ Result 9.19, Sec. 9.6.3).
+    """
+    Rs, ts = _decompose(E)
+    t = ts[0]
+    h1 = np.column_stack([x1, np.ones(len(x1))])
+    h2 = np.column_stack([x2, np.ones(len(x2))])
+    best = np.zeros(len(x1), dtype=bool)
+    for R in (Rs[0], Rs[2]):
+        a = h1 @ R.T  # R f1
+        c = np.cross(a, h2)
+        s1 = np.einsum("ij,ij->i", np.cross(h2, t), c)
+        s2 = np.einsum("ij,ij->i", np.cross(a, t), c)
+        for front in ((s1 > 0) & (s2 > 0), (s1 < 0) & (s2 < 0)):  # +t, -t
+            if front.sum() > best.sum():
+                best = front
+    return best
 
 
 def recover_pose(E, x1, x2):
@@ -673,7 +726,7 @@ class TwoViewResult(NamedTuple):
 
 
 def two_view_reconstruction(K, uv1, uv2, *, threshold, rng, confidence=0.999, max_iter=2000, eight_point=None,
-                            triangulate=None, refine=True):
+                            triangulate=None, refine=True, cheirality=False):
     """Relative motion and points from matched pixels of two photographs of one calibrated camera.
 
     RANSAC over eight-point fits, refined robustly (:func:`essential_ransac`,
@@ -690,7 +743,7 @@ def two_view_reconstruction(K, uv1, uv2, *, threshold, rng, confidence=0.999, ma
         Inlier threshold on the Sampson distance, in pixels (divided by ``fx``).
     rng : numpy.random.Generator, keyword-only
         RANSAC's samples.
-    confidence, max_iter, refine : keyword-only
+    confidence, max_iter, refine, cheirality : keyword-only
         As in :func:`essential_ransac`.
     eight_point, triangulate : callable, keyword-only
         Hooks replacing :func:`eight_point` and :func:`triangulate`.
@@ -712,7 +765,7 @@ def two_view_reconstruction(K, uv1, uv2, *, threshold, rng, confidence=0.999, ma
     x1 = np.column_stack([(uv1[:, 0] - K[0, 2]) / K[0, 0], (uv1[:, 1] - K[1, 2]) / K[1, 1]])
     x2 = np.column_stack([(uv2[:, 0] - K[0, 2]) / K[0, 0], (uv2[:, 1] - K[1, 2]) / K[1, 1]])
     res = essential_ransac(x1, x2, threshold=thr, rng=rng, confidence=confidence, max_iter=max_iter,
-                           eight_point=eight_point, refine=refine)
+                           eight_point=eight_point, refine=refine, cheirality=cheirality)
     inl = np.flatnonzero(res.inliers)
     T2, _, front = recover_pose(res.E, x1[inl], x2[inl])
     keep = inl[front]
