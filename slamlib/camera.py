@@ -529,7 +529,7 @@ def essential_ransac(x1, x2, *, threshold, rng, confidence=0.999, max_iter=2000,
     30 % of them without it and 2.3 % with it, and on a nearly planar scene in 98 % and
     43 %. It is off by default because at a short baseline (a twentieth of the scene's
     depth) the depths of noisy matches change sign, and the true model loses more than
-    10 of its matches in 15 % of scenes (0 % without), at up to twice the time.
+    10 of its matches in 6 of 43 scenes (none without), at up to twice the time.
 
     References
     ----------
