@@ -213,8 +213,9 @@ def test_ransac_cheirality_rejects_the_wrong_models_of_a_loose_threshold():
     with these settings; scene seeds 50000-50299 of the evaluation, RANSAC seeds 7000-7299, not these):
     rotation off by more than 5 deg (twice the q99 of the eight-point fit to all true matches,
     2.3 deg) in 91 scenes with ``cheirality=False`` and 7 with ``True`` (2.3 %, Wilson 95 % up to
-    4.7 %). At most 2 of these 10 scenes may be wrong: false failure ~1e-3 at 2.3 %, ~1e-2 at 4.7 %;
-    at ``cheirality=False``'s 30 % the bound holds only with probability ~0.38.
+    4.7 %). At most 2 of these 10 scenes may be wrong: false failure ~1e-3 at 2.3 %, ~1e-2 at 4.7 %.
+    On these 10 scenes ``cheirality=True`` is wrong in 1; ``False`` is wrong in 2 (the count alone
+    would not tell them apart) and returns inliers behind a camera in 9, which the first assertion catches.
     """
     wrong = 0
     for seed in range(20, 30):
