@@ -785,8 +785,14 @@ def _sample_arc(poses, u, dt, L, rng, motion=None):
     # u^[k] = u + N(0, M); x_t^[k] = arc(x_{t-1}^[k], u^[k])  (Table 13.1 line 4)
     u_k = u + rng.standard_normal((poses.shape[0], 2)) @ L.T
     if motion is not None:  # a pluggable motion model (e.g. slamlib.AckermannModel)
-        return motion(poses, u_k, dt)[0]
+        return _motion_pose(motion, poses, u_k, dt)
     return velocity_motion(poses, u_k, dt)[0]
+
+
+def _motion_pose(motion, x, u, dt):
+    """``motion(x, u, dt)[0]``, through the model's ``pose`` method when it has one (no Jacobians computed)."""
+    pose = getattr(motion, "pose", None)
+    return pose(x, u, dt) if callable(pose) else motion(x, u, dt)[0]
 
 
 def _rounds(ids):
@@ -1427,7 +1433,7 @@ def _motion_terms(x_prev, u, dt, L, motion=None):
 def _move(x_prev, u, dt, L, eta, motion=None):
     """The sampled pose: the exact arc (or `motion`) of the control ``u + L eta``."""
     if motion is not None:
-        return motion(x_prev, u + eta @ L.T, dt)[0]
+        return _motion_pose(motion, x_prev, u + eta @ L.T, dt)
     return _arc_pose(x_prev, u + eta @ L.T, dt)
 
 
@@ -2198,8 +2204,10 @@ def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=Non
         Motion model ``motion(x, u, dt) -> (x_next, G, V)`` vectorised over
         poses ``(M, 3)`` and controls ``(M, 2)``, e.g.
         :class:`slamlib.AckermannModel` for a car; each particle moves with its
-        own noisy control ``u + N(0, M)``. Default: the velocity model (exact
-        arc). Not with `alpha`.
+        own noisy control ``u + N(0, M)`` (through ``motion.pose(x, u, dt)``,
+        the pose alone, where the model has that method, as
+        :class:`~slamlib.AckermannModel` does). Default: the velocity model
+        (exact arc). Not with `alpha`.
     fastslam_init_landmark : callable, optional, keyword-only
         ``fastslam_init_landmark(x, z, Q) -> (mu, Sigma)`` in place of the
         initialisation of a landmark seen for the first time (Algorithm 3,

@@ -31,7 +31,7 @@ import numpy as np
 from ._checks import as_array, as_poses, as_scalar, as_vector, check_batch, check_rng
 import math
 
-from .angles import _wrap1, wrap_angle
+from .angles import _wrap, _wrap1, wrap_angle
 
 __all__ = [
     "velocity_motion",
@@ -598,8 +598,10 @@ def dead_reckoning(x0, u, dt):
 __all__ += ["AckermannModel", "ackermann_motion"]
 
 
-def _ackermann(x, u, dt, a, b, H, L):
-    """Ackermann motion of the laser pose with its Jacobians (unchecked, broadcasts over leading axes)."""
+def _ackermann(x, u, dt, a, b, H, L, jacobians=True):
+    """Ackermann motion of the laser pose with its Jacobians (unchecked, broadcasts over leading axes).
+
+    ``jacobians=False`` returns the pose alone (what a particle filter's sampling needs)."""
     x = np.asarray(x, dtype=np.float64)
     u = np.asarray(u, dtype=np.float64)
     th, ve, al = x[..., 2], u[..., 0], u[..., 1]
@@ -616,7 +618,9 @@ def _ackermann(x, u, dt, a, b, H, L):
     # laser velocity = axle-centre velocity + omega x (laser offset), Euler over dt
     x_next[..., 0] = x[..., 0] + dt * (vc * c - w * ps)
     x_next[..., 1] = x[..., 1] + dt * (vc * s + w * pc)
-    x_next[..., 2] = wrap_angle(th + dt * w)
+    x_next[..., 2] = _wrap(th + dt * w)
+    if not jacobians:
+        return x_next
     G = np.zeros(shape + (3, 3))
     G[..., 0, 0] = G[..., 1, 1] = G[..., 2, 2] = 1.0
     G[..., 0, 2] = dt * (-vc * s - w * pc)  # d x' / d theta
@@ -739,6 +743,12 @@ class AckermannModel:
         if np.ndim(x) == 1 and np.ndim(u) == 1:
             return _ackermann1(x, u, dt, self.a, self.b, self.H, self.L)
         return _ackermann(x, u, dt, self.a, self.b, self.H, self.L)
+
+    def pose(self, x, u, dt):
+        """``x_next`` of ``model(x, u, dt)`` alone, without the Jacobians (the particle filters' sampling)."""
+        if np.ndim(x) == 1 and np.ndim(u) == 1:
+            return _ackermann1(x, u, dt, self.a, self.b, self.H, self.L)[0]
+        return _ackermann(x, u, dt, self.a, self.b, self.H, self.L, jacobians=False)
 
     def __repr__(self):
         return f"AckermannModel(a={self.a}, b={self.b}, H={self.H}, L={self.L})"

@@ -51,6 +51,9 @@ def test_ackermann_is_vectorised_and_the_scalar_path_agrees():
             np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
     model = sl.AckermannModel(**CAR)
     np.testing.assert_allclose(model(x, u, 0.1)[0], xn, atol=0)
+    # the pose alone (what the particle filters sample with) is the same pose, bit for bit
+    np.testing.assert_array_equal(model.pose(x, u, 0.1), xn)
+    np.testing.assert_array_equal(model.pose(x[3], u[3], 0.1), model(x[3], u[3], 0.1)[0])
 
 
 def test_ackermann_straight_and_the_laser_lever_arm():
