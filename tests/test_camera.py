@@ -142,6 +142,15 @@ def _true_essential(rel):
     return sl.lie.hat(t / np.linalg.norm(t)) @ R
 
 
+def _matches_with_outliers(rng, *, noise):
+    """200 matches of :func:`_normalized_matches` at `noise` px, 60 of them (30 %) replaced by uniform outliers."""
+    x1, x2, rel = _normalized_matches(rng, n=200, noise=noise)
+    out = rng.choice(200, 60, replace=False)
+    x2 = x2.copy()
+    x2[out] = rng.uniform(-0.6, 0.6, (60, 2))
+    return x1, x2, rel
+
+
 def test_ransac_finds_the_true_consensus_and_stops_early():
     """30 % outliers, 0.5 px noise, a threshold of 2 px: RANSAC's inliers are the true geometry's.
 
@@ -157,11 +166,7 @@ def test_ransac_finds_the_true_consensus_and_stops_early():
     """
     wrong, iterations = 0, []
     for seed in range(8, 12):
-        rng = np.random.default_rng(seed)
-        x1, x2, rel = _normalized_matches(rng, n=200, noise=0.5)
-        out = rng.choice(200, 60, replace=False)
-        x2 = x2.copy()
-        x2[out] = rng.uniform(-0.6, 0.6, (60, 2))
+        x1, x2, rel = _matches_with_outliers(np.random.default_rng(seed), noise=0.5)
         res = sl.essential_ransac(x1, x2, threshold=2.0 / 520, rng=np.random.default_rng(seed - 8))
         np.testing.assert_allclose(np.linalg.svd(res.E)[1], [1.0, 1.0, 0.0], atol=1e-9)  # still essential
         truth_accepts = sl.sampson_distance(_true_essential(rel), x1, x2) < (2.0 / 520) ** 2
@@ -219,11 +224,7 @@ def test_ransac_cheirality_rejects_the_wrong_models_of_a_loose_threshold():
     """
     wrong = 0
     for seed in range(20, 30):
-        rng = np.random.default_rng(seed)
-        x1, x2, rel = _normalized_matches(rng, n=200, noise=2.0)
-        out = rng.choice(200, 60, replace=False)
-        x2 = x2.copy()
-        x2[out] = rng.uniform(-0.6, 0.6, (60, 2))
+        x1, x2, rel = _matches_with_outliers(np.random.default_rng(seed), noise=2.0)
         res = sl.essential_ransac(x1, x2, threshold=16.0 / 520, rng=np.random.default_rng(seed), cheirality=True)
         T, _, front = sl.recover_pose(res.E, x1[res.inliers], x2[res.inliers])
         assert front.all()  # the inliers are the matches in front of both cameras
