@@ -206,7 +206,7 @@ EQUIVALENT = {
         "_normalized: [shifted = lw - lw.max()] lw.max() -> lw.min()": SHIFT,
     },
     "effective_sample_size": {
-        "effective_sample_size: [s = w / top] w / top -> w * top": ESS_SCALE,
+        "_ess: [s = w / w.max()] w / w.max() -> w * w.max()": ESS_SCALE,
     },
     "low_variance_resample": {
         "_indices_from_counts: [M = c.size] c -> k": LVR_SIZE,
