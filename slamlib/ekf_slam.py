@@ -62,7 +62,7 @@ from ._checks import (as_array, as_covariance, as_index, as_indices, as_returned
                       as_slam_state, as_threshold, check_callable)
 from .angles import _wrap, _wrap1, wrap_angle
 from .motion import STRAIGHT_LINE_OMEGA, _arc1, velocity_motion
-from .sensors import MIN_RANGE, _landmark_measurement, _rb1, landmark_from_measurement, landmark_measurement
+from .sensors import MIN_RANGE, _landmark_measurement, _rbh1, landmark_from_measurement, landmark_measurement
 
 __all__ = [
     "ekf_slam_predict",
@@ -260,7 +260,7 @@ def jcbb_associate(mu_bar, Sigma_bar, z, n_seen, Q, alpha):
     n_seen : int
         Landmarks in the map, ``0 <= n_seen <= N``.
     Q : ndarray, shape (2, 2)
-        Measurement-noise covariance.
+        Measurement-noise covariance, positive definite.
     alpha : float
         Individual compatibility threshold on the squared Mahalanobis
         distance (2 degrees of freedom), as in :func:`ekf_slam_associate`;
@@ -302,7 +302,7 @@ def jcbb_associate(mu_bar, Sigma_bar, z, n_seen, Q, alpha):
     mu_bar, Sigma_bar = as_slam_state(mu_bar, Sigma_bar, "mu_bar", "Sigma_bar")
     z = as_array(z, "z", (None, 2))
     n_seen = as_index(n_seen, "n_seen", (mu_bar.shape[0] - 3) // 2 + 1)
-    Q = as_covariance(Q, "Q", 2)
+    Q = as_covariance(Q, "Q", 2, definite=True)
     alpha = as_threshold(alpha, "alpha")
     return _dense_jcbb(mu_bar, Sigma_bar, z, n_seen, Q, alpha)
 
@@ -329,7 +329,7 @@ def joint_mahalanobis(mu_bar, Sigma_bar, z, j, Q):
     j : ndarray of int, shape (K,)
         Landmark paired with each measurement (distinct, in ``[0, N)``).
     Q : ndarray, shape (2, 2)
-        Measurement-noise covariance.
+        Measurement-noise covariance, positive definite.
 
     Returns
     -------
@@ -351,7 +351,7 @@ def joint_mahalanobis(mu_bar, Sigma_bar, z, j, Q):
         raise ValueError(f"j must be an integer array of shape ({z.shape[0]},), got {j.dtype} {j.shape}")
     if j.size and (j.min() < 0 or j.max() >= N or np.unique(j).size != j.size):
         raise ValueError(f"j must hold distinct landmark indices in [0, {N}), got {j.tolist()}")
-    Q = as_covariance(Q, "Q", 2)
+    Q = as_covariance(Q, "Q", 2, definite=True)
     Hs, nus = [], []
     for zi, ji in zip(z, j.tolist()):
         z_hat, H = _measurement(mu_bar, ji)  # (Eqs. 17.2, 17.3) with the dense F_{x,j}
@@ -531,7 +531,7 @@ def ekf_slam_update(mu_bar, Sigma_bar, z, j, Q):
     j : int
         Landmark index, ``0 <= j < N``.
     Q : ndarray, shape (2, 2)
-        Measurement-noise covariance.
+        Measurement-noise covariance, positive definite.
 
     Returns
     -------
@@ -560,7 +560,7 @@ def ekf_slam_update(mu_bar, Sigma_bar, z, j, Q):
     mu_bar, Sigma_bar = as_slam_state(mu_bar, Sigma_bar, "mu_bar", "Sigma_bar")
     z = as_array(z, "z", (2,))
     j = as_index(j, "j", (mu_bar.shape[0] - 3) // 2)
-    Q = as_covariance(Q, "Q", 2)
+    Q = as_covariance(Q, "Q", 2, definite=True)
     n = mu_bar.shape[0]
     z_hat, H = _measurement(mu_bar, j)  # (Table 10.1 lines 12-16)
     S = H @ Sigma_bar @ H.T + Q  # S = H Sigma_bar H^T + Q  (Table 10.1 line 17)
@@ -588,7 +588,7 @@ def ekf_slam_associate(mu_bar, Sigma_bar, z, n_seen, Q, alpha):
         Number of landmarks in the map so far, ``0 <= n_seen <= N``; slots
         ``n_seen`` and beyond are ignored.
     Q : ndarray, shape (2, 2)
-        Measurement-noise covariance.
+        Measurement-noise covariance, positive definite.
     alpha : float
         New-landmark threshold on the squared Mahalanobis distance
         (non-negative; ``inf`` never creates a landmark).
@@ -621,7 +621,7 @@ def ekf_slam_associate(mu_bar, Sigma_bar, z, n_seen, Q, alpha):
     mu_bar, Sigma_bar = as_slam_state(mu_bar, Sigma_bar, "mu_bar", "Sigma_bar")
     z = as_array(z, "z", (2,))
     n_seen = as_index(n_seen, "n_seen", (mu_bar.shape[0] - 3) // 2 + 1)
-    Q = as_covariance(Q, "Q", 2)
+    Q = as_covariance(Q, "Q", 2, definite=True)
     alpha = as_threshold(alpha, "alpha")
     best, best_d = n_seen, np.inf
     for k in range(n_seen):  # for k = 0, ..., N_t - 1  (Table 10.2)
@@ -787,7 +787,9 @@ class EKFSLAM:
       already put beyond the threshold: ``d >= nu_i^2 / S_k,ii`` and each
       ``S_k,ii`` is bounded by variances on the diagonal of ``S`` (``O(N)``
       per measurement, no pending terms, no angle wrapping); the choice is
-      the same as over every landmark's distance.
+      the same as over every landmark's distance. (A state given slightly
+      below semi-definite, within the checks' rounding tolerance, is bounded
+      through ``Sigma + eps I``, ``-eps`` its smallest eigenvalue.)
 
     The views `mu` and `Sigma` change as the filter runs; copy them to keep a
     snapshot.
@@ -812,6 +814,7 @@ class EKFSLAM:
         self._n = 3
         self._mu[:3] = x0
         self._S[:3, :3] = Sigma0
+        self._neg = _negative_part(Sigma0)
 
     @classmethod
     def from_state(cls, mu, Sigma, *, capacity=None, prior_var=DEFAULT_PRIOR_VAR):
@@ -842,11 +845,12 @@ class EKFSLAM:
         if capacity is None:
             capacity = max(16, N + N // 4)
         capacity = as_index(capacity, "capacity", lower=max(N, 1))
-        f = cls(mu[:3], Sigma[:3, :3], capacity=capacity, prior_var=prior_var)
+        f = cls(mu[:3], capacity=capacity, prior_var=prior_var)  # Sigma checked whole: its robot block is not checked again
         f._n = mu.shape[0]
         f._mu[:f._n] = mu
         f._mu[2] = wrap_angle(mu[2])
         f._S[:f._n, :f._n] = Sigma
+        f._neg = _negative_part(Sigma)
         return f
 
     # ----------------------------------------------------------------- buffers
@@ -1018,7 +1022,7 @@ class EKFSLAM:
         j : int
             Landmark index, ``0 <= j < N``.
         Q : ndarray, shape (2, 2)
-            Measurement-noise covariance.
+            Measurement-noise covariance, positive definite.
         gate : float, optional, keyword-only
             Validation gate on the normalised innovation squared
             ``nu^T S^-1 nu`` (``S = H Sigma H^T + Q``): a measurement beyond
@@ -1036,7 +1040,7 @@ class EKFSLAM:
         """
         z = as_array(z, "z", (2,))
         j = as_index(j, "j", self.n_landmarks)
-        Q = as_covariance(Q, "Q", 2)
+        Q = as_covariance(Q, "Q", 2, definite=True)
         gate = as_threshold(gate, "gate", optional=True, none=math.inf)
         self._update(z, j, Q, gate)
         return self
@@ -1056,9 +1060,7 @@ class EKFSLAM:
             idx = _rows(a)  # [0, 1, 2, a, a+1]: the five non-zero columns of H
         # z_hat and h_t^j = 1/q [[-r dx, -r dy, 0, r dx, r dy], [dy, -dx, -q, -dy, dx]]  (Eqs. 17.2, 17.3;
         # Table 10.1 lines 12-16), from the five entries of mu it reads (the scalar path of _range_bearing1)
-        r_hat, phi_hat, dx, dy, q = _rb1(*mu.take(idx).tolist())
-        h = np.array([[-dx / r_hat, -dy / r_hat, 0.0, dx / r_hat, dy / r_hat],
-                      [dy / q, -dx / q, -1.0, -dy / q, dx / q]])
+        r_hat, phi_hat, h = _rbh1(*mu.take(idx).tolist())
         R = self._S.take(idx, 0)[:, :n]  # Sigma[idx, :] = (Sigma F_{x,j}^T)^T, the 5 rows H touches
         if k:
             Pt = self._Pt[:k]
@@ -1091,7 +1093,7 @@ class EKFSLAM:
             Landmark index of each measurement, ``0 <= j < N`` (add new
             landmarks with :meth:`add_landmark` first).
         Q : ndarray, shape (2, 2)
-            Measurement-noise covariance.
+            Measurement-noise covariance, positive definite.
 
         Returns
         -------
@@ -1107,7 +1109,7 @@ class EKFSLAM:
         M = as_covariance(M, "M", 2)
         z = as_array(z, "z", (None, 2))
         j = as_indices(j, "j", self.n_landmarks, (z.shape[0],), ref="z")
-        Q = as_covariance(Q, "Q", 2)
+        Q = as_covariance(Q, "Q", 2, definite=True)
         self._predict(u, dt, M)
         for zi, ji in zip(z.tolist(), j.tolist()):  # Python floats and ints: no NumPy scalars in the loop
             self._update(zi, ji, Q)
@@ -1121,7 +1123,7 @@ class EKFSLAM:
         z : ndarray, shape (2,)
             Measurement ``[r, phi]``.
         Q : ndarray, shape (2, 2)
-            Measurement-noise covariance.
+            Measurement-noise covariance, positive definite.
 
         Returns
         -------
@@ -1133,7 +1135,7 @@ class EKFSLAM:
         Course text, Algorithm 2; Thrun, Burgard & Fox (2005), Table 10.2
         lines 16-17.
         """
-        return self._mahalanobis(as_array(z, "z", (2,)), as_covariance(Q, "Q", 2))
+        return self._mahalanobis(as_array(z, "z", (2,)), as_covariance(Q, "Q", 2, definite=True))
 
     def _mahalanobis(self, z, Q):
         return self._distances(z[None], Q)[0]
@@ -1175,7 +1177,7 @@ class EKFSLAM:
         z : ndarray, shape (K, 2)
             The step's measurements ``[r, phi]``.
         Q : ndarray, shape (2, 2)
-            Measurement-noise covariance.
+            Measurement-noise covariance, positive definite.
         alpha : float
             Individual compatibility threshold (squared Mahalanobis distance).
 
@@ -1189,7 +1191,7 @@ class EKFSLAM:
         Neira & Tardos (2001); Thrun, Burgard & Fox (2005), Table 10.2
         lines 16-17 (individual test).
         """
-        return self._jcbb(as_array(z, "z", (None, 2)), as_covariance(Q, "Q", 2), as_threshold(alpha, "alpha"))
+        return self._jcbb(as_array(z, "z", (None, 2)), as_covariance(Q, "Q", 2, definite=True), as_threshold(alpha, "alpha"))
 
     def _jcbb(self, Z, Q, alpha):
         N = self.n_landmarks
@@ -1209,7 +1211,7 @@ class EKFSLAM:
         z : ndarray, shape (2,)
             Measurement ``[r, phi]``.
         Q : ndarray, shape (2, 2)
-            Measurement-noise covariance.
+            Measurement-noise covariance, positive definite.
         alpha : float
             New-landmark threshold on the squared Mahalanobis distance.
 
@@ -1225,7 +1227,7 @@ class EKFSLAM:
         Course text, Algorithm 2; Thrun, Burgard & Fox (2005), Table 10.2
         lines 16-20.
         """
-        return self._associate(as_array(z, "z", (2,)), as_covariance(Q, "Q", 2), as_threshold(alpha, "alpha"))
+        return self._associate(as_array(z, "z", (2,)), as_covariance(Q, "Q", 2, definite=True), as_threshold(alpha, "alpha"))
 
     def _associate(self, z, Q, alpha):
         N = self.n_landmarks
@@ -1259,15 +1261,18 @@ class EKFSLAM:
         # (Var(a + b) <= 2 Var a + 2 Var b). The diagonal of the dense S bounds Sigma's from above (the
         # pending terms only subtract), and nu_1^2 >= 2 (1 - cos nu_1) = 2 (1 - (c dx + s dy) / r) with
         # (c, s) the measured bearing's direction: an O(KN) test with no angle wrapping and no pending terms.
+        # A state given slightly indefinite (the checks accept an eigenvalue down to -1e-9 of the largest) is
+        # bounded through Sigma + eps I, which is semi-definite: eps = self._neg added to each variance.
         diag = np.diagonal(self._S)
+        eps = self._neg
         T = diag[3:n:2] + diag[4:n:2]
-        T += diag.item(0) + diag.item(1)
+        T += diag.item(0) + diag.item(1) + 4.0 * eps
         a = alpha * (1.0 + 1e-9)  # rounding of the bound never drops a landmark the exact test keeps
         nu0 = r - Z[:, :1]
         near = nu0 * nu0 <= (2.0 * a) * T + a * Q.item(0, 0)
         z1 = Z[:, 1:] + th
         one_minus_cos = 1.0 - (np.cos(z1) * dx + np.sin(z1) * dy) / r
-        near &= one_minus_cos <= (2.0 * a) * T / q + (a * (diag.item(2) + 0.5 * Q.item(1, 1)) + 1e-12)
+        near &= one_minus_cos <= (2.0 * a) * T / q + (a * (diag.item(2) + eps + 0.5 * Q.item(1, 1)) + 1e-12)
         return near
 
     def _nis1(self, z, j, Q):
@@ -1276,15 +1281,20 @@ class EKFSLAM:
         idx = _ROWS.get(a)
         if idx is None:
             idx = _rows(a)
-        r_hat, phi_hat, dx, dy, q = _rb1(*self._mu.take(idx).tolist())
-        h = np.array([[-dx / r_hat, -dy / r_hat, 0.0, dx / r_hat, dy / r_hat],
-                      [dy / q, -dx / q, -1.0, -dy / q, dx / q]])  # h_t^j  (Eq. 17.3)
+        r_hat, phi_hat, h = _rbh1(*self._mu.take(idx).tolist())  # h_t^j  (Eq. 17.3)
         B = self._S.take(idx, 0).take(idx, 1)  # the (robot, landmark j) block of Sigma
         if k:
             P = self._Pt[:k].take(idx, 1)
             B -= P.T.dot(P)  # minus the pending terms
         _, _, _, e0, e1 = _whiten(h.dot(B).dot(h.T), Q, z, r_hat, phi_hat)
         return e0 * e0 + e1 * e1
+
+
+def _negative_part(Sigma):
+    """``max(0, -lambda_min(Sigma))``: how far a covariance the checks accepted lies below semi-definite."""
+    if not Sigma.size:
+        return 0.0
+    return max(0.0, -float(np.linalg.eigvalsh(Sigma)[0]))
 
 
 #: Index rows ``[0, 1, 2, a, a+1]`` of the landmark at state offset ``a``, built once per offset by :func:`_rows`.
@@ -1467,7 +1477,8 @@ def run_ekf_slam(run, *, known=True, fast=True, alpha=DEFAULT_ALPHA, confirm=1, 
     window : int, keyword-only
         Steps a candidate has to collect its `confirm` sightings.
     M, Q : ndarray, shape (2, 2), keyword-only
-        Noise covariances the filter assumes (default: the run's).
+        Noise covariances the filter assumes (default: the run's); `Q`
+        positive definite.
     Sigma0 : ndarray, shape (3, 3), keyword-only
         Initial robot covariance (default zero).
     prior_var : float, keyword-only
@@ -1588,7 +1599,7 @@ def run_ekf_slam(run, *, known=True, fast=True, alpha=DEFAULT_ALPHA, confirm=1, 
         raise ValueError(f"run.z and run.ids must hold one entry per control ({T}), "
                          f"got {len(run.z)} and {len(run.ids)}")
     M = as_covariance(run.M if M is None else M, "M", 2)
-    Q = as_covariance(run.Q if Q is None else Q, "Q", 2)
+    Q = as_covariance(run.Q if Q is None else Q, "Q", 2, definite=True)
     Sigma0 = np.zeros((3, 3)) if Sigma0 is None else as_covariance(Sigma0, "Sigma0", 3)
     alpha = as_threshold(alpha, "alpha")
     confirm = as_index(confirm, "confirm", lower=1)
@@ -1615,7 +1626,7 @@ def run_ekf_slam(run, *, known=True, fast=True, alpha=DEFAULT_ALPHA, confirm=1, 
     if association not in ("nn", "jcbb"):
         raise ValueError(f"association must be 'nn' or 'jcbb', got {association!r}")
     gate = as_threshold(getattr(run, "gate", None) if gate is None else gate, "gate", optional=True, none=math.inf)
-    Qa = Q if Q_association is None else as_covariance(Q_association, "Q_association", 2)
+    Qa = Q if Q_association is None else as_covariance(Q_association, "Q_association", 2, definite=True)
     alpha_j = JCBB_ALPHA if jcbb_alpha is None else as_threshold(jcbb_alpha, "jcbb_alpha")
     zs = [as_array(z, f"run.z[{t}]", (None, 2)) for t, z in enumerate(run.z)]
     ids = [np.asarray(i, dtype=int) for i in run.ids]

@@ -120,7 +120,12 @@ def _range_bearing1(mu, a):
     Returns ``r_hat``, ``phi_hat`` (floats) and ``h = [Hx Hm]``, shape ``(2, 5)``
     (the tests check it against ``landmark_measurement``).
     """
-    r, phi, dx, dy, q = _rb1(mu[0], mu[1], mu[2], mu[a], mu[a + 1])
+    return _rbh1(mu[0], mu[1], mu[2], mu[a], mu[a + 1])
+
+
+def _rbh1(x, y, th, mx, my):
+    """:func:`_rb1` and the Jacobian ``h = [Hx Hm]`` (shape ``(2, 5)``): ``r_hat, phi_hat, h``."""
+    r, phi, dx, dy, q = _rb1(x, y, th, mx, my)
     # h_t^j = 1/q [[-r dx, -r dy, 0, r dx, r dy], [dy, -dx, -q, -dy, dx]]  (Eq. 17.3)
     h = np.array([[-dx / r, -dy / r, 0.0, dx / r, dy / r], [dy / q, -dx / q, -1.0, -dy / q, dx / q]])
     return r, phi, h

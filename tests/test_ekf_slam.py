@@ -543,13 +543,45 @@ def test_run_helpers_reject_bad_arguments(run):
         sl.add_clutter(run, -1.0, rng=np.random.default_rng(0))
 
 
+@pytest.mark.parametrize("bad", [np.zeros((2, 2)), np.ones((2, 2)), np.diag([-1e-10, 1.0])],
+                         ids=["zero", "singular", "slightly negative"])
+def test_measurement_noise_must_be_positive_definite(run, bad):
+    # Q is inverted in every innovation covariance and association distance (as in EKF localization and
+    # FastSLAM): a singular or slightly negative Q (which a semi-definiteness check with a rounding
+    # tolerance accepts) is refused by every entry point that takes it, naming it
+    mu, Sigma = random_state(np.random.default_rng(18), 2)
+    f = sl.EKFSLAM.from_state(mu, Sigma)
+    z = sl.ekf_slam_measurement(mu, 0)[0]
+    calls = {
+        "ekf_slam_update": lambda: sl.ekf_slam_update(mu, Sigma, z, 0, bad),
+        "ekf_slam_associate": lambda: sl.ekf_slam_associate(mu, Sigma, z, 2, bad, 5.0),
+        "jcbb_associate": lambda: sl.jcbb_associate(mu, Sigma, z[None], 2, bad, 5.0),
+        "joint_mahalanobis": lambda: sl.joint_mahalanobis(mu, Sigma, z[None], [0], bad),
+        "update": lambda: f.update(z, 0, bad),
+        "mahalanobis": lambda: f.mahalanobis(z, bad),
+        "associate": lambda: f.associate(z, bad, 5.0),
+        "jcbb": lambda: f.jcbb(z[None], bad, 5.0),
+        "step": lambda: f.step([1.0, 0.0], DT, M, z[None], [0], bad),
+        "run_ekf_slam": lambda: sl.run_ekf_slam(run, Q=bad),
+    }
+    for name, call in calls.items():
+        with pytest.raises(ValueError, match="Q must be positive definite"):
+            call()
+    with pytest.raises(ValueError, match="Q_association must be positive definite"):
+        sl.run_ekf_slam(run, known=False, Q_association=bad)
+
+
 def test_singular_innovation_is_reported():
-    f = sl.EKFSLAM([0.0, 0.0, 0.0], prior_var=1.0)
-    j = f.add_landmark([2.0, 0.0])
-    f2 = sl.EKFSLAM.from_state(np.r_[0.0, 0.0, 0.0, 2.0, 0.0], np.zeros((5, 5)))
+    # S = H Sigma H^T + Q is definite for a definite Q and a semi-definite Sigma; a Sigma the checks
+    # accept below semi-definite (a rounding tolerance relative to its largest eigenvalue) can still
+    # make it singular, and the update says so rather than dividing by it
+    mu = np.r_[0.0, 0.0, 0.0, 2.0, 0.0]
+    Sigma = np.zeros((5, 5))
+    Sigma[2, 2] = 1e9
+    Sigma[3, 3] = -0.01  # -1e-11 of the largest eigenvalue: accepted
+    f = sl.EKFSLAM.from_state(mu, Sigma)
     with pytest.raises(ValueError, match="not positive definite"):
-        f2.update([2.0, 0.0], 0, np.zeros((2, 2)))
-    f.update([2.0, 0.0], j, np.zeros((2, 2)))  # a positive prior keeps S definite even with Q = 0
+        f.update([2.0, 0.0], 0, np.diag([0.01, 0.01]))
 
 
 # --------------------------------------------------------------------------- plots
@@ -840,7 +872,7 @@ def test_run_rejects_an_unknown_association_and_a_bad_gate(run):
         sl.run_ekf_slam(run, known=False, association="jjcb")
     with pytest.raises(ValueError, match="gate must be non-negative"):
         sl.run_ekf_slam(run, gate=-1.0)
-    with pytest.raises(ValueError, match="Q_association must be positive semi-definite"):
+    with pytest.raises(ValueError, match="Q_association must be positive definite"):
         sl.run_ekf_slam(run, known=False, Q_association=-Q)
     with pytest.raises(ValueError, match="jcbb_alpha must be non-negative"):
         sl.run_ekf_slam(run, known=False, association="jcbb", jcbb_alpha=-1.0)
@@ -1104,3 +1136,38 @@ def test_associate_equals_nearest_neighbour_over_every_landmark():
                 if np.isfinite(alpha):
                     assert sl.ekf_slam_associate(mu, Sigma, z, N, Qr, alpha) == want
         np.testing.assert_array_equal(f.jcbb(Z, Qr, es.JCBB_ALPHA), sl.jcbb_associate(mu, Sigma, Z, N, Qr, es.JCBB_ALPHA))
+
+
+def test_association_reach_holds_for_a_state_accepted_slightly_indefinite():
+    # the checks accept a covariance whose smallest eigenvalue is down to -1e-9 of its largest: with a
+    # heading variance of 1e6 rad^2, a landmark variance of -1e-3. The reach bound (which needs a
+    # semi-definite Sigma) then bounds Sigma + eps I, and the fast filter chooses what the dense
+    # functions choose from every landmark's distance
+    mu = np.array([0.0, 0.0, 0.0, 5.0, 0.0])
+    Sigma = np.zeros((5, 5))
+    Sigma[2, 2], Sigma[3, 3], Sigma[4, 4] = 1e6, -1e-3, -1e-3
+    Qr, z = np.diag([5e-3, 1e-2]), np.array([5.1, 0.0])
+    f = sl.EKFSLAM.from_state(mu, Sigma)
+    assert _exact_distances(f, z, Qr)[0] == pytest.approx(2.5)  # S_00 = 5e-3 - 1e-3: within alpha = 9
+    assert f.associate(z, Qr, 9.0) == sl.ekf_slam_associate(mu, Sigma, z, 1, Qr, 9.0) == 0
+    np.testing.assert_array_equal(f.jcbb(z[None], Qr, 9.0), [0])
+    # the same over random filters: a heading variance of 1e3-1e6 and variances of a random set of the
+    # other coordinates lowered by up to 1e-9 of it (without eps the bound dropped 12 of 2349 landmarks)
+    rng = np.random.default_rng(63)
+    for _ in range(60):
+        g, Qr = _pending_filter(rng)
+        g = g.copy()  # flushed
+        mu, Sigma = np.array(g.mu), np.array(g.Sigma)
+        n = mu.size
+        big = 10.0 ** rng.uniform(3, 6)
+        Sigma[2, 2] += big
+        idx = rng.choice(n - 2, int(rng.integers(1, n - 2)), replace=False)
+        idx = np.where(idx >= 2, idx + 1, idx)  # not the heading
+        Sigma[idx, idx] -= 1e-9 * big * rng.uniform(0.3, 1.0)
+        f = sl.EKFSLAM.from_state(mu, Sigma)
+        for j in rng.integers(0, f.n_landmarks, 3):
+            z = sl.ekf_slam_measurement(mu, int(j))[0] + rng.normal(0, 2.0 * np.sqrt(np.diag(Qr)))
+            d = _exact_distances(f, z, Qr)
+            assert np.all(d >= 0)
+            for alpha in d:
+                assert f._in_reach(z[None], Qr, alpha)[0][d <= alpha].all(), (alpha, d)
