@@ -1659,7 +1659,8 @@ def landmark_graph_from_run(run, *, position_floor=1e-3, heading_floor=0.0, moti
     ----------
     run : LandmarkRun or MRCLAMRun
         Needs ``x0``, ``u``, ``dt``, ``z``, ``ids``, ``M``, ``Q`` and ``landmarks``
-        (for the number of landmarks).
+        (for the number of landmarks); ``Q`` positive definite (its inverse
+        weighs the sightings).
     position_floor : float, keyword-only
         Standard deviation (metres) added to the odometry edges' position
         noise, positive.
@@ -1695,7 +1696,7 @@ def landmark_graph_from_run(run, *, position_floor=1e-3, heading_floor=0.0, moti
     u = as_array(run.u, "run.u", (None, 2))
     dt = as_scalar(run.dt, "run.dt", positive=True)
     M = as_covariance(run.M, "run.M", 2)
-    Q = as_covariance(run.Q, "run.Q", 2)
+    Q = as_covariance(run.Q, "run.Q", 2, definite=True)
     T = u.shape[0]
     if motion is not None and not callable(motion):
         raise TypeError(f"motion must be callable (x, u, dt) -> (x_next, G, V), got {type(motion).__name__}")

@@ -79,3 +79,12 @@ def test_bad_motion_and_floor_are_named(sim_run):
         sl.landmark_graph_from_run(sim_run, motion="car")
     with pytest.raises(ValueError, match="heading_floor"):
         sl.landmark_graph_from_run(sim_run, heading_floor=-1.0)
+
+
+@pytest.mark.parametrize("Q", [np.zeros((2, 2)), np.ones((2, 2)), np.diag([-1e-10, 1.0])],
+                         ids=["zero", "singular", "slightly negative"])
+def test_measurement_noise_must_be_positive_definite(sim_run, Q):
+    # the sightings' information matrices are Q^-1: a Q the semi-definite check accepts but that has no
+    # inverse (or a negative one) is named, not turned into infinite or negative information
+    with pytest.raises(ValueError, match="run.Q must be positive definite"):
+        sl.landmark_graph_from_run(dataclasses.replace(sim_run, Q=Q))
