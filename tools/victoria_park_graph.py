@@ -61,8 +61,9 @@ def main(argv=None):
         cpu = time.process_time() - t0
         ate, aligned, _, _ = victoria_gps_ate(run, res.X)
         out.update({f"{key}_ate": ate, f"{key}_cpu": cpu, f"{key}_iterations": res.iterations,
-                    f"{key}_chi2": res.chi2[-1], f"{key}_xy": aligned[::10]})
-        print(f"graph SLAM ({robust or 'least squares'}): ATE {ate:.2f} m, {res.iterations} iterations, "
+                    f"{key}_converged": bool(res.converged), f"{key}_chi2": res.chi2[-1], f"{key}_xy": aligned[::10]})
+        print(f"graph SLAM ({robust or 'least squares'}): ATE {ate:.2f} m, {res.iterations} iterations "
+              f"({'converged' if res.converged else 'stopped at the cap'}), "
               f"{cpu:.1f} s CPU, chi2 {res.chi2[0]:.0f} -> {res.chi2[-1]:.0f}")
     if args.out:
         np.savez_compressed(args.out, **{k: np.asarray(v) for k, v in out.items()})
