@@ -69,6 +69,7 @@ class OccupancyGrid:
         object.__setattr__(self, "occupancy", occ)
         object.__setattr__(self, "resolution", res)
         object.__setattr__(self, "origin", origin)
+        object.__setattr__(self, "_free_tables", {})  # threshold -> free_mask, flat, False appended (_flat_cells)
 
     # ------------------------------------------------------------------ geometry
     @property
@@ -107,6 +108,16 @@ class OccupancyGrid:
         col = np.floor((xy[..., 0] - self.origin[0]) / self.resolution)
         row = np.floor((xy[..., 1] - self.origin[1]) / self.resolution)
         return np.stack([row, col], axis=-1).astype(np.int64)
+
+    def _flat_cells(self, x, y):
+        """Flat indices ``row * W + col`` of the cells of :meth:`world_to_cell` holding the world points
+        ``(x, y)`` (arrays of one shape, unchecked), ``H * W`` outside the grid: indices into a table of the
+        cells, flattened, with one entry appended for "outside"."""
+        H, W = self.shape
+        col = np.floor((x - self.origin[0]) / self.resolution)  # (world_to_cell)
+        row = np.floor((y - self.origin[1]) / self.resolution)
+        ok = (row >= 0.0) & (row < H) & (col >= 0.0) & (col < W)
+        return np.where(ok, row * W + col, H * W).astype(np.intp)
 
     def cell_to_world(self, rc):
         """World coordinates of cell centres.
@@ -224,12 +235,17 @@ class OccupancyGrid:
         ----------
         Thrun, Burgard & Fox (2005), Sec. 9.1 (grid cells ``m_i``).
         """
-        rc = self.world_to_cell(xy)
-        ok = self.in_bounds(rc)
-        free = self.free_mask(threshold)
-        out = np.zeros(rc.shape[:-1], dtype=bool)
-        out[ok] = free[rc[..., 0][ok], rc[..., 1][ok]]
-        return out
+        xy = as_array(xy, "xy", ndim=range(1, 33))
+        if xy.shape[-1] != 2:
+            raise ValueError(f"xy must have shape (..., 2), got {xy.shape}")
+        threshold = as_scalar(threshold, "threshold")
+        table = self._free_tables.get(threshold)
+        if table is None:
+            table = np.append(self.free_mask(threshold).ravel(), False)
+            if len(self._free_tables) >= 8:
+                self._free_tables.clear()
+            self._free_tables[threshold] = table
+        return table[self._flat_cells(xy[..., 0], xy[..., 1])]
 
     def free_cells(self, threshold=0.2):
         """Centres of the free cells.

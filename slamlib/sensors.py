@@ -18,7 +18,7 @@ lines 12-14 (range-bearing prediction and Jacobian), Table 10.1 line 10 (inverse
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field as _field
 
 import math
 
@@ -596,6 +596,9 @@ class LikelihoodField:
     grid: OccupancyGrid
     dist: np.ndarray
     max_dist: float
+    #: Tables over the cells, flattened, one entry appended for "outside the grid" (OccupancyGrid._flat_cells):
+    #: the distances, and each beam's log-likelihood term per (sigma_hit, w_hit, w_rand, z_max).
+    _tables: dict = _field(default_factory=dict, init=False, repr=False, compare=False)
 
     def distance_at(self, xy):
         """Distance to the nearest obstacle at world points.
@@ -619,11 +622,21 @@ class LikelihoodField:
         return self._lookup(xy)
 
     def _lookup(self, xy):
-        rc = self.grid.world_to_cell(xy)
-        ok = self.grid.in_bounds(rc)
-        out = np.full(rc.shape[:-1], np.inf)
-        out[ok] = self.dist[rc[..., 0][ok], rc[..., 1][ok]]
-        return out
+        return self._table(None)[self.grid._flat_cells(xy[..., 0], xy[..., 1])]
+
+    def _table(self, key):
+        """The distances (``key`` None) or the beam terms ``key = (sigma, w_hit, w_rand, z_max)`` of every cell."""
+        table = self._tables.get(key)
+        if table is None:
+            if key is None:
+                table = np.append(self.dist.ravel(), np.inf)  # outside the grid: as an unknown cell
+            else:
+                table = _field_beam_log_likelihood(self._table(None), *key)
+                if len(self._tables) >= 8:
+                    self._tables.clear()
+            table.setflags(write=False)
+            self._tables[key] = table
+        return table
 
 
 def likelihood_field(grid, *, max_dist=2.0, threshold=0.5):
@@ -722,17 +735,23 @@ def likelihood_field_log_likelihood(field, poses, ranges, angles, *, z_max, sigm
     sensor_offset = as_scalar(sensor_offset, "sensor_offset")
     if not isinstance(per_beam, (bool, np.bool_)):
         raise TypeError(f"per_beam must be a bool, got {type(per_beam).__name__}")
+    out = _field_log_likelihood(field, poses, ranges, angles, z_max, sigma, w_hit, w_rand, sensor_offset, per_beam)
+    return out[0] if single else out
+
+
+def _field_log_likelihood(field, poses, ranges, angles, z_max, sigma, w_hit, w_rand, sensor_offset, per_beam):
+    """:func:`likelihood_field_log_likelihood` of poses ``(P, 3)``, unchecked: shape ``(P,)`` or ``(P, K)``."""
     use = ranges < z_max  # (Table 6.3 line 4: skip max-range readings)
     r, a = ranges[use], angles[use]
     th = poses[:, 2:3]
     # endpoint x_zk = x + x_sens cos(theta) + z_k cos(theta + theta_sens)  (Table 6.3 lines 5-6)
     ex = poses[:, 0:1] + sensor_offset * np.cos(th) + r * np.cos(th + a)
     ey = poses[:, 1:2] + sensor_offset * np.sin(th) + r * np.sin(th + a)
-    dist = field._lookup(np.stack([ex, ey], axis=-1))
-    terms = _field_beam_log_likelihood(dist, sigma, w_hit, w_rand, z_max)
+    # log(z_hit prob(dist, sigma_hit) + z_random / z_max) at each endpoint's cell  (Table 6.3 lines 7-8),
+    # computed once per cell of the map (LikelihoodField._table)
+    terms = field._table((sigma, w_hit, w_rand, z_max))[field.grid._flat_cells(ex, ey)]
     if per_beam:
         out = np.zeros((poses.shape[0], ranges.size))
         out[:, use] = terms
-    else:
-        out = np.sum(terms, axis=-1)
-    return out[0] if single else out
+        return out
+    return np.sum(terms, axis=-1)
