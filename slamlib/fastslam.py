@@ -1371,9 +1371,9 @@ def _inv_sym(C00, C01, C11):
     return det, (C11 / det, -C01 / det, C00 / det)
 
 
-def _gauss_terms(G, Qj, r0, r1):
-    """``A = G^T Qj^-1 G`` (3 components), ``b = G^T Qj^-1 r`` and ``log N(r; 0, Qj)``, written out."""
-    g00, g01, g10, g11 = G[..., 0, 0], G[..., 0, 1], G[..., 1, 0], G[..., 1, 1]
+def _gauss_info(g00, g01, g10, g11, Qj, r0, r1):
+    """``A = G^T Qj^-1 G`` (3 components), ``b = G^T Qj^-1 r``, ``det Qj`` and ``Qj^-1`` (3 components), from
+    the components of ``G``, written out."""
     det, (i00, i01, i11) = _inv_sym(*Qj)
     c00 = g00 * i00 + g10 * i01  # C = G^T Qj^-1
     c01 = g00 * i01 + g10 * i11
@@ -1381,6 +1381,12 @@ def _gauss_terms(G, Qj, r0, r1):
     c11 = g01 * i01 + g11 * i11
     A = (c00 * g00 + c01 * g10, c00 * g01 + c01 * g11, c10 * g01 + c11 * g11)
     b = (c00 * r0 + c01 * r1, c10 * r0 + c11 * r1)
+    return A, b, det, (i00, i01, i11)
+
+
+def _gauss_terms(G, Qj, r0, r1):
+    """``A = G^T Qj^-1 G`` (3 components), ``b = G^T Qj^-1 r`` and ``log N(r; 0, Qj)``, written out."""
+    A, b, det, (i00, i01, i11) = _gauss_info(G[..., 0, 0], G[..., 0, 1], G[..., 1, 0], G[..., 1, 1], Qj, r0, r1)
     log_n = -0.5 * (r0 * r0 * i00 + 2.0 * r0 * r1 * i01 + r1 * r1 * i11) - _LOG_2PI - 0.5 * np.log(det)
     return A, b, log_n
 
@@ -1736,6 +1742,9 @@ def fastslam2_update_unknown(state, u, dt, z, Q, *, M, rng, p0=None, max_range=N
     return _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rng)
 
 
+_SIGN_INV = np.array([[1.0], [-1.0], [1.0]])  # the signs of _inv_sym's inverse
+
+
 def _associate2(x_hat, B, mu, Sigma, seen, log_w, z, Q, log_p0, cols, near):
     """FastSLAM 2.0's sequential maximum-likelihood association of a step's measurements (Table 13.3 with
     unknown correspondences) over the candidate slots `cols`.
@@ -1744,67 +1753,77 @@ def _associate2(x_hat, B, mu, Sigma, seen, log_w, z, Q, log_p0, cols, near):
     none at all (the measurements leave the weights as they are). Returns the
     proposal's information ``P`` and ``b``, ``match (M, K)`` (slot, -1 for a new landmark) and the log
     weights, or None when the proposal's mean moved beyond :data:`_ETA_REACH`, where `near` no longer holds.
+
+    Everything that does not depend on the proposal so far is computed before the loop over the measurements,
+    for every (measurement, candidate) pair at once: the pairs' ``G``, ``Q_j``, ``z - z_bar`` and the
+    information ``G^T Q_j^-1 G``, ``G^T Q_j^-1 (z - z_bar)`` a match adds. Each pass of the loop then scores one
+    measurement's candidates in every particle against the proposal so far (the measurements stay sequential:
+    one sees the proposal and the landmarks the earlier ones matched) with the 2-vector components stacked, so
+    that one NumPy call computes two of them. Arrays are laid out ``(field, pair, particle)``.
     """
     n, K = x_hat.shape[0], z.shape[0]
     log_w = log_w.copy()
     rows = np.arange(n)
-    P = [np.ones(n), np.zeros(n), np.ones(n)]  # information of the proposal over eta, prior N(0, I)
-    b = [np.zeros(n), np.zeros(n)]
+    S = np.zeros((5, n))  # the proposal over eta: information P = (P00, P01, P11) and b = (b0, b1), prior N(0, I)
+    S[0] = S[2] = 1.0
     match = np.full((n, K), -1, dtype=np.int64)  # landmark slot of each measurement, -1: new
-    if cols is None:  # no candidate at all: nothing to associate, every measurement a new landmark
-        return P, b, match, log_w
-    if cols.size:
-        sn = seen[:, cols]
-        mu_s = mu[:, cols]  # a copy; empty slots moved next to the particle to keep h defined there
-        if not sn.all():
-            mu_s[~sn] = np.broadcast_to(x_hat[:, None, :2] + 1.0, mu_s.shape)[~sn]
-        z_bar, G, Qj = _predict_terms(x_hat, B, mu_s, Sigma[:, cols], Q)  # Table 13.3every candidate
-        g00, g01, g10, g11 = G[..., 0, 0], G[..., 0, 1], G[..., 1, 0], G[..., 1, 1]
-        zb0, zb1 = z_bar[..., 0], z_bar[..., 1]
-        avail = sn.copy()
+    if cols is None or not cols.size:  # no candidate at all: nothing to associate, every measurement a new landmark
+        for _ in range(K if cols is not None else 0):
+            log_w += log_p0  # w = p0 for every measurement
+        return [S[0], S[1], S[2]], [S[3], S[4]], match, log_w
+    C = cols.size
+    sn = seen[:, cols]
+    mu_s = mu[:, cols]  # a copy; empty slots moved next to the particle to keep h defined there
+    if not sn.all():
+        mu_s[~sn] = np.broadcast_to(x_hat[:, None, :2] + 1.0, mu_s.shape)[~sn]
+    z_bar, G, Qj = _predict_terms(x_hat, B, mu_s, Sigma[:, cols], Q)  # Table 13.3 for every candidate
+    # the candidates' fields (h00, h10, h01, h11, zb0, zb1, q00, q11, q01), shape (9, C, M)
+    FC = np.empty((9, C, n))
+    FC[0:4] = G.reshape(n, C, 4).T[[0, 2, 1, 3]]
+    FC[4:6] = z_bar.T
+    FC[6], FC[7], FC[8] = Qj[0].T, Qj[2].T, Qj[1].T
+    ii, jj = np.nonzero(near) if near is not None else (np.repeat(np.arange(K), C), np.tile(np.arange(C), K))
+    off = np.searchsorted(ii, np.arange(K + 1))  # measurement i's pairs: off[i]:off[i + 1], candidates ascending
+    F = np.take(FC, jj, axis=1)  # (9, pairs, M)
+    F[4] = (z[ii, 0])[:, None] - F[4]  # y = z_i - z_bar_j (innovation at the predicted pose)
+    F[5] = _wrap((z[ii, 1])[:, None] - F[5])
+    # what a match adds to the proposal: G^T Q_j^-1 G and G^T Q_j^-1 y  (Table 13.3)
+    A_, b_, _, _ = _gauss_info(F[0], F[2], F[1], F[3], (F[6], F[8], F[7]), F[4], F[5])
+    info = np.stack(A_ + b_)  # (5, pairs, M)
+    avail = sn.T.copy()  # (C, M): a landmark takes at most one measurement per step and particle
     for i in range(K):
-        zi = z[i]
-        _, (c00, c01, c11) = _inv_sym(*P)
-        m0 = c00 * b[0] + c01 * b[1]  # proposal mean of eta so far
-        m1 = c01 * b[0] + c11 * b[1]
-        if near is not None and float(np.max(m0 * m0 + m1 * m1)) > _ETA_REACH ** 2:
-            return None
-        ci = slice(None) if near is None else np.flatnonzero(near[i])
-        if not cols.size or near is not None and not ci.size:  # no landmark can beat p0: new everywhere
+        a, e = int(off[i]), int(off[i + 1])
+        det = S[0] * S[2] - S[1] * S[1]
+        c = S[2::-1] * _SIGN_INV / det  # (c00, c01, c11) = P^-1  (_inv_sym)
+        m = c[0:2] * S[3] + c[1:3] * S[4]  # proposal mean of eta so far, (m0, m1)
+        if near is not None:
+            mm = m * m
+            if float((mm[0] + mm[1]).max()) > _ETA_REACH ** 2:
+                return None
+        if e == a:  # no landmark can beat p0: new everywhere
             log_w += log_p0  # w = p0
             continue
-        h00, h01, h10, h11 = g00[:, ci], g01[:, ci], g10[:, ci], g11[:, ci]
-        q00, q01, q11 = Qj[0][:, ci], Qj[1][:, ci], Qj[2][:, ci]
-        y0 = zi[0] - zb0[:, ci]
-        y1 = _wrap(zi[1] - zb1[:, ci])
-        r0 = y0 - (h00 * m0[:, None] + h01 * m1[:, None])  # innovation against the proposal mean
-        r1 = _wrap(y1 - (h10 * m0[:, None] + h11 * m1[:, None]))
-        # L_j = G_j C G_j^T + Q_j  (Table 13.3with the proposal's covariance C so far)
-        a00 = h00 * c00[:, None] + h01 * c01[:, None]
-        a01 = h00 * c01[:, None] + h01 * c11[:, None]
-        a10 = h10 * c00[:, None] + h11 * c01[:, None]
-        a11 = h10 * c01[:, None] + h11 * c11[:, None]
-        L00 = a00 * h00 + a01 * h01 + q00
-        L01 = a00 * h10 + a01 * h11 + q01
-        L11 = a10 * h10 + a11 * h11 + q11
+        f = F[:, a:e]
+        h0, h1 = f[0:2], f[2:4]  # (h00, h10), (h01, h11)
+        r = f[4:6] - (h0 * m[0] + h1 * m[1])  # innovation against the proposal mean
+        r[1] = _wrap(r[1])
+        # L_j = G_j C G_j^T + Q_j  (Table 13.3 with the proposal's covariance C so far)
+        a0 = h0 * c[0] + h1 * c[1]  # (a00, a10) of G C
+        a1 = h0 * c[1] + h1 * c[2]  # (a01, a11)
+        Ld = a0 * h0 + a1 * h1 + f[6:8]  # (L00, L11)
+        L01 = a0[0] * h0[1] + a1[0] * h1[1] + f[8]
         # pi_j = N(r_j; 0, L_j); pi_new = p0
-        ll = np.where(avail[:, ci], _log_gauss_2(r0, r1, L00, L01, L11), -np.inf)
-        j = np.argmax(ll, axis=1)  # c_hat = argmax_j pi_j; ties: smallest index
-        best = ll[rows, j]
+        ll = np.where(avail[jj[a:e]], _log_gauss_2(r[0], r[1], Ld[0], L01, Ld[1]), -np.inf)
+        j = np.argmax(ll, axis=0)  # c_hat = argmax_j pi_j; ties: smallest index
+        best = ll[j, rows]
         old = best >= log_p0
         log_w += np.where(old, best, log_p0)  # w = pi_c_hat, or p0 for a new landmark
         if old.any():
-            k, jk = rows[old], j[old]
-            jc = np.arange(cols.size)[ci][jk]  # the candidate's column
-            A_, b_, _ = _gauss_terms(G[k, jc], (q00[k, jk], q01[k, jk], q11[k, jk]), y0[k, jk], y1[k, jk])
-            P[0][k] += A_[0]
-            P[1][k] += A_[1]
-            P[2][k] += A_[2]
-            b[0][k] += b_[0]
-            b[1][k] += b_[1]
-            avail[k, jc] = False
+            np.add(S, info[:, a + j, rows], out=S, where=old)  # the match's information joins the proposal
+            k, jc = rows[old], jj[a + j[old]]  # the candidate's column
+            avail[jc, k] = False
             match[k, i] = cols[jc]
-    return P, b, match, log_w
+    return [S[0], S[1], S[2]], [S[3], S[4]], match, log_w
 
 
 def _boxes_in_reach(lo, hi, margin, x, z):
