@@ -1745,6 +1745,23 @@ def fastslam2_update_unknown(state, u, dt, z, Q, *, M, rng, p0=None, max_range=N
 _SIGN_INV = np.array([[1.0], [-1.0], [1.0]])  # the signs of _inv_sym's inverse
 
 
+def _could_win(F, log_p0, reach):
+    """``(pairs, M)``: may a (measurement, candidate) pair win in a particle while the proposal's mean of the
+    control noise stays within `reach` (``|m| <= reach``)?
+
+    `F` holds the pairs' fields (see :func:`_associate2`): ``y = z - z_bar`` (``y_phi`` wrapped), the norms
+    ``|G_a|`` of the rows of ``G``, ``s_a = |G_a|^2 + Q_j,aa`` and ``-log 2 pi - 1/2 log det Q_j``. The score
+    is ``log N(r; 0, L)`` with ``r = y - G m`` (bearing wrapped), ``L = G C G^T + Q_j`` and ``C <= I`` (the
+    proposal's information is at least the prior's ``I``): ``det L >= det Q_j``, ``L_aa <= s_a`` and
+    ``|r_a| >= |y_a| - |G_a| |m|``, so ``r^T L^-1 r >= r_a^2 / L_aa >= (|y_a| - |G_a| reach)_+^2 / s_a``. A
+    pair whose bound on the score is below ``p0`` (with a slack far above rounding) can never be chosen.
+    """
+    d0 = np.maximum(np.abs(F[4]) - F[9] * reach, 0.0)
+    d1 = np.maximum(np.abs(F[5]) - F[10] * reach, 0.0)
+    maha = np.maximum(d0 * d0 / F[11], d1 * d1 / F[12])
+    return ~(F[13] - 0.5 * maha < log_p0 - 1e-6 * (1.0 + abs(log_p0)))  # (NaN: kept)
+
+
 def _associate2(x_hat, B, mu, Sigma, seen, log_w, z, Q, log_p0, cols, near):
     """FastSLAM 2.0's sequential maximum-likelihood association of a step's measurements (Table 13.3 with
     unknown correspondences) over the candidate slots `cols`.
@@ -1755,11 +1772,16 @@ def _associate2(x_hat, B, mu, Sigma, seen, log_w, z, Q, log_p0, cols, near):
     weights, or None when the proposal's mean moved beyond :data:`_ETA_REACH`, where `near` no longer holds.
 
     Everything that does not depend on the proposal so far is computed before the loop over the measurements,
-    for every (measurement, candidate) pair at once: the pairs' ``G``, ``Q_j``, ``z - z_bar`` and the
-    information ``G^T Q_j^-1 G``, ``G^T Q_j^-1 (z - z_bar)`` a match adds. Each pass of the loop then scores one
-    measurement's candidates in every particle against the proposal so far (the measurements stay sequential:
-    one sees the proposal and the landmarks the earlier ones matched) with the 2-vector components stacked, so
-    that one NumPy call computes two of them. Arrays are laid out ``(field, pair, particle)``.
+    for every (measurement, candidate) pair at once: ``G``, ``Q_j`` and ``y = z - z_bar``. With `near`, a pair
+    is then kept in a particle only if it may win there (:func:`_could_win`, per particle, a far tighter test
+    than `near`), and each measurement's kept candidates are packed, per particle in increasing order, into
+    as many rows as the particle with the most of them needs (about one): every array of the loop is
+    ``(rows, M)``. The information ``G^T Q_j^-1 G``, ``G^T Q_j^-1 y`` a match adds is computed for the packed
+    pairs before the loop too. Each pass of the loop scores one measurement's candidates in every particle
+    against the proposal so far (the measurements stay sequential: one sees the proposal and the landmarks
+    the earlier ones matched) with the 2-vector components stacked, so that one NumPy call computes two of
+    them. A candidate left out scores below ``p0``, so the choice and the weights are those of scoring
+    every candidate, bit for bit.
     """
     n, K = x_hat.shape[0], z.shape[0]
     log_w = log_w.copy()
@@ -1777,22 +1799,44 @@ def _associate2(x_hat, B, mu, Sigma, seen, log_w, z, Q, log_p0, cols, near):
     if not sn.all():
         mu_s[~sn] = np.broadcast_to(x_hat[:, None, :2] + 1.0, mu_s.shape)[~sn]
     z_bar, G, Qj = _predict_terms(x_hat, B, mu_s, Sigma[:, cols], Q)  # Table 13.3 for every candidate
-    # the candidates' fields (h00, h10, h01, h11, zb0, zb1, q00, q11, q01), shape (9, C, M)
-    FC = np.empty((9, C, n))
+    # the candidates' fields, shape (nf, C, M): h00, h10, h01, h11, zb0, zb1, q00, q11, q01 and, for
+    # _could_win, |G_r|, |G_phi|, |G_r|^2 + q00, |G_phi|^2 + q11, -log 2 pi - 1/2 log det Q_j
+    nf = 9 if near is None else 14
+    FC = np.empty((nf, C, n))
     FC[0:4] = G.reshape(n, C, 4).T[[0, 2, 1, 3]]
     FC[4:6] = z_bar.T
     FC[6], FC[7], FC[8] = Qj[0].T, Qj[2].T, Qj[1].T
+    if near is not None:
+        gg = FC[0:2] * FC[0:2] + FC[2:4] * FC[2:4]  # |G_a|^2
+        np.sqrt(gg, out=FC[9:11])
+        np.add(gg, FC[6:8], out=FC[11:13])
+        FC[13] = -_LOG_2PI - 0.5 * np.log(FC[6] * FC[7] - FC[8] * FC[8])
     ii, jj = np.nonzero(near) if near is not None else (np.repeat(np.arange(K), C), np.tile(np.arange(C), K))
     off = np.searchsorted(ii, np.arange(K + 1))  # measurement i's pairs: off[i]:off[i + 1], candidates ascending
-    F = np.take(FC, jj, axis=1)  # (9, pairs, M)
+    F = np.take(FC, jj, axis=1)  # (nf, pairs, M)
     F[4] = (z[ii, 0])[:, None] - F[4]  # y = z_i - z_bar_j (innovation at the predicted pose)
     F[5] = _wrap((z[ii, 1])[:, None] - F[5])
+    ok = sn.T[jj]  # (pairs, M): the particle holds the candidate
+    if near is not None:
+        ok &= _could_win(F, log_p0, _ETA_REACH)
+    # pack: per particle, each measurement's kept pairs first (in increasing order), then the others
+    order = np.argsort(2 * ii[:, None] + ~ok, axis=0, kind="stable")  # (pairs, M)
+    cum = np.zeros((ii.size + 1, n), dtype=np.int64)
+    np.cumsum(ok, axis=0, out=cum[1:])
+    width = (cum[off[1:]] - cum[off[:-1]]).max(axis=1)  # (K,): rows each measurement needs
+    poff = np.zeros(K + 1, dtype=np.int64)
+    np.cumsum(width, out=poff[1:])
+    src = np.repeat(off[:-1] - poff[:-1], width) + np.arange(poff[-1])  # each packed row's row of `order`
+    idx = order[src]  # (packed rows, M): the pair of each packed entry
+    Fp = F[:9, idx, rows]  # (9, packed rows, M)
+    col = np.where(ok[idx, rows], jj[idx], C)  # its candidate column; C (never available) where left out
     # what a match adds to the proposal: G^T Q_j^-1 G and G^T Q_j^-1 y  (Table 13.3)
-    A_, b_, _, _ = _gauss_info(F[0], F[2], F[1], F[3], (F[6], F[8], F[7]), F[4], F[5])
-    info = np.stack(A_ + b_)  # (5, pairs, M)
-    avail = sn.T.copy()  # (C, M): a landmark takes at most one measurement per step and particle
+    A_, b_, _, _ = _gauss_info(Fp[0], Fp[2], Fp[1], Fp[3], (Fp[6], Fp[8], Fp[7]), Fp[4], Fp[5])
+    info = np.stack(A_ + b_)  # (5, packed rows, M)
+    avail = np.zeros((C + 1, n), dtype=bool)  # a landmark takes at most one measurement per step and particle
+    avail[:C] = sn.T
     for i in range(K):
-        a, e = int(off[i]), int(off[i + 1])
+        a, e = int(poff[i]), int(poff[i + 1])
         det = S[0] * S[2] - S[1] * S[1]
         c = S[2::-1] * _SIGN_INV / det  # (c00, c01, c11) = P^-1  (_inv_sym)
         m = c[0:2] * S[3] + c[1:3] * S[4]  # proposal mean of eta so far, (m0, m1)
@@ -1803,7 +1847,7 @@ def _associate2(x_hat, B, mu, Sigma, seen, log_w, z, Q, log_p0, cols, near):
         if e == a:  # no landmark can beat p0: new everywhere
             log_w += log_p0  # w = p0
             continue
-        f = F[:, a:e]
+        f = Fp[:, a:e]
         h0, h1 = f[0:2], f[2:4]  # (h00, h10), (h01, h11)
         r = f[4:6] - (h0 * m[0] + h1 * m[1])  # innovation against the proposal mean
         r[1] = _wrap(r[1])
@@ -1813,14 +1857,18 @@ def _associate2(x_hat, B, mu, Sigma, seen, log_w, z, Q, log_p0, cols, near):
         Ld = a0 * h0 + a1 * h1 + f[6:8]  # (L00, L11)
         L01 = a0[0] * h0[1] + a1[0] * h1[1] + f[8]
         # pi_j = N(r_j; 0, L_j); pi_new = p0
-        ll = np.where(avail[jj[a:e]], _log_gauss_2(r[0], r[1], Ld[0], L01, Ld[1]), -np.inf)
-        j = np.argmax(ll, axis=0)  # c_hat = argmax_j pi_j; ties: smallest index
-        best = ll[j, rows]
+        ll = np.where(avail[col[a:e], rows], _log_gauss_2(r[0], r[1], Ld[0], L01, Ld[1]), -np.inf)
+        if e - a == 1:
+            j, best = np.zeros(n, dtype=np.int64), ll[0]
+        else:
+            j = np.argmax(ll, axis=0)  # c_hat = argmax_j pi_j; ties: smallest index
+            best = ll[j, rows]
         old = best >= log_p0
         log_w += np.where(old, best, log_p0)  # w = pi_c_hat, or p0 for a new landmark
         if old.any():
             np.add(S, info[:, a + j, rows], out=S, where=old)  # the match's information joins the proposal
-            k, jc = rows[old], jj[a + j[old]]  # the candidate's column
+            k = rows[old]
+            jc = col[a + j[old], k]  # the candidate's column
             avail[jc, k] = False
             match[k, i] = cols[jc]
     return [S[0], S[1], S[2]], [S[3], S[4]], match, log_w
