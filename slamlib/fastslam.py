@@ -1371,9 +1371,8 @@ def _inv_sym(C00, C01, C11):
     return det, (C11 / det, -C01 / det, C00 / det)
 
 
-def _gauss_info(g00, g01, g10, g11, Qj, r0, r1):
-    """``A = G^T Qj^-1 G`` (3 components), ``b = G^T Qj^-1 r``, ``det Qj`` and ``Qj^-1`` (3 components), from
-    the components of ``G``, written out."""
+def _gauss_parts(g00, g01, g10, g11, Qj, r0, r1):
+    """:func:`_gauss_terms` from the components of ``G``."""
     det, (i00, i01, i11) = _inv_sym(*Qj)
     c00 = g00 * i00 + g10 * i01  # C = G^T Qj^-1
     c01 = g00 * i01 + g10 * i11
@@ -1381,14 +1380,13 @@ def _gauss_info(g00, g01, g10, g11, Qj, r0, r1):
     c11 = g01 * i01 + g11 * i11
     A = (c00 * g00 + c01 * g10, c00 * g01 + c01 * g11, c10 * g01 + c11 * g11)
     b = (c00 * r0 + c01 * r1, c10 * r0 + c11 * r1)
-    return A, b, det, (i00, i01, i11)
+    log_n = -0.5 * (r0 * r0 * i00 + 2.0 * r0 * r1 * i01 + r1 * r1 * i11) - _LOG_2PI - 0.5 * np.log(det)
+    return A, b, log_n
 
 
 def _gauss_terms(G, Qj, r0, r1):
     """``A = G^T Qj^-1 G`` (3 components), ``b = G^T Qj^-1 r`` and ``log N(r; 0, Qj)``, written out."""
-    A, b, det, (i00, i01, i11) = _gauss_info(G[..., 0, 0], G[..., 0, 1], G[..., 1, 0], G[..., 1, 1], Qj, r0, r1)
-    log_n = -0.5 * (r0 * r0 * i00 + 2.0 * r0 * r1 * i01 + r1 * r1 * i11) - _LOG_2PI - 0.5 * np.log(det)
-    return A, b, log_n
+    return _gauss_parts(G[..., 0, 0], G[..., 0, 1], G[..., 1, 0], G[..., 1, 1], Qj, r0, r1)
 
 
 def _predict_terms(x_hat, B, mu, Sigma, Q):
@@ -1742,9 +1740,6 @@ def fastslam2_update_unknown(state, u, dt, z, Q, *, M, rng, p0=None, max_range=N
     return _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rng)
 
 
-_SIGN_INV = np.array([[1.0], [-1.0], [1.0]])  # the signs of _inv_sym's inverse
-
-
 def _could_win(F, log_p0, reach):
     """``(pairs, M)``: may a (measurement, candidate) pair win in a particle while the proposal's mean of the
     control noise stays within `reach` (``|m| <= reach``)?
@@ -1771,17 +1766,21 @@ def _associate2(x_hat, B, mu, Sigma, seen, log_w, z, Q, log_p0, cols, near):
     proposal's information ``P`` and ``b``, ``match (M, K)`` (slot, -1 for a new landmark) and the log
     weights, or None when the proposal's mean moved beyond :data:`_ETA_REACH`, where `near` no longer holds.
 
-    Everything that does not depend on the proposal so far is computed before the loop over the measurements,
-    for every (measurement, candidate) pair at once: ``G``, ``Q_j`` and ``y = z - z_bar``. With `near`, a pair
-    is then kept in a particle only if it may win there (:func:`_could_win`, per particle, a far tighter test
-    than `near`), and each measurement's kept candidates are packed, per particle in increasing order, into
-    as many rows as the particle with the most of them needs (about one): every array of the loop is
-    ``(rows, M)``. The information ``G^T Q_j^-1 G``, ``G^T Q_j^-1 y`` a match adds is computed for the packed
-    pairs before the loop too. Each pass of the loop scores one measurement's candidates in every particle
-    against the proposal so far (the measurements stay sequential: one sees the proposal and the landmarks
-    the earlier ones matched) with the 2-vector components stacked, so that one NumPy call computes two of
-    them. A candidate left out scores below ``p0``, so the choice and the weights are those of scoring
-    every candidate, bit for bit.
+    The score of candidate ``j`` given the proposal ``N(m, C)``, ``m = P^-1 b``, ``C = P^-1``, of the
+    measurements associated so far is computed in information form: with ``y_j = z - z_bar_j``,
+    ``A_j = G_j^T Q_j^-1 G_j`` and ``b_j = G_j^T Q_j^-1 y_j`` (what a match adds to the proposal),
+    ``log N(y_j; G_j m, G_j C G_j^T + Q_j) = log N(y_j; 0, Q_j) + phi(P + A_j, b + b_j) - phi(P, b)``
+    (:func:`_posterior_log_factor`: matrix determinant lemma and Woodbury, as for the weight of known
+    correspondences). Everything but ``phi`` is computed before the loop over the measurements, for every
+    (measurement, candidate) pair at once. With `near`, a pair is kept in a particle only if it may win there
+    (:func:`_could_win`, per particle, a far tighter test than `near`), and each measurement's kept
+    candidates are packed, per particle in increasing order, into as many rows as the particle with the most
+    of them needs (about one): every array of the loop is ``(rows, M)``, and a pass of the loop scores one
+    measurement's candidates in every particle with a few dozen NumPy calls. The measurements stay
+    sequential: one sees the proposal and the landmarks the earlier ones matched. A candidate left out scores
+    below ``p0``, so the choices, ``P`` and ``b`` are those of scoring every candidate with the innovation
+    ``wrap(y_j - G_j m)``, bit for bit; the weights equal them to rounding (the bearing's innovation is
+    wrapped at the predicted pose only, which changes nothing for a candidate that can win).
     """
     n, K = x_hat.shape[0], z.shape[0]
     log_w = log_w.copy()
@@ -1830,47 +1829,55 @@ def _associate2(x_hat, B, mu, Sigma, seen, log_w, z, Q, log_p0, cols, near):
     idx = order[src]  # (packed rows, M): the pair of each packed entry
     Fp = F[:9, idx, rows]  # (9, packed rows, M)
     col = np.where(ok[idx, rows], jj[idx], C)  # its candidate column; C (never available) where left out
-    # what a match adds to the proposal: G^T Q_j^-1 G and G^T Q_j^-1 y  (Table 13.3)
-    A_, b_, _, _ = _gauss_info(Fp[0], Fp[2], Fp[1], Fp[3], (Fp[6], Fp[8], Fp[7]), Fp[4], Fp[5])
+    # what a match adds to the proposal, G^T Q_j^-1 G and G^T Q_j^-1 y, and log N(y; 0, Q_j)  (Table 13.3)
+    A_, b_, log_n = _gauss_parts(Fp[0], Fp[2], Fp[1], Fp[3], (Fp[6], Fp[8], Fp[7]), Fp[4], Fp[5])
     info = np.stack(A_ + b_)  # (5, packed rows, M)
-    avail = np.zeros((C + 1, n), dtype=bool)  # a landmark takes at most one measurement per step and particle
-    avail[:C] = sn.T
+    # a landmark takes at most one measurement per step and particle: only a particle that keeps the same
+    # column for two measurements needs the availability of its columns followed through the loop
+    held = col[col < C] * n + np.broadcast_to(rows, col.shape)[col < C]
+    avail = None
+    if held.size and np.bincount(held).max() > 1:
+        avail = np.zeros((C + 1, n), dtype=bool)
+        avail[:C] = sn.T
+    else:
+        log_n = np.where(col < C, log_n, -np.inf)
+    phi = _posterior_log_factor(S[0:3], S[3:5])  # phi(P, b) of the proposal so far
+    S_seen = np.empty((K, 5, n))  # the proposal each measurement is scored against (the check of _ETA_REACH)
+    J = np.zeros((K, n), dtype=np.int64)  # the packed row of each measurement's choice
+    won = np.zeros((K, n), dtype=bool)  # and whether it beat p0
     for i in range(K):
         a, e = int(poff[i]), int(poff[i + 1])
-        det = S[0] * S[2] - S[1] * S[1]
-        c = S[2::-1] * _SIGN_INV / det  # (c00, c01, c11) = P^-1  (_inv_sym)
-        m = c[0:2] * S[3] + c[1:3] * S[4]  # proposal mean of eta so far, (m0, m1)
-        if near is not None:
-            mm = m * m
-            if float((mm[0] + mm[1]).max()) > _ETA_REACH ** 2:
-                return None
+        S_seen[i] = S
         if e == a:  # no landmark can beat p0: new everywhere
             log_w += log_p0  # w = p0
             continue
-        f = Fp[:, a:e]
-        h0, h1 = f[0:2], f[2:4]  # (h00, h10), (h01, h11)
-        r = f[4:6] - (h0 * m[0] + h1 * m[1])  # innovation against the proposal mean
-        r[1] = _wrap(r[1])
-        # L_j = G_j C G_j^T + Q_j  (Table 13.3 with the proposal's covariance C so far)
-        a0 = h0 * c[0] + h1 * c[1]  # (a00, a10) of G C
-        a1 = h0 * c[1] + h1 * c[2]  # (a01, a11)
-        Ld = a0 * h0 + a1 * h1 + f[6:8]  # (L00, L11)
-        L01 = a0[0] * h0[1] + a1[0] * h1[1] + f[8]
-        # pi_j = N(r_j; 0, L_j); pi_new = p0
-        ll = np.where(avail[col[a:e], rows], _log_gauss_2(r[0], r[1], Ld[0], L01, Ld[1]), -np.inf)
+        Sn = info[:, a:e] + S[:, None]  # (5, rows, M): the proposal after a match with each candidate
+        phi_n = _posterior_log_factor(Sn[0:3], Sn[3:5])
+        # pi_j = N(y_j; G_j m, G_j C G_j^T + Q_j) = N(y_j; 0, Q_j) exp(phi(P + A_j, b + b_j) - phi(P, b))
+        ll = log_n[a:e] + (phi_n - phi)
+        if avail is not None:
+            ll = np.where(avail[col[a:e], rows], ll, -np.inf)
         if e - a == 1:
-            j, best = np.zeros(n, dtype=np.int64), ll[0]
+            best, S_j, phi_j = ll[0], Sn[:, 0], phi_n[0]
         else:
-            j = np.argmax(ll, axis=0)  # c_hat = argmax_j pi_j; ties: smallest index
-            best = ll[j, rows]
-        old = best >= log_p0
+            J[i] = j = np.argmax(ll, axis=0)  # c_hat = argmax_j pi_j; ties: smallest index
+            best, S_j, phi_j = ll[j, rows], Sn[:, j, rows], phi_n[j, rows]
+        won[i] = old = best >= log_p0
         log_w += np.where(old, best, log_p0)  # w = pi_c_hat, or p0 for a new landmark
-        if old.any():
-            np.add(S, info[:, a + j, rows], out=S, where=old)  # the match's information joins the proposal
+        S = np.where(old, S_j, S)  # the match's information joins the proposal
+        phi = np.where(old, phi_j, phi)
+        if avail is not None:
             k = rows[old]
-            jc = col[a + j[old], k]  # the candidate's column
-            avail[jc, k] = False
-            match[k, i] = cols[jc]
+            avail[col[a + J[i, k], k], k] = False
+    if near is not None:  # the proposal's mean m = P^-1 b when each measurement was scored
+        _, (c00, c01, c11) = _inv_sym(S_seen[:, 0], S_seen[:, 1], S_seen[:, 2])
+        m0 = c00 * S_seen[:, 3] + c01 * S_seen[:, 4]
+        m1 = c01 * S_seen[:, 3] + c11 * S_seen[:, 4]
+        if float(np.max(m0 * m0 + m1 * m1)) > _ETA_REACH ** 2:
+            return None
+    if col.size:
+        slot = np.append(cols, -1)[col[np.minimum(poff[:-1, None] + J, col.shape[0] - 1), rows]]  # (K, M)
+        match[:] = np.where(won, slot, -1).T
     return [S[0], S[1], S[2]], [S[3], S[4]], match, log_w
 
 
