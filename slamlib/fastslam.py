@@ -1371,9 +1371,8 @@ def _inv_sym(C00, C01, C11):
     return det, (C11 / det, -C01 / det, C00 / det)
 
 
-def _gauss_terms(G, Qj, r0, r1):
-    """``A = G^T Qj^-1 G`` (3 components), ``b = G^T Qj^-1 r`` and ``log N(r; 0, Qj)``, written out."""
-    g00, g01, g10, g11 = G[..., 0, 0], G[..., 0, 1], G[..., 1, 0], G[..., 1, 1]
+def _gauss_parts(g00, g01, g10, g11, Qj, r0, r1):
+    """:func:`_gauss_terms` from the components of ``G``."""
     det, (i00, i01, i11) = _inv_sym(*Qj)
     c00 = g00 * i00 + g10 * i01  # C = G^T Qj^-1
     c01 = g00 * i01 + g10 * i11
@@ -1383,6 +1382,11 @@ def _gauss_terms(G, Qj, r0, r1):
     b = (c00 * r0 + c01 * r1, c10 * r0 + c11 * r1)
     log_n = -0.5 * (r0 * r0 * i00 + 2.0 * r0 * r1 * i01 + r1 * r1 * i11) - _LOG_2PI - 0.5 * np.log(det)
     return A, b, log_n
+
+
+def _gauss_terms(G, Qj, r0, r1):
+    """``A = G^T Qj^-1 G`` (3 components), ``b = G^T Qj^-1 r`` and ``log N(r; 0, Qj)``, written out."""
+    return _gauss_parts(G[..., 0, 0], G[..., 0, 1], G[..., 1, 0], G[..., 1, 1], Qj, r0, r1)
 
 
 def _predict_terms(x_hat, B, mu, Sigma, Q):
@@ -1736,6 +1740,23 @@ def fastslam2_update_unknown(state, u, dt, z, Q, *, M, rng, p0=None, max_range=N
     return _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rng)
 
 
+def _could_win(F, log_p0, reach):
+    """``(pairs, M)``: may a (measurement, candidate) pair win in a particle while the proposal's mean of the
+    control noise stays within `reach` (``|m| <= reach``)?
+
+    `F` holds the pairs' fields (see :func:`_associate2`): ``y = z - z_bar`` (``y_phi`` wrapped), the norms
+    ``|G_a|`` of the rows of ``G``, ``s_a = |G_a|^2 + Q_j,aa`` and ``-log 2 pi - 1/2 log det Q_j``. The score
+    is ``log N(r; 0, L)`` with ``r = y - G m`` (bearing wrapped), ``L = G C G^T + Q_j`` and ``C <= I`` (the
+    proposal's information is at least the prior's ``I``): ``det L >= det Q_j``, ``L_aa <= s_a`` and
+    ``|r_a| >= |y_a| - |G_a| |m|``, so ``r^T L^-1 r >= r_a^2 / L_aa >= (|y_a| - |G_a| reach)_+^2 / s_a``. A
+    pair whose bound on the score is below ``p0`` (with a slack far above rounding) can never be chosen.
+    """
+    d0 = np.maximum(np.abs(F[4]) - F[9] * reach, 0.0)
+    d1 = np.maximum(np.abs(F[5]) - F[10] * reach, 0.0)
+    maha = np.maximum(d0 * d0 / F[11], d1 * d1 / F[12])
+    return ~(F[13] - 0.5 * maha < log_p0 - 1e-6 * (1.0 + abs(log_p0)))  # (NaN: kept)
+
+
 def _associate2(x_hat, B, mu, Sigma, seen, log_w, z, Q, log_p0, cols, near):
     """FastSLAM 2.0's sequential maximum-likelihood association of a step's measurements (Table 13.3 with
     unknown correspondences) over the candidate slots `cols`.
@@ -1744,67 +1765,120 @@ def _associate2(x_hat, B, mu, Sigma, seen, log_w, z, Q, log_p0, cols, near):
     none at all (the measurements leave the weights as they are). Returns the
     proposal's information ``P`` and ``b``, ``match (M, K)`` (slot, -1 for a new landmark) and the log
     weights, or None when the proposal's mean moved beyond :data:`_ETA_REACH`, where `near` no longer holds.
+
+    The score of candidate ``j`` given the proposal ``N(m, C)``, ``m = P^-1 b``, ``C = P^-1``, of the
+    measurements associated so far is computed in information form: with ``y_j = z - z_bar_j``,
+    ``A_j = G_j^T Q_j^-1 G_j`` and ``b_j = G_j^T Q_j^-1 y_j`` (what a match adds to the proposal),
+    ``log N(y_j; G_j m, G_j C G_j^T + Q_j) = log N(y_j; 0, Q_j) + phi(P + A_j, b + b_j) - phi(P, b)``
+    (:func:`_posterior_log_factor`: matrix determinant lemma and Woodbury, as for the weight of known
+    correspondences). Everything but ``phi`` is computed before the loop over the measurements, for every
+    (measurement, candidate) pair at once. With `near`, a pair is kept in a particle only if it may win there
+    (:func:`_could_win`, per particle, a far tighter test than `near`), and each measurement's kept
+    candidates are packed, per particle in increasing order, into as many rows as the particle with the most
+    of them needs (about one): every array of the loop is ``(rows, M)``, and a pass of the loop scores one
+    measurement's candidates in every particle with a few dozen NumPy calls. The measurements stay
+    sequential: one sees the proposal and the landmarks the earlier ones matched. A candidate left out scores
+    below ``p0``, so the choices, ``P`` and ``b`` are those of scoring every candidate with the innovation
+    ``wrap(y_j - G_j m)``, bit for bit; the weights equal them to rounding (the bearing's innovation is
+    wrapped at the predicted pose only, which changes nothing for a candidate that can win).
     """
     n, K = x_hat.shape[0], z.shape[0]
     log_w = log_w.copy()
     rows = np.arange(n)
-    P = [np.ones(n), np.zeros(n), np.ones(n)]  # information of the proposal over eta, prior N(0, I)
-    b = [np.zeros(n), np.zeros(n)]
+    S = np.zeros((5, n))  # the proposal over eta: information P = (P00, P01, P11) and b = (b0, b1), prior N(0, I)
+    S[0] = S[2] = 1.0
     match = np.full((n, K), -1, dtype=np.int64)  # landmark slot of each measurement, -1: new
-    if cols is None:  # no candidate at all: nothing to associate, every measurement a new landmark
-        return P, b, match, log_w
-    if cols.size:
-        sn = seen[:, cols]
-        mu_s = mu[:, cols]  # a copy; empty slots moved next to the particle to keep h defined there
-        if not sn.all():
-            mu_s[~sn] = np.broadcast_to(x_hat[:, None, :2] + 1.0, mu_s.shape)[~sn]
-        z_bar, G, Qj = _predict_terms(x_hat, B, mu_s, Sigma[:, cols], Q)  # Table 13.3every candidate
-        g00, g01, g10, g11 = G[..., 0, 0], G[..., 0, 1], G[..., 1, 0], G[..., 1, 1]
-        zb0, zb1 = z_bar[..., 0], z_bar[..., 1]
-        avail = sn.copy()
+    if cols is None or not cols.size:  # no candidate at all: nothing to associate, every measurement a new landmark
+        for _ in range(K if cols is not None else 0):
+            log_w += log_p0  # w = p0 for every measurement
+        return [S[0], S[1], S[2]], [S[3], S[4]], match, log_w
+    C = cols.size
+    sn = seen[:, cols]
+    mu_s = mu[:, cols]  # a copy; empty slots moved next to the particle to keep h defined there
+    if not sn.all():
+        mu_s[~sn] = np.broadcast_to(x_hat[:, None, :2] + 1.0, mu_s.shape)[~sn]
+    z_bar, G, Qj = _predict_terms(x_hat, B, mu_s, Sigma[:, cols], Q)  # Table 13.3 for every candidate
+    # the candidates' fields, shape (nf, C, M): h00, h10, h01, h11, zb0, zb1, q00, q11, q01 and, for
+    # _could_win, |G_r|, |G_phi|, |G_r|^2 + q00, |G_phi|^2 + q11, -log 2 pi - 1/2 log det Q_j
+    nf = 9 if near is None else 14
+    FC = np.empty((nf, C, n))
+    FC[0:4] = G.reshape(n, C, 4).T[[0, 2, 1, 3]]
+    FC[4:6] = z_bar.T
+    FC[6], FC[7], FC[8] = Qj[0].T, Qj[2].T, Qj[1].T
+    if near is not None:
+        gg = FC[0:2] * FC[0:2] + FC[2:4] * FC[2:4]  # |G_a|^2
+        np.sqrt(gg, out=FC[9:11])
+        np.add(gg, FC[6:8], out=FC[11:13])
+        FC[13] = -_LOG_2PI - 0.5 * np.log(FC[6] * FC[7] - FC[8] * FC[8])
+    ii, jj = np.nonzero(near) if near is not None else (np.repeat(np.arange(K), C), np.tile(np.arange(C), K))
+    off = np.searchsorted(ii, np.arange(K + 1))  # measurement i's pairs: off[i]:off[i + 1], candidates ascending
+    F = np.take(FC, jj, axis=1)  # (nf, pairs, M)
+    F[4] = (z[ii, 0])[:, None] - F[4]  # y = z_i - z_bar_j (innovation at the predicted pose)
+    F[5] = _wrap((z[ii, 1])[:, None] - F[5])
+    ok = sn.T[jj]  # (pairs, M): the particle holds the candidate
+    if near is not None:
+        ok &= _could_win(F, log_p0, _ETA_REACH)
+    # pack: per particle, each measurement's kept pairs first (in increasing order), then the others
+    order = np.argsort(2 * ii[:, None] + ~ok, axis=0, kind="stable")  # (pairs, M)
+    cum = np.zeros((ii.size + 1, n), dtype=np.int64)
+    np.cumsum(ok, axis=0, out=cum[1:])
+    width = (cum[off[1:]] - cum[off[:-1]]).max(axis=1)  # (K,): rows each measurement needs
+    poff = np.zeros(K + 1, dtype=np.int64)
+    np.cumsum(width, out=poff[1:])
+    src = np.repeat(off[:-1] - poff[:-1], width) + np.arange(poff[-1])  # each packed row's row of `order`
+    idx = order[src]  # (packed rows, M): the pair of each packed entry
+    Fp = F[:9, idx, rows]  # (9, packed rows, M)
+    col = np.where(ok[idx, rows], jj[idx], C)  # its candidate column; C (never available) where left out
+    # what a match adds to the proposal, G^T Q_j^-1 G and G^T Q_j^-1 y, and log N(y; 0, Q_j)  (Table 13.3)
+    A_, b_, log_n = _gauss_parts(Fp[0], Fp[2], Fp[1], Fp[3], (Fp[6], Fp[8], Fp[7]), Fp[4], Fp[5])
+    info = np.stack(A_ + b_)  # (5, packed rows, M)
+    # a landmark takes at most one measurement per step and particle: only a particle that keeps the same
+    # column for two measurements needs the availability of its columns followed through the loop
+    held = col[col < C] * n + np.broadcast_to(rows, col.shape)[col < C]
+    avail = None
+    if held.size and np.bincount(held).max() > 1:
+        avail = np.zeros((C + 1, n), dtype=bool)
+        avail[:C] = sn.T
+    else:
+        log_n = np.where(col < C, log_n, -np.inf)
+    phi = _posterior_log_factor(S[0:3], S[3:5])  # phi(P, b) of the proposal so far
+    S_seen = np.empty((K, 5, n))  # the proposal each measurement is scored against (the check of _ETA_REACH)
+    J = np.zeros((K, n), dtype=np.int64)  # the packed row of each measurement's choice
+    won = np.zeros((K, n), dtype=bool)  # and whether it beat p0
     for i in range(K):
-        zi = z[i]
-        _, (c00, c01, c11) = _inv_sym(*P)
-        m0 = c00 * b[0] + c01 * b[1]  # proposal mean of eta so far
-        m1 = c01 * b[0] + c11 * b[1]
-        if near is not None and float(np.max(m0 * m0 + m1 * m1)) > _ETA_REACH ** 2:
-            return None
-        ci = slice(None) if near is None else np.flatnonzero(near[i])
-        if not cols.size or near is not None and not ci.size:  # no landmark can beat p0: new everywhere
+        a, e = int(poff[i]), int(poff[i + 1])
+        S_seen[i] = S
+        if e == a:  # no landmark can beat p0: new everywhere
             log_w += log_p0  # w = p0
             continue
-        h00, h01, h10, h11 = g00[:, ci], g01[:, ci], g10[:, ci], g11[:, ci]
-        q00, q01, q11 = Qj[0][:, ci], Qj[1][:, ci], Qj[2][:, ci]
-        y0 = zi[0] - zb0[:, ci]
-        y1 = _wrap(zi[1] - zb1[:, ci])
-        r0 = y0 - (h00 * m0[:, None] + h01 * m1[:, None])  # innovation against the proposal mean
-        r1 = _wrap(y1 - (h10 * m0[:, None] + h11 * m1[:, None]))
-        # L_j = G_j C G_j^T + Q_j  (Table 13.3with the proposal's covariance C so far)
-        a00 = h00 * c00[:, None] + h01 * c01[:, None]
-        a01 = h00 * c01[:, None] + h01 * c11[:, None]
-        a10 = h10 * c00[:, None] + h11 * c01[:, None]
-        a11 = h10 * c01[:, None] + h11 * c11[:, None]
-        L00 = a00 * h00 + a01 * h01 + q00
-        L01 = a00 * h10 + a01 * h11 + q01
-        L11 = a10 * h10 + a11 * h11 + q11
-        # pi_j = N(r_j; 0, L_j); pi_new = p0
-        ll = np.where(avail[:, ci], _log_gauss_2(r0, r1, L00, L01, L11), -np.inf)
-        j = np.argmax(ll, axis=1)  # c_hat = argmax_j pi_j; ties: smallest index
-        best = ll[rows, j]
-        old = best >= log_p0
+        Sn = info[:, a:e] + S[:, None]  # (5, rows, M): the proposal after a match with each candidate
+        phi_n = _posterior_log_factor(Sn[0:3], Sn[3:5])
+        # pi_j = N(y_j; G_j m, G_j C G_j^T + Q_j) = N(y_j; 0, Q_j) exp(phi(P + A_j, b + b_j) - phi(P, b))
+        ll = log_n[a:e] + (phi_n - phi)
+        if avail is not None:
+            ll = np.where(avail[col[a:e], rows], ll, -np.inf)
+        if e - a == 1:
+            best, S_j, phi_j = ll[0], Sn[:, 0], phi_n[0]
+        else:
+            J[i] = j = np.argmax(ll, axis=0)  # c_hat = argmax_j pi_j; ties: smallest index
+            best, S_j, phi_j = ll[j, rows], Sn[:, j, rows], phi_n[j, rows]
+        won[i] = old = best >= log_p0
         log_w += np.where(old, best, log_p0)  # w = pi_c_hat, or p0 for a new landmark
-        if old.any():
-            k, jk = rows[old], j[old]
-            jc = np.arange(cols.size)[ci][jk]  # the candidate's column
-            A_, b_, _ = _gauss_terms(G[k, jc], (q00[k, jk], q01[k, jk], q11[k, jk]), y0[k, jk], y1[k, jk])
-            P[0][k] += A_[0]
-            P[1][k] += A_[1]
-            P[2][k] += A_[2]
-            b[0][k] += b_[0]
-            b[1][k] += b_[1]
-            avail[k, jc] = False
-            match[k, i] = cols[jc]
-    return P, b, match, log_w
+        S = np.where(old, S_j, S)  # the match's information joins the proposal
+        phi = np.where(old, phi_j, phi)
+        if avail is not None:
+            k = rows[old]
+            avail[col[a + J[i, k], k], k] = False
+    if near is not None:  # the proposal's mean m = P^-1 b when each measurement was scored
+        _, (c00, c01, c11) = _inv_sym(S_seen[:, 0], S_seen[:, 1], S_seen[:, 2])
+        m0 = c00 * S_seen[:, 3] + c01 * S_seen[:, 4]
+        m1 = c01 * S_seen[:, 3] + c11 * S_seen[:, 4]
+        if float(np.max(m0 * m0 + m1 * m1)) > _ETA_REACH ** 2:
+            return None
+    if col.size:
+        slot = np.append(cols, -1)[col[np.minimum(poff[:-1, None] + J, col.shape[0] - 1), rows]]  # (K, M)
+        match[:] = np.where(won, slot, -1).T
+    return [S[0], S[1], S[2]], [S[3], S[4]], match, log_w
 
 
 def _boxes_in_reach(lo, hi, margin, x, z):

@@ -1703,3 +1703,40 @@ def test_within_reach_equals_the_test_over_every_pair():
         got = fs._within_reach(z, zb0, zb1, seen, s0, s1, f)
         np.testing.assert_array_equal(got, every)
         assert M == 1 or K == 0 or C == 0 or 0 < got.sum() < got.size  # both outcomes occur
+
+
+def test_fastslam2_could_win_keeps_every_pair_that_scores_above_p0():
+    # _could_win drops a (measurement, candidate) pair of a particle when a bound puts its score below p0 for
+    # every proposal with information P >= I (C = P^-1 <= I) and mean |m| <= reach. The bound must never
+    # drop a pair whose exact score log N(wrap(y - G m); 0, G C G^T + Q_j) is p0 or more: over random
+    # Jacobians (scales 1e-3 to 10), noises (correlated), innovations (bearings up to pi), proposals and p0
+    # set to each pair's own exact score
+    from slamlib import fastslam as fs
+
+    rng = np.random.default_rng(64)
+    n, reach = 4000, 2.5
+    G = rng.standard_normal((n, 2, 2)) * 10.0 ** rng.uniform(-3, 1, (n, 1, 1))
+    sd = 10.0 ** rng.uniform(-3, 0, (n, 2))
+    c = rng.uniform(-0.95, 0.95, n)
+    Qj = np.stack([sd[:, 0] ** 2, c * sd[:, 0] * sd[:, 1], sd[:, 1] ** 2])  # (q00, q01, q11)
+    y = np.column_stack([rng.normal(0, 3.0, n) * sd[:, 0], sl.wrap_angle(rng.normal(0, 3.0, n) * sd[:, 1])])
+    y[::7, 1] = rng.uniform(-np.pi, np.pi, y[::7].shape[0])  # bearings anywhere
+    B = rng.standard_normal((n, 2, 2)) * rng.uniform(0, 3, (n, 1, 1))
+    C = np.linalg.inv(np.eye(2) + B @ np.swapaxes(B, 1, 2))  # C <= I
+    m = rng.standard_normal((n, 2))
+    m *= (reach * rng.uniform(0, 1, n) ** 0.5 / np.linalg.norm(m, axis=1))[:, None]
+    r = y - np.einsum("nij,nj->ni", G, m)
+    r[:, 1] = sl.wrap_angle(r[:, 1])
+    L = G @ C @ np.swapaxes(G, 1, 2) + np.stack([np.stack([Qj[0], Qj[1]], -1), np.stack([Qj[1], Qj[2]], -1)], -2)
+    score = (-np.log(2 * np.pi) - 0.5 * np.log(np.linalg.det(L))
+             - 0.5 * np.einsum("ni,ni->n", r, np.linalg.solve(L, r[..., None])[..., 0]))
+    F = np.zeros((14, n, 1))
+    F[4, :, 0], F[5, :, 0] = y[:, 0], y[:, 1]
+    F[9, :, 0], F[10, :, 0] = np.linalg.norm(G[:, 0], axis=1), np.linalg.norm(G[:, 1], axis=1)
+    F[11, :, 0], F[12, :, 0] = F[9, :, 0] ** 2 + Qj[0], F[10, :, 0] ** 2 + Qj[2]
+    F[13, :, 0] = -np.log(2 * np.pi) - 0.5 * np.log(Qj[0] * Qj[2] - Qj[1] ** 2)
+    kept = np.array([fs._could_win(F[:, k:k + 1], score[k], reach)[0, 0] for k in range(n)])
+    assert kept.all(), np.flatnonzero(~kept)[:5]
+    # and the bound is not idle: with p0 a little above the score, a share of the pairs is dropped
+    dropped = [not fs._could_win(F[:, k:k + 1], score[k] + 5.0, reach)[0, 0] for k in range(n)]
+    assert np.mean(dropped) > 0.05
