@@ -735,12 +735,6 @@ def likelihood_field_log_likelihood(field, poses, ranges, angles, *, z_max, sigm
     sensor_offset = as_scalar(sensor_offset, "sensor_offset")
     if not isinstance(per_beam, (bool, np.bool_)):
         raise TypeError(f"per_beam must be a bool, got {type(per_beam).__name__}")
-    out = _field_log_likelihood(field, poses, ranges, angles, z_max, sigma, w_hit, w_rand, sensor_offset, per_beam)
-    return out[0] if single else out
-
-
-def _field_log_likelihood(field, poses, ranges, angles, z_max, sigma, w_hit, w_rand, sensor_offset, per_beam):
-    """:func:`likelihood_field_log_likelihood` of poses ``(P, 3)``, unchecked: shape ``(P,)`` or ``(P, K)``."""
     use = ranges < z_max  # (Table 6.3 line 4: skip max-range readings)
     r, a = ranges[use], angles[use]
     th = poses[:, 2:3]
@@ -753,5 +747,6 @@ def _field_log_likelihood(field, poses, ranges, angles, z_max, sigma, w_hit, w_r
     if per_beam:
         out = np.zeros((poses.shape[0], ranges.size))
         out[:, use] = terms
-        return out
-    return np.sum(terms, axis=-1)
+    else:
+        out = np.sum(terms, axis=-1)
+    return out[0] if single else out

@@ -340,6 +340,37 @@ def test_likelihood_field_log_likelihood_table_6_3():
     assert lls[0] > lls[1] and lls[0] > lls[2]
 
 
+def test_likelihood_field_terms_follow_their_parameters_and_the_points():
+    # each parameter set's terms are computed once per cell of the map and kept with the field; every call
+    # must still give the terms of its own parameters, and the free-space test those of its own threshold,
+    # at points inside, on the edges of and outside the grid (rows and columns below zero included)
+    rng = np.random.default_rng(65)
+    occ = rng.uniform(size=(40, 30))
+    occ[rng.uniform(size=occ.shape) < 0.05] = np.nan
+    g = sl.OccupancyGrid(occ, 0.25, origin=np.array([-3.0, 2.0]))
+    f = sl.likelihood_field(g, max_dist=2.0, threshold=0.8)
+    left, right, bottom, top = g.extent
+    pts = np.column_stack([rng.uniform(left - 2, right + 2, 4000), rng.uniform(bottom - 2, top + 2, 4000)])
+    pts[:200] = np.column_stack([np.repeat([left, right], 100), rng.uniform(bottom, top, 200)])  # on the edges
+    rc = np.floor((pts - g.origin) / g.resolution)[:, ::-1].astype(int)
+    inside = (rc[:, 0] >= 0) & (rc[:, 0] < 40) & (rc[:, 1] >= 0) & (rc[:, 1] < 30)
+    want_d = np.full(len(pts), np.inf)
+    want_d[inside] = f.dist[rc[inside, 0], rc[inside, 1]]
+    np.testing.assert_array_equal(f.distance_at(pts), want_d)
+    poses = np.column_stack([pts, np.zeros(len(pts))])
+    for sigma, w_hit, w_rand in [(0.2, 0.8, 0.2), (0.5, 0.9, 0.1), (0.2, 0.8, 0.2), (0.05, 1.0, 0.0)] * 3:
+        got = sl.likelihood_field_log_likelihood(f, poses, [0.0], [0.0], z_max=8.0, sigma_hit=sigma, w_hit=w_hit,
+                                                  w_rand=w_rand)
+        with np.errstate(divide="ignore"):
+            want = np.log(w_hit * np.exp(-0.5 * (want_d / sigma) ** 2) / (np.sqrt(2 * np.pi) * sigma) + w_rand / 8.0)
+        np.testing.assert_allclose(got, want, rtol=1e-13)
+    for threshold in (0.1, 0.5, 0.1, 0.9, 0.3, 0.2, 0.7, 0.6, 0.4, 0.05, 0.1):  # more than the tables kept
+        want = np.zeros(len(pts), dtype=bool)
+        with np.errstate(invalid="ignore"):
+            want[inside] = occ[rc[inside, 0], rc[inside, 1]] <= threshold
+        np.testing.assert_array_equal(g.is_free(pts, threshold), want)
+
+
 def test_distance_transform_is_scipy_edt():
     g = box_grid()
     f = sl.likelihood_field(g, max_dist=np.inf)
