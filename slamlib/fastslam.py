@@ -1266,13 +1266,12 @@ def _within_reach(z, zb0, zb1, seen, s0, s1, f):
 
     ``zb0, zb1 (M, C)`` are the predicted range and bearing (``zb1`` in
     ``[-pi, pi)``), ``s0, s1 (M, C)`` bounds on the standard deviations of the
-    innovation in range and bearing (FastSLAM 1.0: ``sqrt(S_aa)``; FastSLAM
-    2.0: ``sqrt(Qj_aa) + |G_a|``, the proposal's covariance being at most
-    ``I``, or larger bounds of these). A pair whose innovation exceeds ``f`` of them in either
-    coordinate has ``nu^T L^-1 nu >= nu_a^2 / L_aa > t^2`` even after the
-    proposal's mean moves it by ``|G_a| |m|``, ``|m| <= _ETA_REACH`` (see
-    :func:`_reach_factor`), so its likelihood is below ``p0`` and it can
-    never be chosen.
+    innovation in range and bearing (FastSLAM 1.0: ``sqrt(S_aa)``). A pair whose
+    innovation exceeds ``f`` of them in either coordinate has
+    ``nu^T S^-1 nu >= nu_a^2 / S_aa > t^2`` (see :func:`_reach_factor`), so its
+    likelihood is below ``p0`` and it can never be chosen. FastSLAM 2.0 passes
+    radii beyond which a pair fails :func:`_could_win` in that particle
+    (:func:`_pair_radii`) with ``f = 1``.
     """
     K, C = z.shape[0], zb0.shape[1]
     t0, t1 = f * s0, f * s1
@@ -1311,7 +1310,8 @@ def _unknown_window(state, K, name, reach=None):
     """
     maps = state._blocks()
     M = state.n_particles
-    nb = _n_blocks(min(maps.N, _used_slots(maps) + K))  # whole blocks; slots beyond `used` are empty
+    W = min(maps.N, _used_slots(maps) + K)
+    nb = _n_blocks(W)  # whole blocks; slots beyond `used` are empty
     if reach is not None and nb > _WINDOW_BLOCKS:
         summary, d = _summaries(maps, nb), None
         need = int(summary[..., _S_N].sum(axis=1).max(initial=0)) + K
@@ -1320,7 +1320,7 @@ def _unknown_window(state, K, name, reach=None):
         need = int(np.count_nonzero(d[..., _SEEN], axis=1).max(initial=0)) + K
     if need > maps.N:
         maps = _grow(state, need, name)._maps
-    W = min(maps.N, _used_slots(maps) + K)
+        W = min(maps.N, _used_slots(maps) + K)
     nbW = _n_blocks(W)
     if summary is None:
         if nbW > nb:
@@ -1757,6 +1757,30 @@ def _could_win(F, log_p0, reach):
     return ~(F[13] - 0.5 * maha < log_p0 - 1e-6 * (1.0 + abs(log_p0)))  # (NaN: kept)
 
 
+def _pair_radii(d, var, b_xy, b_th, Q, log_p0, reach):
+    """Radii ``(r0, r1)`` of the innovation in range and bearing beyond which a candidate fails :func:`_could_win`,
+    from bounds on its fields that need neither ``z_bar``'s Jacobians nor ``Q_j`` (``(M, C)``, for
+    :func:`_within_reach` with ``f = 1``).
+
+    ``d`` is each particle's predicted range of the candidate, ``var`` its ``tr Sigma``, ``b_xy``, ``b_th``
+    ``(M, 1)`` the norms of the position and heading rows of ``B = V L``. With ``h_r``, ``h_phi`` the rows of
+    ``H_m`` (``|h_r| = 1``, ``|h_phi| = 1/d``): ``|G_r| <= g_r = b_xy``, ``|G_phi| <= g_phi = b_xy / d + b_th``,
+    ``s_a = |G_a|^2 + Q_j,aa <= v_a = g_a^2 + Q_aa + |h_a|^2 tr Sigma`` and ``det Q_j >= det Q``, so a pair that
+    passes :func:`_could_win` has ``(|y_a| - g_a reach)_+^2 / v_a <= T^2 = 2 (-log 2 pi - 1/2 log det Q - log p0
+    + slack)``, ``|y_a| <= g_a reach + T sqrt(v_a)``, on both axes; the radii are widened by far more than the
+    rounding of either test (at ``d = 0``, ``r1 = inf``: any bearing).
+    """
+    c = -_LOG_2PI - 0.5 * np.log(Q[0, 0] * Q[1, 1] - Q[0, 1] * Q[1, 0])
+    t = np.sqrt(np.maximum(2.0 * (c - log_p0 + 2e-6 * (1.0 + np.abs(log_p0))), 0.0))
+    inv_d = np.zeros(d.shape)
+    np.divide(1.0, d, out=inv_d, where=d > 0)
+    g1 = b_xy * inv_d + b_th
+    r0 = (reach * b_xy + t * np.sqrt(b_xy * b_xy + Q[0, 0] + var)) * (1.0 + 1e-9) + 1e-9 * (1.0 + d)
+    r1 = (reach * g1 + t * np.sqrt(g1 * g1 + Q[1, 1] + var * (inv_d * inv_d))) * (1.0 + 1e-9) + 1e-9
+    r1[d <= 0] = np.inf
+    return r0, r1
+
+
 def _associate2(x_hat, B, mu, Sigma, seen, log_w, z, Q, log_p0, cols, near):
     """FastSLAM 2.0's sequential maximum-likelihood association of a step's measurements (Table 13.3 with
     unknown correspondences) over the candidate slots `cols`.
@@ -1960,26 +1984,22 @@ def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rn
         # exp(-50) |2 pi Q|^-1/2, far below p0, and could never be chosen
         dx, dy = mu[:, cols, 0] - x_hat[:, None, 0], mu[:, cols, 1] - x_hat[:, None, 1]
         d = np.hypot(dx, dy)
-        spread = np.sqrt(Sigma[:, cols, 0, 0] + Sigma[:, cols, 1, 1])
+        var = Sigma[:, cols, 0, 0] + Sigma[:, cols, 1, 1]
+        spread = np.sqrt(var)
         margin = _margin2(spread, b[:, None], Q)
         near = seen[:, cols] & (d >= z[:, 0].min() - margin) & (d <= z[:, 0].max() + margin)
         keep = near.any(axis=0)
         cols = cols[keep]
     found = None
     if _PREFILTER and cols.size and K:
-        # the candidates of each measurement (_within_reach), from bounds on the innovation's standard
-        # deviations that need neither z_bar's Jacobians nor Q_j: sqrt(Q_j,rr) <= sqrt(Q_rr) + s,
-        # sqrt(Q_j,phiphi) <= sqrt(Q_phiphi) + s / d (s^2 = tr Sigma_j), |G_r| <= |B_xy|,
-        # |G_phi| <= |B_xy| / d + |B_theta|
-        d, spread = d[:, keep], spread[:, keep]
+        # the candidates of each measurement (_within_reach): the pairs that may pass _could_win in some
+        # particle, from bounds on its fields that need neither z_bar's Jacobians nor Q_j (_pair_radii)
+        d, var = d[:, keep], var[:, keep]
         phi = _wrap(np.arctan2(dy[:, keep], dx[:, keep]) - x_hat[:, None, 2])
         b_xy = np.sqrt((B[:, :2] ** 2).sum(axis=(1, 2)))[:, None]
         b_th = np.sqrt((B[:, 2] ** 2).sum(axis=1))[:, None]
-        s1 = np.full(d.shape, np.inf)  # at d = 0 the bearing can be anything
-        np.divide(spread + b_xy, d, out=s1, where=d > 0)
-        s1 += math.sqrt(Q[1, 1]) + b_th
-        near = _within_reach(z, d, phi, seen[:, cols], math.sqrt(Q[0, 0]) + spread + b_xy, s1,
-                             _reach_factor(Q, log_p0))
+        r0, r1 = _pair_radii(d, var, b_xy, b_th, Q, log_p0, _ETA_REACH)
+        near = _within_reach(z, d, phi, seen[:, cols], r0, r1, 1.0)
         some = near.any(axis=0)
         found = _associate2(x_hat, B, mu, Sigma, seen, state.log_weights, z, Q, log_p0, cols[some], near[:, some])
     if found is None:  # every candidate for every measurement (also when the proposal moved beyond _ETA_REACH)

@@ -1705,6 +1705,65 @@ def test_within_reach_equals_the_test_over_every_pair():
         assert M == 1 or K == 0 or C == 0 or 0 < got.sum() < got.size  # both outcomes occur
 
 
+def test_fastslam2_pair_radii_keep_every_pair_could_win_keeps():
+    # FastSLAM 2.0's per-measurement candidates (_within_reach with the radii of _pair_radii) must keep every
+    # (measurement, candidate) pair of a particle that _could_win keeps: over ranges 0.1 to 100 m, poses,
+    # landmark covariances, motion Jacobians B = V L and innovations, with p0 at each pair's own _could_win
+    # score, on geometries where each bound is tight (B and Sigma aligned with the range or the bearing
+    # direction: |G_a| = g_a, h_a Sigma h_a^T = |h_a|^2 tr Sigma) and on random ones
+    from slamlib import fastslam as fs
+
+    rng = np.random.default_rng(84)
+    n, reach = 3000, fs._ETA_REACH
+    for Q in (np.diag([0.05, 0.002]), np.array([[0.3, 0.01], [0.01, 0.004]]), np.diag([1e-4, 1e-6])):
+        x = np.column_stack([rng.uniform(-50, 50, (n, 2)), rng.uniform(-np.pi, np.pi, n)])
+        r = 10.0 ** rng.uniform(-1, 2, n)
+        a = rng.uniform(-np.pi, np.pi, n)
+        u = np.column_stack([np.cos(a), np.sin(a)])  # the range direction, and the bearing direction v
+        v = np.column_stack([np.sin(a), -np.cos(a)])
+        mu = x[:, :2] + r[:, None] * u
+        fam = rng.integers(0, 3, n)  # 0: range-tight, 1: bearing-tight, 2: random
+        e = np.where((fam == 0)[:, None], u, v)
+        s = 10.0 ** rng.uniform(-4, 1, n)
+        Sigma = s[:, None, None] * e[:, :, None] * e[:, None, :]
+        A = rng.standard_normal((n, 2, 2)) * 10.0 ** rng.uniform(-3, 0.5, (n, 1, 1))
+        Sigma[fam == 2] = A[fam == 2] @ np.swapaxes(A[fam == 2], 1, 2)
+        w = rng.standard_normal((n, 2)) * 10.0 ** rng.uniform(-3, 0.5, (n, 1))
+        B = np.zeros((n, 3, 2))
+        B[:, :2] = e[:, :, None] * w[:, None, :]
+        B[:, 2] = -rng.uniform(0, 1, (n, 1)) * w * (fam == 1)[:, None] / r[:, None]  # G_phi = (1/r + c) w^T
+        B[fam == 2] = rng.standard_normal((int((fam == 2).sum()), 3, 2)) * 10.0 ** rng.uniform(-3, 0.5, (int((fam == 2).sum()), 1, 1))
+        z_bar, G, Qj = fs._predict_terms(x, B, mu[:, None], Sigma[:, None], Q)
+        z_bar, G, Qj = z_bar[:, 0], G[:, 0], tuple(q[:, 0] for q in Qj)
+        y = rng.standard_normal((n, 2)) * 10.0 ** rng.uniform(-2, 1.5, (n, 2)) * np.sqrt(np.column_stack([Qj[0], Qj[2]]))
+        y[fam == 0, 1] *= 1e-3  # the tight axis carries the innovation
+        y[fam == 1, 0] *= 1e-3
+        z = np.column_stack([np.maximum(z_bar[:, 0] + y[:, 0], 1e-3), sl.wrap_angle(z_bar[:, 1] + y[:, 1])])
+        F = np.zeros((14, n, 1))
+        F[4, :, 0], F[5, :, 0] = z[:, 0] - z_bar[:, 0], sl.wrap_angle(z[:, 1] - z_bar[:, 1])
+        F[9, :, 0], F[10, :, 0] = np.hypot(G[:, 0, 0], G[:, 0, 1]), np.hypot(G[:, 1, 0], G[:, 1, 1])
+        F[11, :, 0], F[12, :, 0] = F[9, :, 0] ** 2 + Qj[0], F[10, :, 0] ** 2 + Qj[2]
+        F[13, :, 0] = -np.log(2 * np.pi) - 0.5 * np.log(Qj[0] * Qj[2] - Qj[1] ** 2)
+        d0 = np.maximum(np.abs(F[4]) - F[9] * reach, 0.0)
+        d1 = np.maximum(np.abs(F[5]) - F[10] * reach, 0.0)
+        log_p0 = F[13] - 0.5 * np.maximum(d0 * d0 / F[11], d1 * d1 / F[12])  # (n, 1): each pair on _could_win's edge
+        assert fs._could_win(F, log_p0, reach).all()
+        # the prefilter's inputs, as _update2_unknown_core computes them
+        dx, dy = mu[:, None, 0] - x[:, None, 0], mu[:, None, 1] - x[:, None, 1]
+        d = np.hypot(dx, dy)
+        phi = fs._wrap(np.arctan2(dy, dx) - x[:, None, 2])
+        b_xy = np.sqrt((B[:, :2] ** 2).sum(axis=(1, 2)))[:, None]
+        b_th = np.sqrt((B[:, 2] ** 2).sum(axis=1))[:, None]
+        var = Sigma[:, None, 0, 0] + Sigma[:, None, 1, 1]
+        r0, r1 = fs._pair_radii(d, var, b_xy, b_th, Q, log_p0, reach)
+        y0, y1 = np.abs(z[:, 0, None] - d), np.abs(fs._wrap(z[:, 1, None] - phi))
+        bad = (y0 > r0) | (y1 > r1)
+        assert not bad.any(), (np.flatnonzero(bad)[:5], fam[bad[:, 0]][:5])
+        # and the radii are not idle: with p0 a little above each pair's score, many pairs fall outside
+        r0, r1 = fs._pair_radii(d, var, b_xy, b_th, Q, log_p0 + 2.0, reach)
+        assert np.mean((y0 > r0) | (y1 > r1)) > 0.01
+
+
 def test_fastslam2_could_win_keeps_every_pair_that_scores_above_p0():
     # _could_win drops a (measurement, candidate) pair of a particle when a bound puts its score below p0 for
     # every proposal with information P >= I (C = P^-1 <= I) and mean |m| <= reach. The bound must never
