@@ -845,7 +845,8 @@ class EKFSLAM:
         if capacity is None:
             capacity = max(16, N + N // 4)
         capacity = as_index(capacity, "capacity", lower=max(N, 1))
-        f = cls(mu[:3], capacity=capacity, prior_var=prior_var)  # Sigma checked whole: its robot block is not checked again
+        # Sigma was checked whole: its robot block is not checked again on its own (its own scale)
+        f = cls(mu[:3], capacity=capacity, prior_var=prior_var)
         f._n = mu.shape[0]
         f._mu[:f._n] = mu
         f._mu[2] = wrap_angle(mu[2])
@@ -1059,7 +1060,7 @@ class EKFSLAM:
         if idx is None:
             idx = _rows(a)  # [0, 1, 2, a, a+1]: the five non-zero columns of H
         # z_hat and h_t^j = 1/q [[-r dx, -r dy, 0, r dx, r dy], [dy, -dx, -q, -dy, dx]]  (Eqs. 17.2, 17.3;
-        # Table 10.1 lines 12-16), from the five entries of mu it reads (the scalar path of _range_bearing1)
+        # Table 10.1 lines 12-16), from the five entries of mu it reads (sensors._rbh1)
         r_hat, phi_hat, h = _rbh1(*mu.take(idx).tolist())
         R = self._S.take(idx, 0)[:, :n]  # Sigma[idx, :] = (Sigma F_{x,j}^T)^T, the 5 rows H touches
         if k:
@@ -1191,7 +1192,8 @@ class EKFSLAM:
         Neira & Tardos (2001); Thrun, Burgard & Fox (2005), Table 10.2
         lines 16-17 (individual test).
         """
-        return self._jcbb(as_array(z, "z", (None, 2)), as_covariance(Q, "Q", 2, definite=True), as_threshold(alpha, "alpha"))
+        return self._jcbb(as_array(z, "z", (None, 2)), as_covariance(Q, "Q", 2, definite=True),
+                          as_threshold(alpha, "alpha"))
 
     def _jcbb(self, Z, Q, alpha):
         N = self.n_landmarks
@@ -1227,7 +1229,8 @@ class EKFSLAM:
         Course text, Algorithm 2; Thrun, Burgard & Fox (2005), Table 10.2
         lines 16-20.
         """
-        return self._associate(as_array(z, "z", (2,)), as_covariance(Q, "Q", 2, definite=True), as_threshold(alpha, "alpha"))
+        return self._associate(as_array(z, "z", (2,)), as_covariance(Q, "Q", 2, definite=True),
+                               as_threshold(alpha, "alpha"))
 
     def _associate(self, z, Q, alpha):
         N = self.n_landmarks

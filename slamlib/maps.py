@@ -25,6 +25,14 @@ from ._checks import as_array, as_index, as_scalar, check_rng, check_type
 __all__ = ["OccupancyGrid", "sample_free_poses", "make_landmark_world"]
 
 
+def _as_points(xy):
+    """World points ``(..., 2)`` (checked: numeric, finite)."""
+    xy = as_array(xy, "xy", ndim=range(1, 33))
+    if xy.shape[-1] != 2:
+        raise ValueError(f"xy must have shape (..., 2), got {xy.shape}")
+    return xy
+
+
 @dataclass(frozen=True, eq=False)
 class OccupancyGrid:
     """A 2-D occupancy grid map.
@@ -102,20 +110,20 @@ class OccupancyGrid:
         ----------
         Thrun, Burgard & Fox (2005), Sec. 9.1 (grid cells ``m_i``).
         """
-        xy = as_array(xy, "xy", ndim=range(1, 33))
-        if xy.shape[-1] != 2:
-            raise ValueError(f"xy must have shape (..., 2), got {xy.shape}")
-        col = np.floor((xy[..., 0] - self.origin[0]) / self.resolution)
-        row = np.floor((xy[..., 1] - self.origin[1]) / self.resolution)
+        xy = _as_points(xy)
+        row, col = self._cell_floats(xy[..., 0], xy[..., 1])
         return np.stack([row, col], axis=-1).astype(np.int64)
+
+    def _cell_floats(self, x, y):
+        """``(row, col)`` of :meth:`world_to_cell` as floats, for unchecked arrays ``x``, ``y`` of one shape."""
+        return np.floor((y - self.origin[1]) / self.resolution), np.floor((x - self.origin[0]) / self.resolution)
 
     def _flat_cells(self, x, y):
         """Flat indices ``row * W + col`` of the cells of :meth:`world_to_cell` holding the world points
         ``(x, y)`` (arrays of one shape, unchecked), ``H * W`` outside the grid: indices into a table of the
         cells, flattened, with one entry appended for "outside"."""
         H, W = self.shape
-        col = np.floor((x - self.origin[0]) / self.resolution)  # (world_to_cell)
-        row = np.floor((y - self.origin[1]) / self.resolution)
+        row, col = self._cell_floats(x, y)
         ok = (row >= 0.0) & (row < H) & (col >= 0.0) & (col < W)
         return np.where(ok, row * W + col, H * W).astype(np.intp)
 
@@ -235,9 +243,7 @@ class OccupancyGrid:
         ----------
         Thrun, Burgard & Fox (2005), Sec. 9.1 (grid cells ``m_i``).
         """
-        xy = as_array(xy, "xy", ndim=range(1, 33))
-        if xy.shape[-1] != 2:
-            raise ValueError(f"xy must have shape (..., 2), got {xy.shape}")
+        xy = _as_points(xy)
         threshold = as_scalar(threshold, "threshold")
         table = self._free_tables.get(threshold)
         if table is None:

@@ -113,18 +113,13 @@ def _landmark_measurement(x, m):
     return z_hat, Hx, Hm
 
 
-def _range_bearing1(mu, a):
+def _rbh1(x, y, th, mx, my):
     """Range-bearing model of one pose and one landmark with Python floats: the scalar path of
-    :func:`landmark_measurement` for the state vector ``mu`` and landmark slot ``a`` (``mu[a:a+2]``).
+    :func:`landmark_measurement`.
 
     Returns ``r_hat``, ``phi_hat`` (floats) and ``h = [Hx Hm]``, shape ``(2, 5)``
     (the tests check it against ``landmark_measurement``).
     """
-    return _rbh1(mu[0], mu[1], mu[2], mu[a], mu[a + 1])
-
-
-def _rbh1(x, y, th, mx, my):
-    """:func:`_rb1` and the Jacobian ``h = [Hx Hm]`` (shape ``(2, 5)``): ``r_hat, phi_hat, h``."""
     r, phi, dx, dy, q = _rb1(x, y, th, mx, my)
     # h_t^j = 1/q [[-r dx, -r dy, 0, r dx, r dy], [dy, -dx, -q, -dy, dx]]  (Eq. 17.3)
     h = np.array([[-dx / r, -dy / r, 0.0, dx / r, dy / r], [dy / q, -dx / q, -1.0, -dy / q, dx / q]])

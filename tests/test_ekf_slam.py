@@ -101,7 +101,7 @@ def test_hot_path_models_equal_the_foundation_models():
                 np.testing.assert_allclose(a, b, rtol=0, atol=1e-13)
     mu, _ = random_state(rng, 5)
     for j in range(5):
-        r, phi, h = sl.sensors._range_bearing1(mu, 3 + 2 * j)
+        r, phi, h = sl.sensors._rbh1(*mu[[0, 1, 2, 3 + 2 * j, 4 + 2 * j]])
         z_hat, Hx, Hm = sl.landmark_measurement(mu[:3], mu[3 + 2 * j:5 + 2 * j])
         np.testing.assert_allclose([r, phi], z_hat, rtol=0, atol=1e-14)
         np.testing.assert_allclose(h, np.hstack([Hx, Hm]), rtol=1e-14, atol=1e-14)

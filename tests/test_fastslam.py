@@ -1705,6 +1705,18 @@ def test_within_reach_equals_the_test_over_every_pair():
         assert M == 1 or K == 0 or C == 0 or 0 < got.sum() < got.size  # both outcomes occur
 
 
+def _could_win_fields(y, G, Qj):
+    """The fields ``(14, n, 1)`` of ``n`` pairs in one particle that :func:`fastslam._could_win` reads (as
+    ``_associate2`` lays them out): innovation ``y (n, 2)``, ``|G_a|``, ``|G_a|^2 + Q_j,aa`` and
+    ``-log 2 pi - 1/2 log det Q_j``, from ``G (n, 2, 2)`` and ``Qj = (q00, q01, q11)``."""
+    F = np.zeros((14, y.shape[0], 1))
+    F[4, :, 0], F[5, :, 0] = y[:, 0], y[:, 1]
+    F[9, :, 0], F[10, :, 0] = np.hypot(G[:, 0, 0], G[:, 0, 1]), np.hypot(G[:, 1, 0], G[:, 1, 1])
+    F[11, :, 0], F[12, :, 0] = F[9, :, 0] ** 2 + Qj[0], F[10, :, 0] ** 2 + Qj[2]
+    F[13, :, 0] = -np.log(2 * np.pi) - 0.5 * np.log(Qj[0] * Qj[2] - Qj[1] ** 2)
+    return F
+
+
 def test_fastslam2_pair_radii_keep_every_pair_could_win_keeps():
     # FastSLAM 2.0's per-measurement candidates (_within_reach with the radii of _pair_radii) must keep every
     # (measurement, candidate) pair of a particle that _could_win keeps: over ranges 0.1 to 100 m, poses,
@@ -1739,11 +1751,7 @@ def test_fastslam2_pair_radii_keep_every_pair_could_win_keeps():
         y[fam == 0, 1] *= 1e-3  # the tight axis carries the innovation
         y[fam == 1, 0] *= 1e-3
         z = np.column_stack([np.maximum(z_bar[:, 0] + y[:, 0], 1e-3), sl.wrap_angle(z_bar[:, 1] + y[:, 1])])
-        F = np.zeros((14, n, 1))
-        F[4, :, 0], F[5, :, 0] = z[:, 0] - z_bar[:, 0], sl.wrap_angle(z[:, 1] - z_bar[:, 1])
-        F[9, :, 0], F[10, :, 0] = np.hypot(G[:, 0, 0], G[:, 0, 1]), np.hypot(G[:, 1, 0], G[:, 1, 1])
-        F[11, :, 0], F[12, :, 0] = F[9, :, 0] ** 2 + Qj[0], F[10, :, 0] ** 2 + Qj[2]
-        F[13, :, 0] = -np.log(2 * np.pi) - 0.5 * np.log(Qj[0] * Qj[2] - Qj[1] ** 2)
+        F = _could_win_fields(np.column_stack([z[:, 0] - z_bar[:, 0], sl.wrap_angle(z[:, 1] - z_bar[:, 1])]), G, Qj)
         d0 = np.maximum(np.abs(F[4]) - F[9] * reach, 0.0)
         d1 = np.maximum(np.abs(F[5]) - F[10] * reach, 0.0)
         log_p0 = F[13] - 0.5 * np.maximum(d0 * d0 / F[11], d1 * d1 / F[12])  # (n, 1): each pair on _could_win's edge
@@ -1789,13 +1797,8 @@ def test_fastslam2_could_win_keeps_every_pair_that_scores_above_p0():
     L = G @ C @ np.swapaxes(G, 1, 2) + np.stack([np.stack([Qj[0], Qj[1]], -1), np.stack([Qj[1], Qj[2]], -1)], -2)
     score = (-np.log(2 * np.pi) - 0.5 * np.log(np.linalg.det(L))
              - 0.5 * np.einsum("ni,ni->n", r, np.linalg.solve(L, r[..., None])[..., 0]))
-    F = np.zeros((14, n, 1))
-    F[4, :, 0], F[5, :, 0] = y[:, 0], y[:, 1]
-    F[9, :, 0], F[10, :, 0] = np.linalg.norm(G[:, 0], axis=1), np.linalg.norm(G[:, 1], axis=1)
-    F[11, :, 0], F[12, :, 0] = F[9, :, 0] ** 2 + Qj[0], F[10, :, 0] ** 2 + Qj[2]
-    F[13, :, 0] = -np.log(2 * np.pi) - 0.5 * np.log(Qj[0] * Qj[2] - Qj[1] ** 2)
-    kept = np.array([fs._could_win(F[:, k:k + 1], score[k], reach)[0, 0] for k in range(n)])
+    F = _could_win_fields(y, G, Qj)
+    kept = fs._could_win(F, score[:, None], reach)[:, 0]  # p0 of each pair its own score
     assert kept.all(), np.flatnonzero(~kept)[:5]
     # and the bound is not idle: with p0 a little above the score, a share of the pairs is dropped
-    dropped = [not fs._could_win(F[:, k:k + 1], score[k] + 5.0, reach)[0, 0] for k in range(n)]
-    assert np.mean(dropped) > 0.05
+    assert np.mean(~fs._could_win(F, score[:, None] + 5.0, reach)) > 0.05
