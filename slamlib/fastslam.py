@@ -344,6 +344,8 @@ _NF = 8
 _S_LO, _S_HI, _S_XX, _S_YY, _S_N = slice(0, 2), slice(2, 4), 4, 5, 6
 _NS = 7
 _EMPTY_SUMMARY = (np.inf, np.inf, -np.inf, -np.inf, -np.inf, -np.inf, 0.0)
+#: The slot fields whose maxima _summarize takes: the mean (negated: its minimum), the mean, Sigma_xx, Sigma_yy.
+_SUMMARY_FIELDS = np.array([_MU.start, _MU.start + 1, _MU.start, _MU.start + 1, _SIG.start, _SIG.start + 3])
 
 
 class _Pool:
@@ -383,7 +385,7 @@ def _n_blocks(N):
 
 
 def _over_block(a, f):
-    """``f``-reduction of ``a (n, _BLOCK)`` over its slots, pairwise (several times faster than ``axis=1``;
+    """``f``-reduction of ``a (n, _BLOCK, ...)`` over its slots, pairwise (several times faster than ``axis=1``;
     ``_BLOCK`` is a power of two)."""
     while a.shape[1] > 1:
         a = f(a[:, :a.shape[1] // 2], a[:, a.shape[1] // 2:])
@@ -394,12 +396,16 @@ def _summarize(pool, ids):
     """Compute the summaries of the pool's blocks `ids` (see :data:`_NS`)."""
     b = np.take(pool.data, ids, axis=0)
     held = b[..., _SEEN] > 0
+    # the six extrema of the held slots in one pass, each as a maximum: the means negated (their minima, the
+    # box's low corner, are the negated maxima, exactly), the means, Sigma_xx and Sigma_yy
+    v = np.take(b, _SUMMARY_FIELDS, axis=2)  # (n, _BLOCK, 6)
+    np.negative(v[..., 0:2], out=v[..., 0:2])
+    np.copyto(v, -np.inf, where=~held[..., None])
+    v = _over_block(v, np.maximum)  # (n, 6)
     out = np.empty((b.shape[0], _NS))
-    for c in range(2):  # the box of the means
-        out[:, _S_LO.start + c] = _over_block(np.where(held, b[..., _MU.start + c], np.inf), np.minimum)
-        out[:, _S_HI.start + c] = _over_block(np.where(held, b[..., _MU.start + c], -np.inf), np.maximum)
-    out[:, _S_XX] = _over_block(np.where(held, b[..., _SIG.start], -np.inf), np.maximum)  # the largest Sigma_xx
-    out[:, _S_YY] = _over_block(np.where(held, b[..., _SIG.start + 3], -np.inf), np.maximum)  # Sigma_yy
+    np.negative(v[:, 0:2], out=out[:, _S_LO])  # an empty block: +inf
+    out[:, _S_HI] = v[:, 2:4]
+    out[:, _S_XX], out[:, _S_YY] = v[:, 4], v[:, 5]  # the largest Sigma_xx and Sigma_yy
     out[:, _S_N] = np.count_nonzero(held, axis=1)
     pool.summary[ids] = out
     pool.fresh[ids] = True
@@ -1951,11 +1957,13 @@ def _columns_in_reach(x_hat, B, mu, Sigma, seen, z, Q):
     lo, hi = np.empty((mu.shape[1], 2)), np.empty((mu.shape[1], 2))
     for c in range(2):  # one coordinate at a time: a where broadcast over the last axis is several times slower
         m = np.where(seen, mu[..., c], np.nan)  # NaN is ignored by fmin and fmax: only the particles that hold it
-        lo[:, c], hi[:, c] = np.fmin.reduce(m, axis=0), np.fmax.reduce(m, axis=0)
+        # (a column that no particle holds: +inf and -inf, an empty box)
+        np.fmin.reduce(m, axis=0, out=lo[:, c], initial=np.inf)
+        np.fmax.reduce(m, axis=0, out=hi[:, c], initial=-np.inf)
     with np.errstate(invalid="ignore"):
         var = np.fmax.reduce(Sigma[..., 0, 0], axis=0) + np.fmax.reduce(Sigma[..., 1, 1], axis=0)
     margin = _margin2(np.sqrt(var), float(_motion_norm(B).max()), Q)
-    return _boxes_in_reach(np.nan_to_num(lo, nan=np.inf), np.nan_to_num(hi, nan=-np.inf), margin, x_hat, z)
+    return _boxes_in_reach(lo, hi, margin, x_hat, z)
 
 
 def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rng, copy=True, motion=None):
