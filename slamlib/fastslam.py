@@ -1281,22 +1281,33 @@ def _within_reach(z, zb0, zb1, seen, s0, s1, f):
     """
     K, C = z.shape[0], zb0.shape[1]
     t0, t1 = f * s0, f * s1
-    # a cheaper necessary condition first, per (measurement, candidate): the range must lie in the union of
-    # the particles' intervals [zb0 - f s0, zb0 + f s0], widened by far more than the rounding of either
-    # test (relative 1e-9 of the largest magnitude involved) so that it never drops a pair the exact test keeps
+    i, j = _range_pairs(z, zb0, seen, t0)
+    out = np.zeros((K, C), dtype=bool)
+    if i.size:
+        out[i, j] = _pairs_within(z, i, j, zb0, zb1, seen, t0, t1)
+    return out
+
+
+def _range_pairs(z, zb0, seen, t0):
+    """The (measurement, candidate) pairs ``(i, j)`` that may pass :func:`_within_reach`'s test with the range
+    radii ``t0 (M, C)``, from a cheaper necessary condition, each candidate on its own: the range must lie in
+    the union of the particles' intervals ``[zb0 - t0, zb0 + t0]``, widened by far more than the rounding of
+    either test (relative 1e-9 of the largest magnitude involved) so that it never drops a pair the exact
+    test keeps."""
     lo = np.where(seen, zb0 - t0, np.inf).min(axis=0)
     hi = np.where(seen, zb0 + t0, -np.inf).max(axis=0)
     slack = 1e-9 * (1.0 + np.abs(z[:, 0]).max(initial=0.0) + np.where(seen, np.abs(zb0) + t0, 0.0).max(axis=0))
-    i, j = np.nonzero((z[:, 0, None] >= lo - slack) & (z[:, 0, None] <= hi + slack))  # (pairs,)
-    out = np.zeros((K, C), dtype=bool)
-    if i.size:
-        # the exact test on those pairs only, every particle
-        y0 = np.abs(z[i, 0, None] - zb0.T[j])  # (pairs, M)
-        # |wrap(phi_i - zb1)| <= f s1 with both bearings in [-pi, pi]: |phi_i - zb1| <= f s1 or >= 2 pi - f s1
-        y1 = np.abs(_wrap(z[:, 1])[i, None] - zb1.T[j])
-        t1 = t1.T[j]
-        out[i, j] = (seen.T[j] & (y0 <= t0.T[j]) & ((y1 <= t1) | (y1 >= 2.0 * np.pi - t1))).any(axis=1)
-    return out
+    return np.nonzero((z[:, 0, None] >= lo - slack) & (z[:, 0, None] <= hi + slack))  # (pairs,)
+
+
+def _pairs_within(z, i, j, zb0, zb1, seen, t0, t1):
+    """:func:`_within_reach`'s exact test of the pairs ``(i, j)`` (measurement, candidate), every particle,
+    with the radii ``t0, t1 (M, C)``: ``(pairs,)`` bool."""
+    y0 = np.abs(z[i, 0, None] - zb0.T[j])  # (pairs, M)
+    # |wrap(phi_i - zb1)| <= t1 with both bearings in [-pi, pi]: |phi_i - zb1| <= t1 or >= 2 pi - t1
+    y1 = np.abs(_wrap(z[:, 1])[i, None] - zb1.T[j])
+    t1 = t1.T[j]
+    return (seen.T[j] & (y0 <= t0.T[j]) & ((y1 <= t1) | (y1 >= 2.0 * np.pi - t1))).any(axis=1)
 
 
 #: Maps of at most this many blocks are gathered whole by :func:`_unknown_window`: below it, reading the
@@ -1776,15 +1787,29 @@ def _pair_radii(d, var, b_xy, b_th, Q, log_p0, reach):
     + slack)``, ``|y_a| <= g_a reach + T sqrt(v_a)``, on both axes; the radii are widened by far more than the
     rounding of either test (at ``d = 0``, ``r1 = inf``: any bearing).
     """
+    t = _radii_t(Q, log_p0)
+    return _range_radius(d, var, b_xy, Q, t, reach), _bearing_radius(d, var, b_xy, b_th, Q, t, reach)
+
+
+def _radii_t(Q, log_p0):
+    """``T`` of :func:`_pair_radii`."""
     c = -_LOG_2PI - 0.5 * np.log(Q[0, 0] * Q[1, 1] - Q[0, 1] * Q[1, 0])
-    t = np.sqrt(np.maximum(2.0 * (c - log_p0 + 2e-6 * (1.0 + np.abs(log_p0))), 0.0))
+    return np.sqrt(np.maximum(2.0 * (c - log_p0 + 2e-6 * (1.0 + np.abs(log_p0))), 0.0))
+
+
+def _range_radius(d, var, b_xy, Q, t, reach):
+    """``r0`` of :func:`_pair_radii` (``t``: :func:`_radii_t`)."""
+    return (reach * b_xy + t * np.sqrt(b_xy * b_xy + Q[0, 0] + var)) * (1.0 + 1e-9) + 1e-9 * (1.0 + d)
+
+
+def _bearing_radius(d, var, b_xy, b_th, Q, t, reach):
+    """``r1`` of :func:`_pair_radii` (``t``: :func:`_radii_t`)."""
     inv_d = np.zeros(d.shape)
     np.divide(1.0, d, out=inv_d, where=d > 0)
     g1 = b_xy * inv_d + b_th
-    r0 = (reach * b_xy + t * np.sqrt(b_xy * b_xy + Q[0, 0] + var)) * (1.0 + 1e-9) + 1e-9 * (1.0 + d)
     r1 = (reach * g1 + t * np.sqrt(g1 * g1 + Q[1, 1] + var * (inv_d * inv_d))) * (1.0 + 1e-9) + 1e-9
     r1[d <= 0] = np.inf
-    return r0, r1
+    return r1
 
 
 def _associate2(x_hat, B, mu, Sigma, seen, log_w, z, Q, log_p0, cols, near):
@@ -1951,6 +1976,15 @@ def _summaries_in_reach(summary, x, z, margin):
     return _boxes_in_reach(lo[:, _S_LO], hi[:, _S_HI], margin(var), x, z)
 
 
+def _near_ranges(d, var, seen, z, b, Q):
+    """``(M, C)``: FastSLAM 2.0's near test of candidates at distances ``d`` with ``tr Sigma = var`` (each on its
+    own): landmarks a particle predicts within reach of the step's ranges, with a margin of ten standard
+    deviations of sensor, landmark and motion noise (:func:`_margin2`, ``b (M,)``); any other has a likelihood
+    below exp(-50) |2 pi Q|^-1/2, far below p0, and could never be chosen."""
+    margin = _margin2(np.sqrt(var), b[:, None], Q)
+    return seen & (d >= z[:, 0].min() - margin) & (d <= z[:, 0].max() + margin)
+
+
 def _columns_in_reach(x_hat, B, mu, Sigma, seen, z, Q):
     """Columns ``(W,)`` bool of the dense window whose landmark some particle may predict within reach
     (:func:`_boxes_in_reach` with the box of each column's estimates over the particles that hold it)."""
@@ -1978,6 +2012,9 @@ def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rn
                                         _normalized(state.log_weights.copy()))
     x_hat, B = _motion_terms(x_prev, u, dt, L, motion)
     b = _motion_norm(B)  # (M,): the motion's share of every reach margin of this step
+    b_xy = np.sqrt((B[:, :2] ** 2).sum(axis=(1, 2)))[:, None]  # (M, 1): the norms of B's position rows
+    b_th = np.sqrt((B[:, 2] ** 2).sum(axis=1))[:, None]  # and of its heading row (_pair_radii)
+    t = _radii_t(Q, log_p0)
     # the blocks some particle may reach (the union of the particles' block boxes, a superset of
     # _columns_in_reach), or every block when pruning reads every landmark in view
     reach = None if max_range is not None else (
@@ -1985,32 +2022,37 @@ def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rn
     maps, win, (mu, Sigma, seen, counts) = _unknown_window(state, K, "the landmarks of a particle", reach)
     cols = np.flatnonzero(seen.any(axis=0))
     if cols.size and K:
-        cols = cols[_columns_in_reach(x_hat, B, mu, Sigma, seen, z, Q)[cols]]  # a superset of the test below, cheaper
+        cols = cols[_columns_in_reach(x_hat, B, mu, Sigma, seen, z, Q)[cols]]  # a superset of _near_ranges, cheaper
+    found = None
     if cols.size and K:
-        # candidates: landmarks some particle predicts within reach of the step's ranges, with a margin of
-        # ten standard deviations of sensor, landmark and motion noise; any other has a likelihood below
-        # exp(-50) |2 pi Q|^-1/2, far below p0, and could never be chosen
-        dx, dy = mu[:, cols, 0] - x_hat[:, None, 0], mu[:, cols, 1] - x_hat[:, None, 1]
+        dx, dy = mu[:, cols, 0] - x_hat[:, None, 0], mu[:, cols, 1] - x_hat[:, None, 1]  # (M, C): mu - x_hat
         d = np.hypot(dx, dy)
         var = Sigma[:, cols, 0, 0] + Sigma[:, cols, 1, 1]
-        spread = np.sqrt(var)
-        margin = _margin2(spread, b[:, None], Q)
-        near = seen[:, cols] & (d >= z[:, 0].min() - margin) & (d <= z[:, 0].max() + margin)
-        keep = near.any(axis=0)
-        cols = cols[keep]
-    found = None
+        sn = seen[:, cols]
     if _PREFILTER and cols.size and K:
         # the candidates of each measurement (_within_reach): the pairs that may pass _could_win in some
-        # particle, from bounds on its fields that need neither z_bar's Jacobians nor Q_j (_pair_radii)
-        d, var = d[:, keep], var[:, keep]
-        phi = _wrap(np.arctan2(dy[:, keep], dx[:, keep]) - x_hat[:, None, 2])
-        b_xy = np.sqrt((B[:, :2] ** 2).sum(axis=(1, 2)))[:, None]
-        b_th = np.sqrt((B[:, 2] ** 2).sum(axis=1))[:, None]
-        r0, r1 = _pair_radii(d, var, b_xy, b_th, Q, log_p0, _ETA_REACH)
-        near = _within_reach(z, d, phi, seen[:, cols], r0, r1, 1.0)
-        some = near.any(axis=0)
-        found = _associate2(x_hat, B, mu, Sigma, seen, state.log_weights, z, Q, log_p0, cols[some], near[:, some])
+        # particle, from bounds on its fields that need neither z_bar's Jacobians nor Q_j (_pair_radii), among
+        # the columns the near test (_near_ranges) keeps. Every test here takes each column on its own, so they
+        # run cheapest first: the range stage of _within_reach on every column, its bearing (phi and r1) and
+        # exact stage on the columns with a pair in range, the near test on those with a pair left.
+        r0 = _range_radius(d, var, b_xy, Q, t, _ETA_REACH)
+        i, j = _range_pairs(z, d, sn, r0)
+        inr = np.flatnonzero(np.bincount(j, minlength=cols.size))  # the columns with a pair in range
+        ju = np.searchsorted(inr, j)
+        phi = _wrap(np.arctan2(dy[:, inr], dx[:, inr]) - x_hat[:, None, 2])
+        r1 = _bearing_radius(d[:, inr], var[:, inr], b_xy, b_th, Q, t, _ETA_REACH)
+        within = np.zeros((K, inr.size), dtype=bool)
+        if i.size:
+            within[i, ju] = _pairs_within(z, i, ju, d[:, inr], phi, sn[:, inr], r0[:, inr], r1)
+        hit = within.any(axis=0)
+        inr, within = inr[hit], within[:, hit]
+        some = _near_ranges(d[:, inr], var[:, inr], sn[:, inr], z, b, Q).any(axis=0)
+        if some.any() or _near_ranges(d, var, sn, z, b, Q).any():  # (no column near at all: the call below)
+            found = _associate2(x_hat, B, mu, Sigma, seen, state.log_weights, z, Q, log_p0, cols[inr[some]],
+                                within[:, some])
     if found is None:  # every candidate for every measurement (also when the proposal moved beyond _ETA_REACH)
+        if cols.size and K:
+            cols = cols[_near_ranges(d, var, sn, z, b, Q).any(axis=0)]
         found = _associate2(x_hat, B, mu, Sigma, seen, state.log_weights, z, Q, log_p0,
                             cols if cols.size and K else None, None)
     P, b, match, log_w = found

@@ -428,8 +428,11 @@ def test_per_measurement_candidates_give_the_run_of_scoring_every_candidate(worl
                                              x_true=world.x_true[:81]), 1.0, rng=np.random.default_rng(2))
     kw = dict(n_particles=25, known=False, max_range=max_range, resample_threshold=0.5, version=version)
     kept = []
-    reach = fs._within_reach
-    monkeypatch.setattr(fs, "_within_reach", lambda *a: kept.append((reach(*a).size, reach(*a).sum())) or reach(*a))
+    # the two stages of _within_reach (FastSLAM 2.0 runs them itself): every pair, and those the exact stage keeps
+    ranged, within = fs._range_pairs, fs._pairs_within
+    monkeypatch.setattr(fs, "_range_pairs", lambda z, zb0, *a: kept.append((z.shape[0] * zb0.shape[1], 0))
+                        or ranged(z, zb0, *a))
+    monkeypatch.setattr(fs, "_pairs_within", lambda *a: kept.append((0, within(*a).sum())) or within(*a))
     res = sl.run_fastslam(run, rng=np.random.default_rng(1), **kw)
     pairs, near = np.array(kept).sum(axis=0)
     assert near < 0.75 * pairs  # a good share of the (measurement, landmark) pairs is left out
