@@ -1413,11 +1413,11 @@ def _predict_terms(x_hat, B, mu, Sigma, Q):
     """
     z_bar, Hx, Hm = _landmark_measurement(x_hat[:, None, :], mu)  # z_bar = h(mu_j, x_hat), H_x, H_m
     _, Qj, _ = _innovation(Hm, Sigma, Q)  # Q_j = Q_t + H_m Sigma_j H_m^T
-    G = np.empty(Hm.shape)  # G = H_x V L: the measurement's Jacobian with respect to the control noise eta
+    # G = H_x V L: the measurement's Jacobian with respect to the control noise eta, G_ic = sum_k Hx_ik B_kc (the
+    # four components at once)
     b = B[:, None]
-    for i in range(2):
-        for c in range(2):
-            G[..., i, c] = Hx[..., i, 0] * b[..., 0, c] + Hx[..., i, 1] * b[..., 1, c] + Hx[..., i, 2] * b[..., 2, c]
+    G = Hx[..., :, 0, None] * b[..., 0, None, :] + Hx[..., :, 1, None] * b[..., 1, None, :] \
+        + Hx[..., :, 2, None] * b[..., 2, None, :]
     return z_bar, G, Qj
 
 
@@ -2461,6 +2461,7 @@ def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=Non
     x_est[0] = state.poses[0]
     identity = np.arange(n)
     parents[:2] = identity
+    counted = (None, -1, 0)  # the maps and the particle whose landmarks n_lm last counted, and their number
     for t in range(T):
         if on_step is not None:
             on_step(t)
@@ -2476,7 +2477,7 @@ def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=Non
                 raise ValueError(f"run.ids[{t}] must be below MAX_LANDMARKS = {MAX_LANDMARKS}")
             if zt.shape[0]:
                 state = _grow(state, int(idt.max()) + 1, f"run.ids[{t}]")
-        prior_w = np.exp(state.log_weights)
+        prior_w = np.exp(state.log_weights) if known else None  # (only known correspondences reject measurements)
         if version == 2:
             if known:
                 state, out = _update2_known_core(state, u[t], dt, L, zt, idt, Q, rng, gate=gate, copy=False,
@@ -2505,7 +2506,9 @@ def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=Non
         w = np.exp(state.log_weights)  # normalised: logsumexp(log_weights) = 0
         x_est[t + 1], x_cov[t + 1] = _particle_moments(state.poses, np.exp(_normalized(state.log_weights)), (2,))
         best = int(np.argmax(w))
-        n_lm[t + 1] = _n_seen(state, best)
+        if state._maps is None or state._maps is not counted[0] or best != counted[1]:
+            counted = (state._maps, best, _n_seen(state, best))  # (a step without measurements keeps the maps)
+        n_lm[t + 1] = counted[2]
         ess[t] = _ess(w)
         if t == T - 1:
             break  # keep the last weights: they pick the final most likely particle
