@@ -1985,19 +1985,65 @@ def _near_ranges(d, var, seen, z, b, Q):
     return seen & (d >= z[:, 0].min() - margin) & (d <= z[:, 0].max() + margin)
 
 
-def _columns_in_reach(x_hat, B, mu, Sigma, seen, z, Q):
-    """Columns ``(W,)`` bool of the dense window whose landmark some particle may predict within reach
-    (:func:`_boxes_in_reach` with the box of each column's estimates over the particles that hold it)."""
+def _column_boxes(mu, Sigma, seen):
+    """The box ``lo, hi (W, 2)`` of each column's estimates over the particles that hold it (+inf and -inf, an
+    empty box, where none does) and a bound ``(W,)`` on the column's ``tr Sigma``: its largest ``Sigma_xx`` plus
+    its largest ``Sigma_yy``."""
     lo, hi = np.empty((mu.shape[1], 2)), np.empty((mu.shape[1], 2))
     for c in range(2):  # one coordinate at a time: a where broadcast over the last axis is several times slower
         m = np.where(seen, mu[..., c], np.nan)  # NaN is ignored by fmin and fmax: only the particles that hold it
-        # (a column that no particle holds: +inf and -inf, an empty box)
         np.fmin.reduce(m, axis=0, out=lo[:, c], initial=np.inf)
         np.fmax.reduce(m, axis=0, out=hi[:, c], initial=-np.inf)
     with np.errstate(invalid="ignore"):
         var = np.fmax.reduce(Sigma[..., 0, 0], axis=0) + np.fmax.reduce(Sigma[..., 1, 1], axis=0)
+    return lo, hi, var
+
+
+def _columns_in_reach(x_hat, B, mu, Sigma, seen, z, Q, boxes=None):
+    """Columns ``(W,)`` bool of the dense window whose landmark some particle may predict within reach
+    (:func:`_boxes_in_reach` with the box of each column's estimates over the particles that hold it;
+    `boxes`: those of :func:`_column_boxes`, if computed already)."""
+    lo, hi, var = _column_boxes(mu, Sigma, seen) if boxes is None else boxes
     margin = _margin2(np.sqrt(var), float(_motion_norm(B).max()), Q)
     return _boxes_in_reach(lo, hi, margin, x_hat, z)
+
+
+def _columns_within(lo, hi, var, x, z, b_xy, b_th, Q, t, reach):
+    """Columns ``(C,)`` bool that may hold a candidate of some measurement in some particle (a pair that passes
+    :func:`_within_reach`'s test with the radii of :func:`_pair_radii`), from the boxes of their estimates over
+    the particles ``lo, hi (C, 2)`` and bounds on their ``tr Sigma`` ``var (C,)`` (:func:`_column_boxes`).
+
+    With the box of the particles' positions ``x (M, 3)``, every offset ``mu - x`` lies in a box: the predicted
+    range in ``[d_lo, d_hi]`` (the box's distances) and, when the box leaves out the origin, the direction in
+    the arc of the box's corners (the predicted bearing in it less the interval of the headings). The radii
+    grow with ``tr Sigma``, ``b_xy``, ``b_th`` ``(M, 1)`` and ``d`` (range) or ``1 / d`` (bearing): at the
+    column's bound on ``tr Sigma``, the largest norms, ``d_hi`` and ``d_lo`` they bound every pair's. A column
+    is kept when one measurement lies within them on both axes, widened by far more than rounding. An empty
+    box (``lo = +inf``) is never kept.
+    """
+    p_lo, p_hi = x[:, :2].min(axis=0), x[:, :2].max(axis=0)
+    with np.errstate(invalid="ignore"):  # empty boxes: inf - inf
+        e_lo, e_hi = lo - p_hi, hi - p_lo  # (C, 2): the box of mu - x
+        gap = np.maximum(np.maximum(e_lo, -e_hi), 0.0)
+        far = np.maximum(np.abs(e_lo), np.abs(e_hi))
+        d_lo = np.hypot(gap[:, 0], gap[:, 1]) * (1.0 - 1e-9)
+        d_hi = np.hypot(far[:, 0], far[:, 1]) * (1.0 + 1e-9)
+        bxy, bth = float(b_xy.max()), float(b_th.max())
+        r0 = _range_radius(d_hi, var, bxy, Q, t, reach)
+        r1 = _bearing_radius(d_lo, var, bxy, bth, Q, t, reach)  # inf where the box holds the origin
+        # the arc of directions: the corners' directions about the centre's (a box that leaves out the origin
+        # spans less than pi), less the interval of the headings about the first particle's
+        c = np.arctan2(0.5 * (e_lo[:, 1] + e_hi[:, 1]), 0.5 * (e_lo[:, 0] + e_hi[:, 0]))
+        off = _wrap(np.arctan2(np.stack([e_lo[:, 1], e_hi[:, 1], e_lo[:, 1], e_hi[:, 1]], axis=1),
+                               np.stack([e_lo[:, 0], e_lo[:, 0], e_hi[:, 0], e_hi[:, 0]], axis=1)) - c[:, None])
+        o_lo, o_hi = off.min(axis=1), off.max(axis=1)
+        dth = _wrap(x[:, 2] - x[0, 2])
+        mid = c + 0.5 * (o_lo + o_hi) - x[0, 2] - 0.5 * (dth.min() + dth.max())
+        half = 0.5 * (o_hi - o_lo) + 0.5 * (dth.max() - dth.min())
+        slack = 1e-9 * (1.0 + np.abs(z[:, 0]).max(initial=0.0) + d_hi + r0)
+        ranged = (z[:, 0, None] >= d_lo - r0 - slack) & (z[:, 0, None] <= d_hi + r0 + slack)  # (K, C)
+        beared = np.abs(_wrap(_wrap(z[:, 1])[:, None] - mid)) <= half + r1 + 1e-8
+        return np.isfinite(d_lo) & (ranged & beared).any(axis=0)
 
 
 def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rng, copy=True, motion=None):
@@ -2022,22 +2068,27 @@ def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rn
     maps, win, (mu, Sigma, seen, counts) = _unknown_window(state, K, "the landmarks of a particle", reach)
     cols = np.flatnonzero(seen.any(axis=0))
     if cols.size and K:
-        cols = cols[_columns_in_reach(x_hat, B, mu, Sigma, seen, z, Q)[cols]]  # a superset of _near_ranges, cheaper
-    found = None
-    if cols.size and K:
-        dx, dy = mu[:, cols, 0] - x_hat[:, None, 0], mu[:, cols, 1] - x_hat[:, None, 1]  # (M, C): mu - x_hat
-        d = np.hypot(dx, dy)
-        var = Sigma[:, cols, 0, 0] + Sigma[:, cols, 1, 1]
-        sn = seen[:, cols]
+        boxes = _column_boxes(mu, Sigma, seen)
+        cols = cols[_columns_in_reach(x_hat, B, mu, Sigma, seen, z, Q, boxes)[cols]]  # (a superset of _near_ranges)
+
+    def offsets(c):
+        """``mu - x_hat`` of the window's columns `c` in every particle, its norm, ``tr Sigma`` and `seen`."""
+        dx, dy = mu[:, c, 0] - x_hat[:, None, 0], mu[:, c, 1] - x_hat[:, None, 1]
+        return dx, dy, np.hypot(dx, dy), Sigma[:, c, 0, 0] + Sigma[:, c, 1, 1], seen[:, c]
+
+    found, scored = None, False
     if _PREFILTER and cols.size and K:
         # the candidates of each measurement (_within_reach): the pairs that may pass _could_win in some
         # particle, from bounds on its fields that need neither z_bar's Jacobians nor Q_j (_pair_radii), among
         # the columns the near test (_near_ranges) keeps. Every test here takes each column on its own, so they
-        # run cheapest first: the range stage of _within_reach on every column, its bearing (phi and r1) and
-        # exact stage on the columns with a pair in range, the near test on those with a pair left.
+        # run cheapest first: the columns whose boxes may hold a candidate (_columns_within), the range stage of
+        # _within_reach on those, its bearing (phi and r1) and exact stage on the columns with a pair in range,
+        # the near test on those with a pair left.
+        c = cols[_columns_within(*(a[cols] for a in boxes), x_hat, z, b_xy, b_th, Q, t, _ETA_REACH)]
+        dx, dy, d, var, sn = offsets(c)
         r0 = _range_radius(d, var, b_xy, Q, t, _ETA_REACH)
         i, j = _range_pairs(z, d, sn, r0)
-        inr = np.flatnonzero(np.bincount(j, minlength=cols.size))  # the columns with a pair in range
+        inr = np.flatnonzero(np.bincount(j, minlength=c.size))  # the columns with a pair in range
         ju = np.searchsorted(inr, j)
         phi = _wrap(np.arctan2(dy[:, inr], dx[:, inr]) - x_hat[:, None, 2])
         r1 = _bearing_radius(d[:, inr], var[:, inr], b_xy, b_th, Q, t, _ETA_REACH)
@@ -2047,14 +2098,20 @@ def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rn
         hit = within.any(axis=0)
         inr, within = inr[hit], within[:, hit]
         some = _near_ranges(d[:, inr], var[:, inr], sn[:, inr], z, b, Q).any(axis=0)
-        if some.any() or _near_ranges(d, var, sn, z, b, Q).any():  # (no column near at all: the call below)
-            found = _associate2(x_hat, B, mu, Sigma, seen, state.log_weights, z, Q, log_p0, cols[inr[some]],
+        if some.any():
+            scored = True
+            found = _associate2(x_hat, B, mu, Sigma, seen, state.log_weights, z, Q, log_p0, c[inr[some]],
                                 within[:, some])
     if found is None:  # every candidate for every measurement (also when the proposal moved beyond _ETA_REACH)
         if cols.size and K:
+            _, _, d, var, sn = offsets(cols)
             cols = cols[_near_ranges(d, var, sn, z, b, Q).any(axis=0)]
-        found = _associate2(x_hat, B, mu, Sigma, seen, state.log_weights, z, Q, log_p0,
-                            cols if cols.size and K else None, None)
+        if _PREFILTER and not scored and cols.size and K:  # no candidate, though some landmark is near
+            found = _associate2(x_hat, B, mu, Sigma, seen, state.log_weights, z, Q, log_p0, cols[:0],
+                                np.zeros((K, 0), dtype=bool))
+        else:
+            found = _associate2(x_hat, B, mu, Sigma, seen, state.log_weights, z, Q, log_p0,
+                                cols if cols.size and K else None, None)
     P, b, match, log_w = found
     x = _move(x_prev, u, dt, L, _sample_eta(tuple(P), tuple(b), rng, n), motion)  # x_t ~ proposal
     matched = np.zeros_like(seen)
