@@ -2069,7 +2069,6 @@ def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rn
     cols = np.flatnonzero(seen.any(axis=0))
     if cols.size and K:
         boxes = _column_boxes(mu, Sigma, seen)
-        cols = cols[_columns_in_reach(x_hat, B, mu, Sigma, seen, z, Q, boxes)[cols]]  # (a superset of _near_ranges)
 
     def offsets(c):
         """``mu - x_hat`` of the window's columns `c` in every particle, its norm, ``tr Sigma`` and `seen`."""
@@ -2083,7 +2082,8 @@ def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rn
         # the columns the near test (_near_ranges) keeps. Every test here takes each column on its own, so they
         # run cheapest first: the columns whose boxes may hold a candidate (_columns_within), the range stage of
         # _within_reach on those, its bearing (phi and r1) and exact stage on the columns with a pair in range,
-        # the near test on those with a pair left.
+        # the near test on those with a pair left (_columns_in_reach, a bound of the near test, is only needed
+        # below).
         c = cols[_columns_within(*(a[cols] for a in boxes), x_hat, z, b_xy, b_th, Q, t, _ETA_REACH)]
         dx, dy, d, var, sn = offsets(c)
         r0 = _range_radius(d, var, b_xy, Q, t, _ETA_REACH)
@@ -2103,6 +2103,8 @@ def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rn
             found = _associate2(x_hat, B, mu, Sigma, seen, state.log_weights, z, Q, log_p0, c[inr[some]],
                                 within[:, some])
     if found is None:  # every candidate for every measurement (also when the proposal moved beyond _ETA_REACH)
+        if cols.size and K:
+            cols = cols[_columns_in_reach(x_hat, B, mu, Sigma, seen, z, Q, boxes)[cols]]  # (a superset, cheaper)
         if cols.size and K:
             _, _, d, var, sn = offsets(cols)
             cols = cols[_near_ranges(d, var, sn, z, b, Q).any(axis=0)]

@@ -443,21 +443,25 @@ def test_per_measurement_candidates_give_the_run_of_scoring_every_candidate(worl
 
 
 @pytest.mark.parametrize("max_range", [None, 8.0])
-def test_fastslam2_column_bound_gives_the_run_of_the_exact_test(world, max_range, monkeypatch):
+@pytest.mark.parametrize("bound", ["_columns_in_reach", "_columns_within"])
+def test_fastslam2_column_bound_gives_the_run_of_the_exact_test(world, max_range, bound, monkeypatch):
     # FastSLAM 2.0 first drops whole columns (landmark slots) that no particle can reach, from boxes over the
-    # particles; the bound must never drop a column the per-particle test keeps: the run is bit for bit
-    # the run without it
+    # particles (the near test's bound _columns_in_reach, which the step needs without the per-measurement
+    # candidates, and their bound _columns_within); a bound must never drop a column the per-particle tests
+    # keep: the run is bit for bit the run without it
     from slamlib import fastslam as fs
 
     run = sl.add_clutter(dataclasses.replace(world, u=world.u[:80], z=world.z[:80], ids=world.ids[:80],
                                              x_true=world.x_true[:81]), 1.0, rng=np.random.default_rng(2))
     kw = dict(n_particles=25, known=False, max_range=max_range, resample_threshold=0.5, version=2)
+    if bound == "_columns_in_reach":
+        monkeypatch.setattr(fs, "_PREFILTER", False)
     kept = []
-    bound = fs._columns_in_reach
-    monkeypatch.setattr(fs, "_columns_in_reach", lambda *a: kept.append(bound(*a).mean()) or bound(*a))
+    test = getattr(fs, bound)
+    monkeypatch.setattr(fs, bound, lambda *a: kept.append(test(*a).mean()) or test(*a))
     res = sl.run_fastslam(run, rng=np.random.default_rng(1), **kw)
     assert min(kept) < 0.9  # columns out of reach are dropped
-    monkeypatch.setattr(fs, "_columns_in_reach", lambda x_hat, B, mu, Sigma, *a: np.ones(mu.shape[1], bool))
+    monkeypatch.setattr(fs, bound, lambda *a: np.ones(test(*a).shape, bool))
     every = sl.run_fastslam(run, rng=np.random.default_rng(1), **kw)
     _same_state_and_estimate(res, every)
 
