@@ -48,9 +48,10 @@ def _wrap(arr):
     np.floor(out, out=out)
     out *= -_TWO_PI
     out += arr
-    # rounding near odd multiples of pi can land a hair outside [-pi, pi): fold it back
-    np.subtract(out, _TWO_PI, out=out, where=out >= np.pi)
-    np.add(out, _TWO_PI, out=out, where=out < -np.pi)
+    # rounding near odd multiples of pi can land a hair outside [-pi, pi): fold it back (rare: one check first)
+    if (np.abs(out) >= np.pi).any():
+        np.subtract(out, _TWO_PI, out=out, where=out >= np.pi)
+        np.add(out, _TWO_PI, out=out, where=out < -np.pi)
     return out
 
 

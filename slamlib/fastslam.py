@@ -416,7 +416,7 @@ def _summaries(maps, nb):
     ids = maps.table[:, :nb]
     stale = ~maps.pool.fresh[ids]
     if stale.any():
-        _summarize(maps.pool, np.unique(ids[stale]))
+        _summarize(maps.pool, np.flatnonzero(np.bincount(ids[stale])))  # each once (np.unique is slower)
     return np.take(maps.pool.summary, ids, axis=0)  # (three times faster than indexing with ids)
 
 
