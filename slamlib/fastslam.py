@@ -2124,14 +2124,14 @@ def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rn
         mu[kk, jj], Sigma[kk, jj], _, _ = _update_core(x[kk], mu[kk, jj], Sigma[kk, jj], z[ii], Q)
         counts[kk, jj] += 1
         matched[kk, jj] = True
-    for i in range(K):
-        k = np.flatnonzero(match[:, i] < 0)
-        if k.size:
-            slot = np.argmin(seen[k], axis=1)  # first free slot
-            mu[k, slot], Sigma[k, slot] = _init_core(x[k], z[i], Q)  # new landmark at the sampled pose
-            seen[k, slot] = True
-            counts[k, slot] = 1  # i_j = 1
-            matched[k, slot] = True
+    new = match < 0
+    for i in np.flatnonzero(new.any(axis=0)):  # the measurements that are a new landmark in some particle, in order
+        k = np.flatnonzero(new[:, i])
+        slot = np.argmin(seen[k], axis=1)  # first free slot
+        mu[k, slot], Sigma[k, slot] = _init_core(x[k], z[i], Q)  # new landmark at the sampled pose
+        seen[k, slot] = True
+        counts[k, slot] = 1  # i_j = 1
+        matched[k, slot] = True
     changed = matched  # updated and new landmarks, and below those that lost a count
     if max_range is not None:
         seen, counts, miss = _prune(x, mu, seen, counts, matched, max_range, half_fov)
