@@ -442,6 +442,29 @@ def test_per_measurement_candidates_give_the_run_of_scoring_every_candidate(worl
     np.testing.assert_array_equal(res.path_best, every.path_best)
 
 
+def test_landmark_counts_follow_every_change_of_the_maps_and_of_the_best_particle(world, monkeypatch):
+    # run_fastslam counts the most likely particle's landmarks again only when the maps or that particle
+    # changed (a step without measurements keeps the maps); the counts must be those of every step's best
+    # particle: over steps with and without measurements, with resampling
+    from slamlib import fastslam as fs
+
+    z = [zt if t % 3 else zt[:0] for t, zt in enumerate(world.z[:120])]  # every third step without measurements
+    run = dataclasses.replace(world, u=world.u[:120], z=z, ids=world.ids[:120], x_true=world.x_true[:121])
+    truth = []
+    step = fs._update2_unknown_core
+
+    def counted(*a, **kw):
+        out = step(*a, **kw)
+        truth.append(fs._n_seen(out, int(np.argmax(np.exp(out.log_weights)))))  # run_fastslam's choice of best
+        return out
+
+    monkeypatch.setattr(fs, "_update2_unknown_core", counted)
+    res = sl.run_fastslam(run, n_particles=25, rng=np.random.default_rng(3), known=False, version=2,
+                          resample_threshold=0.9)
+    np.testing.assert_array_equal(res.n_landmarks[1:], truth)
+    assert res.resampled.any() and len(set(truth)) > 3
+
+
 @pytest.mark.parametrize("max_range", [None, 8.0])
 @pytest.mark.parametrize("bound", ["_columns_in_reach", "_columns_within"])
 def test_fastslam2_column_bound_gives_the_run_of_the_exact_test(world, max_range, bound, monkeypatch):
