@@ -48,9 +48,10 @@ def _wrap(arr):
     np.floor(out, out=out)
     out *= -_TWO_PI
     out += arr
-    # rounding near odd multiples of pi can land a hair outside [-pi, pi): fold it back
-    np.subtract(out, _TWO_PI, out=out, where=out >= np.pi)
-    np.add(out, _TWO_PI, out=out, where=out < -np.pi)
+    # rounding near odd multiples of pi can land a hair outside [-pi, pi): fold it back (rare: one check first)
+    if (np.abs(out) >= np.pi).any():
+        np.subtract(out, _TWO_PI, out=out, where=out >= np.pi)
+        np.add(out, _TWO_PI, out=out, where=out < -np.pi)
     return out
 
 
@@ -125,4 +126,7 @@ def _circular_mean(a, w, axis=0):
     """Unchecked core of :func:`circular_mean`: ``wrap(atan2(sum w sin a, sum w cos a))``."""
     s = np.sum(w * np.sin(a), axis=axis)
     c = np.sum(w * np.cos(a), axis=axis)
-    return wrap_angle(np.arctan2(s, c))
+    m = np.arctan2(s, c)
+    if isinstance(m, np.float64) and math.isfinite(m):  # a finite scalar (the filters' per-step mean): what
+        return float(_wrap(np.asarray(m)))  # wrap_angle returns, without its checks
+    return wrap_angle(m)

@@ -344,6 +344,8 @@ _NF = 8
 _S_LO, _S_HI, _S_XX, _S_YY, _S_N = slice(0, 2), slice(2, 4), 4, 5, 6
 _NS = 7
 _EMPTY_SUMMARY = (np.inf, np.inf, -np.inf, -np.inf, -np.inf, -np.inf, 0.0)
+#: The slot fields whose maxima _summarize takes: the mean (negated: its minimum), the mean, Sigma_xx, Sigma_yy.
+_SUMMARY_FIELDS = np.array([_MU.start, _MU.start + 1, _MU.start, _MU.start + 1, _SIG.start, _SIG.start + 3])
 
 
 class _Pool:
@@ -383,7 +385,7 @@ def _n_blocks(N):
 
 
 def _over_block(a, f):
-    """``f``-reduction of ``a (n, _BLOCK)`` over its slots, pairwise (several times faster than ``axis=1``;
+    """``f``-reduction of ``a (n, _BLOCK, ...)`` over its slots, pairwise (several times faster than ``axis=1``;
     ``_BLOCK`` is a power of two)."""
     while a.shape[1] > 1:
         a = f(a[:, :a.shape[1] // 2], a[:, a.shape[1] // 2:])
@@ -394,12 +396,16 @@ def _summarize(pool, ids):
     """Compute the summaries of the pool's blocks `ids` (see :data:`_NS`)."""
     b = np.take(pool.data, ids, axis=0)
     held = b[..., _SEEN] > 0
+    # the six extrema of the held slots in one pass, each as a maximum: the means negated (their minima, the
+    # box's low corner, are the negated maxima, exactly), the means, Sigma_xx and Sigma_yy
+    v = np.take(b, _SUMMARY_FIELDS, axis=2)  # (n, _BLOCK, 6)
+    np.negative(v[..., 0:2], out=v[..., 0:2])
+    np.copyto(v, -np.inf, where=~held[..., None])
+    v = _over_block(v, np.maximum)  # (n, 6)
     out = np.empty((b.shape[0], _NS))
-    for c in range(2):  # the box of the means
-        out[:, _S_LO.start + c] = _over_block(np.where(held, b[..., _MU.start + c], np.inf), np.minimum)
-        out[:, _S_HI.start + c] = _over_block(np.where(held, b[..., _MU.start + c], -np.inf), np.maximum)
-    out[:, _S_XX] = _over_block(np.where(held, b[..., _SIG.start], -np.inf), np.maximum)  # the largest Sigma_xx
-    out[:, _S_YY] = _over_block(np.where(held, b[..., _SIG.start + 3], -np.inf), np.maximum)  # Sigma_yy
+    np.negative(v[:, 0:2], out=out[:, _S_LO])  # an empty block: +inf
+    out[:, _S_HI] = v[:, 2:4]
+    out[:, _S_XX], out[:, _S_YY] = v[:, 4], v[:, 5]  # the largest Sigma_xx and Sigma_yy
     out[:, _S_N] = np.count_nonzero(held, axis=1)
     pool.summary[ids] = out
     pool.fresh[ids] = True
@@ -410,7 +416,7 @@ def _summaries(maps, nb):
     ids = maps.table[:, :nb]
     stale = ~maps.pool.fresh[ids]
     if stale.any():
-        _summarize(maps.pool, np.unique(ids[stale]))
+        _summarize(maps.pool, np.flatnonzero(np.bincount(ids[stale])))  # each once (np.unique is slower)
     return np.take(maps.pool.summary, ids, axis=0)  # (three times faster than indexing with ids)
 
 
@@ -1275,22 +1281,33 @@ def _within_reach(z, zb0, zb1, seen, s0, s1, f):
     """
     K, C = z.shape[0], zb0.shape[1]
     t0, t1 = f * s0, f * s1
-    # a cheaper necessary condition first, per (measurement, candidate): the range must lie in the union of
-    # the particles' intervals [zb0 - f s0, zb0 + f s0], widened by far more than the rounding of either
-    # test (relative 1e-9 of the largest magnitude involved) so that it never drops a pair the exact test keeps
+    i, j = _range_pairs(z, zb0, seen, t0)
+    out = np.zeros((K, C), dtype=bool)
+    if i.size:
+        out[i, j] = _pairs_within(z, i, j, zb0, zb1, seen, t0, t1)
+    return out
+
+
+def _range_pairs(z, zb0, seen, t0):
+    """The (measurement, candidate) pairs ``(i, j)`` that may pass :func:`_within_reach`'s test with the range
+    radii ``t0 (M, C)``, from a cheaper necessary condition, each candidate on its own: the range must lie in
+    the union of the particles' intervals ``[zb0 - t0, zb0 + t0]``, widened by far more than the rounding of
+    either test (relative 1e-9 of the largest magnitude involved) so that it never drops a pair the exact
+    test keeps."""
     lo = np.where(seen, zb0 - t0, np.inf).min(axis=0)
     hi = np.where(seen, zb0 + t0, -np.inf).max(axis=0)
     slack = 1e-9 * (1.0 + np.abs(z[:, 0]).max(initial=0.0) + np.where(seen, np.abs(zb0) + t0, 0.0).max(axis=0))
-    i, j = np.nonzero((z[:, 0, None] >= lo - slack) & (z[:, 0, None] <= hi + slack))  # (pairs,)
-    out = np.zeros((K, C), dtype=bool)
-    if i.size:
-        # the exact test on those pairs only, every particle
-        y0 = np.abs(z[i, 0, None] - zb0.T[j])  # (pairs, M)
-        # |wrap(phi_i - zb1)| <= f s1 with both bearings in [-pi, pi]: |phi_i - zb1| <= f s1 or >= 2 pi - f s1
-        y1 = np.abs(_wrap(z[:, 1])[i, None] - zb1.T[j])
-        t1 = t1.T[j]
-        out[i, j] = (seen.T[j] & (y0 <= t0.T[j]) & ((y1 <= t1) | (y1 >= 2.0 * np.pi - t1))).any(axis=1)
-    return out
+    return np.nonzero((z[:, 0, None] >= lo - slack) & (z[:, 0, None] <= hi + slack))  # (pairs,)
+
+
+def _pairs_within(z, i, j, zb0, zb1, seen, t0, t1):
+    """:func:`_within_reach`'s exact test of the pairs ``(i, j)`` (measurement, candidate), every particle,
+    with the radii ``t0, t1 (M, C)``: ``(pairs,)`` bool."""
+    y0 = np.abs(z[i, 0, None] - zb0.T[j])  # (pairs, M)
+    # |wrap(phi_i - zb1)| <= t1 with both bearings in [-pi, pi]: |phi_i - zb1| <= t1 or >= 2 pi - t1
+    y1 = np.abs(_wrap(z[:, 1])[i, None] - zb1.T[j])
+    t1 = t1.T[j]
+    return (seen.T[j] & (y0 <= t0.T[j]) & ((y1 <= t1) | (y1 >= 2.0 * np.pi - t1))).any(axis=1)
 
 
 #: Maps of at most this many blocks are gathered whole by :func:`_unknown_window`: below it, reading the
@@ -1396,11 +1413,11 @@ def _predict_terms(x_hat, B, mu, Sigma, Q):
     """
     z_bar, Hx, Hm = _landmark_measurement(x_hat[:, None, :], mu)  # z_bar = h(mu_j, x_hat), H_x, H_m
     _, Qj, _ = _innovation(Hm, Sigma, Q)  # Q_j = Q_t + H_m Sigma_j H_m^T
-    G = np.empty(Hm.shape)  # G = H_x V L: the measurement's Jacobian with respect to the control noise eta
+    # G = H_x V L: the measurement's Jacobian with respect to the control noise eta, G_ic = sum_k Hx_ik B_kc (the
+    # four components at once)
     b = B[:, None]
-    for i in range(2):
-        for c in range(2):
-            G[..., i, c] = Hx[..., i, 0] * b[..., 0, c] + Hx[..., i, 1] * b[..., 1, c] + Hx[..., i, 2] * b[..., 2, c]
+    G = Hx[..., :, 0, None] * b[..., 0, None, :] + Hx[..., :, 1, None] * b[..., 1, None, :] \
+        + Hx[..., :, 2, None] * b[..., 2, None, :]
     return z_bar, G, Qj
 
 
@@ -1770,15 +1787,29 @@ def _pair_radii(d, var, b_xy, b_th, Q, log_p0, reach):
     + slack)``, ``|y_a| <= g_a reach + T sqrt(v_a)``, on both axes; the radii are widened by far more than the
     rounding of either test (at ``d = 0``, ``r1 = inf``: any bearing).
     """
+    t = _radii_t(Q, log_p0)
+    return _range_radius(d, var, b_xy, Q, t, reach), _bearing_radius(d, var, b_xy, b_th, Q, t, reach)
+
+
+def _radii_t(Q, log_p0):
+    """``T`` of :func:`_pair_radii`."""
     c = -_LOG_2PI - 0.5 * np.log(Q[0, 0] * Q[1, 1] - Q[0, 1] * Q[1, 0])
-    t = np.sqrt(np.maximum(2.0 * (c - log_p0 + 2e-6 * (1.0 + np.abs(log_p0))), 0.0))
+    return np.sqrt(np.maximum(2.0 * (c - log_p0 + 2e-6 * (1.0 + np.abs(log_p0))), 0.0))
+
+
+def _range_radius(d, var, b_xy, Q, t, reach):
+    """``r0`` of :func:`_pair_radii` (``t``: :func:`_radii_t`)."""
+    return (reach * b_xy + t * np.sqrt(b_xy * b_xy + Q[0, 0] + var)) * (1.0 + 1e-9) + 1e-9 * (1.0 + d)
+
+
+def _bearing_radius(d, var, b_xy, b_th, Q, t, reach):
+    """``r1`` of :func:`_pair_radii` (``t``: :func:`_radii_t`)."""
     inv_d = np.zeros(d.shape)
     np.divide(1.0, d, out=inv_d, where=d > 0)
     g1 = b_xy * inv_d + b_th
-    r0 = (reach * b_xy + t * np.sqrt(b_xy * b_xy + Q[0, 0] + var)) * (1.0 + 1e-9) + 1e-9 * (1.0 + d)
     r1 = (reach * g1 + t * np.sqrt(g1 * g1 + Q[1, 1] + var * (inv_d * inv_d))) * (1.0 + 1e-9) + 1e-9
     r1[d <= 0] = np.inf
-    return r0, r1
+    return r1
 
 
 def _associate2(x_hat, B, mu, Sigma, seen, log_w, z, Q, log_p0, cols, near):
@@ -1945,17 +1976,74 @@ def _summaries_in_reach(summary, x, z, margin):
     return _boxes_in_reach(lo[:, _S_LO], hi[:, _S_HI], margin(var), x, z)
 
 
-def _columns_in_reach(x_hat, B, mu, Sigma, seen, z, Q):
-    """Columns ``(W,)`` bool of the dense window whose landmark some particle may predict within reach
-    (:func:`_boxes_in_reach` with the box of each column's estimates over the particles that hold it)."""
+def _near_ranges(d, var, seen, z, b, Q):
+    """``(M, C)``: FastSLAM 2.0's near test of candidates at distances ``d`` with ``tr Sigma = var`` (each on its
+    own): landmarks a particle predicts within reach of the step's ranges, with a margin of ten standard
+    deviations of sensor, landmark and motion noise (:func:`_margin2`, ``b (M,)``); any other has a likelihood
+    below exp(-50) |2 pi Q|^-1/2, far below p0, and could never be chosen."""
+    margin = _margin2(np.sqrt(var), b[:, None], Q)
+    return seen & (d >= z[:, 0].min() - margin) & (d <= z[:, 0].max() + margin)
+
+
+def _column_boxes(mu, Sigma, seen):
+    """The box ``lo, hi (W, 2)`` of each column's estimates over the particles that hold it (+inf and -inf, an
+    empty box, where none does) and a bound ``(W,)`` on the column's ``tr Sigma``: its largest ``Sigma_xx`` plus
+    its largest ``Sigma_yy``."""
     lo, hi = np.empty((mu.shape[1], 2)), np.empty((mu.shape[1], 2))
     for c in range(2):  # one coordinate at a time: a where broadcast over the last axis is several times slower
         m = np.where(seen, mu[..., c], np.nan)  # NaN is ignored by fmin and fmax: only the particles that hold it
-        lo[:, c], hi[:, c] = np.fmin.reduce(m, axis=0), np.fmax.reduce(m, axis=0)
+        np.fmin.reduce(m, axis=0, out=lo[:, c], initial=np.inf)
+        np.fmax.reduce(m, axis=0, out=hi[:, c], initial=-np.inf)
     with np.errstate(invalid="ignore"):
         var = np.fmax.reduce(Sigma[..., 0, 0], axis=0) + np.fmax.reduce(Sigma[..., 1, 1], axis=0)
+    return lo, hi, var
+
+
+def _columns_in_reach(x_hat, B, mu, Sigma, seen, z, Q, boxes=None):
+    """Columns ``(W,)`` bool of the dense window whose landmark some particle may predict within reach
+    (:func:`_boxes_in_reach` with the box of each column's estimates over the particles that hold it;
+    `boxes`: those of :func:`_column_boxes`, if computed already)."""
+    lo, hi, var = _column_boxes(mu, Sigma, seen) if boxes is None else boxes
     margin = _margin2(np.sqrt(var), float(_motion_norm(B).max()), Q)
-    return _boxes_in_reach(np.nan_to_num(lo, nan=np.inf), np.nan_to_num(hi, nan=-np.inf), margin, x_hat, z)
+    return _boxes_in_reach(lo, hi, margin, x_hat, z)
+
+
+def _columns_within(lo, hi, var, x, z, b_xy, b_th, Q, t, reach):
+    """Columns ``(C,)`` bool that may hold a candidate of some measurement in some particle (a pair that passes
+    :func:`_within_reach`'s test with the radii of :func:`_pair_radii`), from the boxes of their estimates over
+    the particles ``lo, hi (C, 2)`` and bounds on their ``tr Sigma`` ``var (C,)`` (:func:`_column_boxes`).
+
+    With the box of the particles' positions ``x (M, 3)``, every offset ``mu - x`` lies in a box: the predicted
+    range in ``[d_lo, d_hi]`` (the box's distances) and, when the box leaves out the origin, the direction in
+    the arc of the box's corners (the predicted bearing in it less the interval of the headings). The radii
+    grow with ``tr Sigma``, ``b_xy``, ``b_th`` ``(M, 1)`` and ``d`` (range) or ``1 / d`` (bearing): at the
+    column's bound on ``tr Sigma``, the largest norms, ``d_hi`` and ``d_lo`` they bound every pair's. A column
+    is kept when one measurement lies within them on both axes, widened by far more than rounding. An empty
+    box (``lo = +inf``) is never kept.
+    """
+    p_lo, p_hi = x[:, :2].min(axis=0), x[:, :2].max(axis=0)
+    with np.errstate(invalid="ignore"):  # empty boxes: inf - inf
+        e_lo, e_hi = lo - p_hi, hi - p_lo  # (C, 2): the box of mu - x
+        gap = np.maximum(np.maximum(e_lo, -e_hi), 0.0)
+        far = np.maximum(np.abs(e_lo), np.abs(e_hi))
+        d_lo = np.hypot(gap[:, 0], gap[:, 1]) * (1.0 - 1e-9)
+        d_hi = np.hypot(far[:, 0], far[:, 1]) * (1.0 + 1e-9)
+        bxy, bth = float(b_xy.max()), float(b_th.max())
+        r0 = _range_radius(d_hi, var, bxy, Q, t, reach)
+        r1 = _bearing_radius(d_lo, var, bxy, bth, Q, t, reach)  # inf where the box holds the origin
+        # the arc of directions: the corners' directions about the centre's (a box that leaves out the origin
+        # spans less than pi), less the interval of the headings about the first particle's
+        c = np.arctan2(0.5 * (e_lo[:, 1] + e_hi[:, 1]), 0.5 * (e_lo[:, 0] + e_hi[:, 0]))
+        off = _wrap(np.arctan2(np.stack([e_lo[:, 1], e_hi[:, 1], e_lo[:, 1], e_hi[:, 1]], axis=1),
+                               np.stack([e_lo[:, 0], e_lo[:, 0], e_hi[:, 0], e_hi[:, 0]], axis=1)) - c[:, None])
+        o_lo, o_hi = off.min(axis=1), off.max(axis=1)
+        dth = _wrap(x[:, 2] - x[0, 2])
+        mid = c + 0.5 * (o_lo + o_hi) - x[0, 2] - 0.5 * (dth.min() + dth.max())
+        half = 0.5 * (o_hi - o_lo) + 0.5 * (dth.max() - dth.min())
+        slack = 1e-9 * (1.0 + np.abs(z[:, 0]).max(initial=0.0) + d_hi + r0)
+        ranged = (z[:, 0, None] >= d_lo - r0 - slack) & (z[:, 0, None] <= d_hi + r0 + slack)  # (K, C)
+        beared = np.abs(_wrap(_wrap(z[:, 1])[:, None] - mid)) <= half + r1 + 1e-8
+        return np.isfinite(d_lo) & (ranged & beared).any(axis=0)
 
 
 def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rng, copy=True, motion=None):
@@ -1970,6 +2058,9 @@ def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rn
                                         _normalized(state.log_weights.copy()))
     x_hat, B = _motion_terms(x_prev, u, dt, L, motion)
     b = _motion_norm(B)  # (M,): the motion's share of every reach margin of this step
+    b_xy = np.sqrt((B[:, :2] ** 2).sum(axis=(1, 2)))[:, None]  # (M, 1): the norms of B's position rows
+    b_th = np.sqrt((B[:, 2] ** 2).sum(axis=1))[:, None]  # and of its heading row (_pair_radii)
+    t = _radii_t(Q, log_p0)
     # the blocks some particle may reach (the union of the particles' block boxes, a superset of
     # _columns_in_reach), or every block when pruning reads every landmark in view
     reach = None if max_range is not None else (
@@ -1977,34 +2068,52 @@ def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rn
     maps, win, (mu, Sigma, seen, counts) = _unknown_window(state, K, "the landmarks of a particle", reach)
     cols = np.flatnonzero(seen.any(axis=0))
     if cols.size and K:
-        cols = cols[_columns_in_reach(x_hat, B, mu, Sigma, seen, z, Q)[cols]]  # a superset of the test below, cheaper
-    if cols.size and K:
-        # candidates: landmarks some particle predicts within reach of the step's ranges, with a margin of
-        # ten standard deviations of sensor, landmark and motion noise; any other has a likelihood below
-        # exp(-50) |2 pi Q|^-1/2, far below p0, and could never be chosen
-        dx, dy = mu[:, cols, 0] - x_hat[:, None, 0], mu[:, cols, 1] - x_hat[:, None, 1]
-        d = np.hypot(dx, dy)
-        var = Sigma[:, cols, 0, 0] + Sigma[:, cols, 1, 1]
-        spread = np.sqrt(var)
-        margin = _margin2(spread, b[:, None], Q)
-        near = seen[:, cols] & (d >= z[:, 0].min() - margin) & (d <= z[:, 0].max() + margin)
-        keep = near.any(axis=0)
-        cols = cols[keep]
-    found = None
+        boxes = _column_boxes(mu, Sigma, seen)
+
+    def offsets(c):
+        """``mu - x_hat`` of the window's columns `c` in every particle, its norm, ``tr Sigma`` and `seen`."""
+        dx, dy = mu[:, c, 0] - x_hat[:, None, 0], mu[:, c, 1] - x_hat[:, None, 1]
+        return dx, dy, np.hypot(dx, dy), Sigma[:, c, 0, 0] + Sigma[:, c, 1, 1], seen[:, c]
+
+    found, scored = None, False
     if _PREFILTER and cols.size and K:
         # the candidates of each measurement (_within_reach): the pairs that may pass _could_win in some
-        # particle, from bounds on its fields that need neither z_bar's Jacobians nor Q_j (_pair_radii)
-        d, var = d[:, keep], var[:, keep]
-        phi = _wrap(np.arctan2(dy[:, keep], dx[:, keep]) - x_hat[:, None, 2])
-        b_xy = np.sqrt((B[:, :2] ** 2).sum(axis=(1, 2)))[:, None]
-        b_th = np.sqrt((B[:, 2] ** 2).sum(axis=1))[:, None]
-        r0, r1 = _pair_radii(d, var, b_xy, b_th, Q, log_p0, _ETA_REACH)
-        near = _within_reach(z, d, phi, seen[:, cols], r0, r1, 1.0)
-        some = near.any(axis=0)
-        found = _associate2(x_hat, B, mu, Sigma, seen, state.log_weights, z, Q, log_p0, cols[some], near[:, some])
+        # particle, from bounds on its fields that need neither z_bar's Jacobians nor Q_j (_pair_radii), among
+        # the columns the near test (_near_ranges) keeps. Every test here takes each column on its own, so they
+        # run cheapest first: the columns whose boxes may hold a candidate (_columns_within), the range stage of
+        # _within_reach on those, its bearing (phi and r1) and exact stage on the columns with a pair in range,
+        # the near test on those with a pair left (_columns_in_reach, a bound of the near test, is only needed
+        # below).
+        c = cols[_columns_within(*(a[cols] for a in boxes), x_hat, z, b_xy, b_th, Q, t, _ETA_REACH)]
+        dx, dy, d, var, sn = offsets(c)
+        r0 = _range_radius(d, var, b_xy, Q, t, _ETA_REACH)
+        i, j = _range_pairs(z, d, sn, r0)
+        inr = np.flatnonzero(np.bincount(j, minlength=c.size))  # the columns with a pair in range
+        ju = np.searchsorted(inr, j)
+        phi = _wrap(np.arctan2(dy[:, inr], dx[:, inr]) - x_hat[:, None, 2])
+        r1 = _bearing_radius(d[:, inr], var[:, inr], b_xy, b_th, Q, t, _ETA_REACH)
+        within = np.zeros((K, inr.size), dtype=bool)
+        if i.size:
+            within[i, ju] = _pairs_within(z, i, ju, d[:, inr], phi, sn[:, inr], r0[:, inr], r1)
+        hit = within.any(axis=0)
+        inr, within = inr[hit], within[:, hit]
+        some = _near_ranges(d[:, inr], var[:, inr], sn[:, inr], z, b, Q).any(axis=0)
+        if some.any():
+            scored = True
+            found = _associate2(x_hat, B, mu, Sigma, seen, state.log_weights, z, Q, log_p0, c[inr[some]],
+                                within[:, some])
     if found is None:  # every candidate for every measurement (also when the proposal moved beyond _ETA_REACH)
-        found = _associate2(x_hat, B, mu, Sigma, seen, state.log_weights, z, Q, log_p0,
-                            cols if cols.size and K else None, None)
+        if cols.size and K:
+            cols = cols[_columns_in_reach(x_hat, B, mu, Sigma, seen, z, Q, boxes)[cols]]  # (a superset, cheaper)
+        if cols.size and K:
+            _, _, d, var, sn = offsets(cols)
+            cols = cols[_near_ranges(d, var, sn, z, b, Q).any(axis=0)]
+        if _PREFILTER and not scored and cols.size and K:  # no candidate, though some landmark is near
+            found = _associate2(x_hat, B, mu, Sigma, seen, state.log_weights, z, Q, log_p0, cols[:0],
+                                np.zeros((K, 0), dtype=bool))
+        else:
+            found = _associate2(x_hat, B, mu, Sigma, seen, state.log_weights, z, Q, log_p0,
+                                cols if cols.size and K else None, None)
     P, b, match, log_w = found
     x = _move(x_prev, u, dt, L, _sample_eta(tuple(P), tuple(b), rng, n), motion)  # x_t ~ proposal
     matched = np.zeros_like(seen)
@@ -2015,14 +2124,14 @@ def _update2_unknown_core(state, u, dt, L, z, Q, log_p0, max_range, half_fov, rn
         mu[kk, jj], Sigma[kk, jj], _, _ = _update_core(x[kk], mu[kk, jj], Sigma[kk, jj], z[ii], Q)
         counts[kk, jj] += 1
         matched[kk, jj] = True
-    for i in range(K):
-        k = np.flatnonzero(match[:, i] < 0)
-        if k.size:
-            slot = np.argmin(seen[k], axis=1)  # first free slot
-            mu[k, slot], Sigma[k, slot] = _init_core(x[k], z[i], Q)  # new landmark at the sampled pose
-            seen[k, slot] = True
-            counts[k, slot] = 1  # i_j = 1
-            matched[k, slot] = True
+    new = match < 0
+    for i in np.flatnonzero(new.any(axis=0)):  # the measurements that are a new landmark in some particle, in order
+        k = np.flatnonzero(new[:, i])
+        slot = np.argmin(seen[k], axis=1)  # first free slot
+        mu[k, slot], Sigma[k, slot] = _init_core(x[k], z[i], Q)  # new landmark at the sampled pose
+        seen[k, slot] = True
+        counts[k, slot] = 1  # i_j = 1
+        matched[k, slot] = True
     changed = matched  # updated and new landmarks, and below those that lost a count
     if max_range is not None:
         seen, counts, miss = _prune(x, mu, seen, counts, matched, max_range, half_fov)
@@ -2411,6 +2520,7 @@ def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=Non
     x_est[0] = state.poses[0]
     identity = np.arange(n)
     parents[:2] = identity
+    counted = (None, -1, 0)  # the maps and the particle whose landmarks n_lm last counted, and their number
     for t in range(T):
         if on_step is not None:
             on_step(t)
@@ -2426,7 +2536,7 @@ def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=Non
                 raise ValueError(f"run.ids[{t}] must be below MAX_LANDMARKS = {MAX_LANDMARKS}")
             if zt.shape[0]:
                 state = _grow(state, int(idt.max()) + 1, f"run.ids[{t}]")
-        prior_w = np.exp(state.log_weights)
+        prior_w = np.exp(state.log_weights) if known else None  # (only known correspondences reject measurements)
         if version == 2:
             if known:
                 state, out = _update2_known_core(state, u[t], dt, L, zt, idt, Q, rng, gate=gate, copy=False,
@@ -2455,7 +2565,9 @@ def run_fastslam(run, *, n_particles, rng, known=True, M=None, alpha=None, Q=Non
         w = np.exp(state.log_weights)  # normalised: logsumexp(log_weights) = 0
         x_est[t + 1], x_cov[t + 1] = _particle_moments(state.poses, np.exp(_normalized(state.log_weights)), (2,))
         best = int(np.argmax(w))
-        n_lm[t + 1] = _n_seen(state, best)
+        if state._maps is None or state._maps is not counted[0] or best != counted[1]:
+            counted = (state._maps, best, _n_seen(state, best))  # (a step without measurements keeps the maps)
+        n_lm[t + 1] = counted[2]
         ess[t] = _ess(w)
         if t == T - 1:
             break  # keep the last weights: they pick the final most likely particle

@@ -606,7 +606,6 @@ def _ackermann(x, u, dt, a, b, H, L, jacobians=True):
     u = np.asarray(u, dtype=np.float64)
     th, ve, al = x[..., 2], u[..., 0], u[..., 1]
     ta = np.tan(al)
-    sec2 = 1.0 + ta * ta
     k = 1.0 / (1.0 - ta * H / L)
     vc = ve * k  # v_c = v_e / (1 - tan(alpha) H / L): rear-left encoder speed moved to the axle centre
     w = vc * ta / L  # heading rate of the bicycle model, v_c tan(alpha) / L
@@ -621,6 +620,7 @@ def _ackermann(x, u, dt, a, b, H, L, jacobians=True):
     x_next[..., 2] = _wrap(th + dt * w)
     if not jacobians:
         return x_next
+    sec2 = 1.0 + ta * ta
     G = np.zeros(shape + (3, 3))
     G[..., 0, 0] = G[..., 1, 1] = G[..., 2, 2] = 1.0
     G[..., 0, 2] = dt * (-vc * s - w * pc)  # d x' / d theta

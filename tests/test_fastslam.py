@@ -428,8 +428,11 @@ def test_per_measurement_candidates_give_the_run_of_scoring_every_candidate(worl
                                              x_true=world.x_true[:81]), 1.0, rng=np.random.default_rng(2))
     kw = dict(n_particles=25, known=False, max_range=max_range, resample_threshold=0.5, version=version)
     kept = []
-    reach = fs._within_reach
-    monkeypatch.setattr(fs, "_within_reach", lambda *a: kept.append((reach(*a).size, reach(*a).sum())) or reach(*a))
+    # the two stages of _within_reach (FastSLAM 2.0 runs them itself): every pair, and those the exact stage keeps
+    ranged, within = fs._range_pairs, fs._pairs_within
+    monkeypatch.setattr(fs, "_range_pairs", lambda z, zb0, *a: kept.append((z.shape[0] * zb0.shape[1], 0))
+                        or ranged(z, zb0, *a))
+    monkeypatch.setattr(fs, "_pairs_within", lambda *a: kept.append((0, within(*a).sum())) or within(*a))
     res = sl.run_fastslam(run, rng=np.random.default_rng(1), **kw)
     pairs, near = np.array(kept).sum(axis=0)
     assert near < 0.75 * pairs  # a good share of the (measurement, landmark) pairs is left out
@@ -439,22 +442,49 @@ def test_per_measurement_candidates_give_the_run_of_scoring_every_candidate(worl
     np.testing.assert_array_equal(res.path_best, every.path_best)
 
 
+def test_landmark_counts_follow_every_change_of_the_maps_and_of_the_best_particle(world, monkeypatch):
+    # run_fastslam counts the most likely particle's landmarks again only when the maps or that particle
+    # changed (a step without measurements keeps the maps); the counts must be those of every step's best
+    # particle: over steps with and without measurements, with resampling
+    from slamlib import fastslam as fs
+
+    z = [zt if t % 3 else zt[:0] for t, zt in enumerate(world.z[:120])]  # every third step without measurements
+    run = dataclasses.replace(world, u=world.u[:120], z=z, ids=world.ids[:120], x_true=world.x_true[:121])
+    truth = []
+    step = fs._update2_unknown_core
+
+    def counted(*a, **kw):
+        out = step(*a, **kw)
+        truth.append(fs._n_seen(out, int(np.argmax(np.exp(out.log_weights)))))  # run_fastslam's choice of best
+        return out
+
+    monkeypatch.setattr(fs, "_update2_unknown_core", counted)
+    res = sl.run_fastslam(run, n_particles=25, rng=np.random.default_rng(3), known=False, version=2,
+                          resample_threshold=0.9)
+    np.testing.assert_array_equal(res.n_landmarks[1:], truth)
+    assert res.resampled.any() and len(set(truth)) > 3
+
+
 @pytest.mark.parametrize("max_range", [None, 8.0])
-def test_fastslam2_column_bound_gives_the_run_of_the_exact_test(world, max_range, monkeypatch):
+@pytest.mark.parametrize("bound", ["_columns_in_reach", "_columns_within"])
+def test_fastslam2_column_bound_gives_the_run_of_the_exact_test(world, max_range, bound, monkeypatch):
     # FastSLAM 2.0 first drops whole columns (landmark slots) that no particle can reach, from boxes over the
-    # particles; the bound must never drop a column the per-particle test keeps: the run is bit for bit
-    # the run without it
+    # particles (the near test's bound _columns_in_reach, which the step needs without the per-measurement
+    # candidates, and their bound _columns_within); a bound must never drop a column the per-particle tests
+    # keep: the run is bit for bit the run without it
     from slamlib import fastslam as fs
 
     run = sl.add_clutter(dataclasses.replace(world, u=world.u[:80], z=world.z[:80], ids=world.ids[:80],
                                              x_true=world.x_true[:81]), 1.0, rng=np.random.default_rng(2))
     kw = dict(n_particles=25, known=False, max_range=max_range, resample_threshold=0.5, version=2)
+    if bound == "_columns_in_reach":
+        monkeypatch.setattr(fs, "_PREFILTER", False)
     kept = []
-    bound = fs._columns_in_reach
-    monkeypatch.setattr(fs, "_columns_in_reach", lambda *a: kept.append(bound(*a).mean()) or bound(*a))
+    test = getattr(fs, bound)
+    monkeypatch.setattr(fs, bound, lambda *a: kept.append(test(*a).mean()) or test(*a))
     res = sl.run_fastslam(run, rng=np.random.default_rng(1), **kw)
     assert min(kept) < 0.9  # columns out of reach are dropped
-    monkeypatch.setattr(fs, "_columns_in_reach", lambda x_hat, B, mu, Sigma, seen, z, Q: np.ones(mu.shape[1], bool))
+    monkeypatch.setattr(fs, bound, lambda *a: np.ones(test(*a).shape, bool))
     every = sl.run_fastslam(run, rng=np.random.default_rng(1), **kw)
     _same_state_and_estimate(res, every)
 
@@ -486,6 +516,51 @@ def test_fastslam2_column_bound_keeps_every_column_some_particle_reaches():
         assert not kept[~seen.any(axis=0)].any()  # a column no particle holds is never kept
         dropped += np.count_nonzero(~kept & seen.any(axis=0))
     assert dropped > 1000  # and columns out of reach are dropped
+
+
+def test_fastslam2_column_boxes_keep_every_column_with_a_candidate():
+    # _columns_within drops the columns whose box of estimates (over the particles) holds no landmark that a
+    # measurement may take in any particle; it must keep every column with a pair that _within_reach keeps
+    # (with the radii of _pair_radii, as the step computes them): random particle clouds (headings across
+    # +-pi too), columns tight and wide, landmarks on the particles (any bearing), measurements drawn on the
+    # predictions of random pairs (and beside them), three Q
+    from slamlib import fastslam as fs
+
+    rng = np.random.default_rng(86)
+    kept_pairs = dropped = 0
+    for trial in range(60):
+        M, C, K = 20, 80, 6
+        Q = [np.diag([0.05, 0.002]), np.array([[0.3, 0.01], [0.01, 0.004]]), np.diag([1e-4, 1e-6])][trial % 3]
+        log_p0 = np.log(fs.fastslam_default_p0(Q))
+        heading = rng.uniform(-np.pi, np.pi) if trial % 2 else np.pi - 0.01  # (odd: a cloud across +-pi)
+        x = np.column_stack([rng.normal(0.0, 10.0 ** rng.uniform(-2, 0.5), (M, 2)),
+                             fs._wrap(heading + rng.normal(0.0, 10.0 ** rng.uniform(-3, -0.5), M))])
+        B = rng.normal(0.0, 1.0, (M, 3, 2)) * 10.0 ** rng.uniform(-3, -1)
+        spread = 10.0 ** rng.uniform(-2, 1.5, (1, C, 1))  # each column's spread over the particles
+        mu = rng.uniform(-60.0, 60.0, (1, C, 2)) * 10.0 ** rng.uniform(-1.5, 0, (1, C, 1)) \
+            + rng.normal(0.0, 1.0, (M, C, 2)) * spread
+        A = rng.normal(0.0, 1.0, (M, C, 2, 2)) * 10.0 ** rng.uniform(-3, 0, (1, C, 1, 1))
+        Sigma = A @ np.swapaxes(A, -1, -2)
+        seen = rng.random((M, C)) < 0.8
+        dx, dy = mu[..., 0] - x[:, None, 0], mu[..., 1] - x[:, None, 1]
+        d = np.hypot(dx, dy)
+        phi = fs._wrap(np.arctan2(dy, dx) - x[:, None, 2])
+        k, j = rng.integers(0, M, K), rng.integers(0, C, K)  # measurements on (beside) random pairs' predictions
+        z = np.column_stack([np.abs(d[k, j] + rng.normal(0.0, 1.0, K) * 10.0 ** rng.uniform(-2, 0.5, K)),
+                             fs._wrap(phi[k, j] + rng.normal(0.0, 1.0, K) * 10.0 ** rng.uniform(-3, -0.5, K))])
+        var = Sigma[..., 0, 0] + Sigma[..., 1, 1]
+        b_xy = np.sqrt((B[:, :2] ** 2).sum(axis=(1, 2)))[:, None]
+        b_th = np.sqrt((B[:, 2] ** 2).sum(axis=1))[:, None]
+        r0, r1 = fs._pair_radii(d, var, b_xy, b_th, Q, log_p0, fs._ETA_REACH)
+        exact = fs._within_reach(z, d, phi, seen, r0, r1, 1.0).any(axis=0)
+        t = fs._radii_t(Q, log_p0)
+        with np.errstate(invalid="ignore"):
+            kept = fs._columns_within(*fs._column_boxes(mu, Sigma, seen), x, z, b_xy, b_th, Q, t, fs._ETA_REACH)
+        assert np.all(kept[exact]), (trial, np.flatnonzero(exact & ~kept))
+        assert not kept[~seen.any(axis=0)].any()  # a column no particle holds is never kept
+        kept_pairs += exact.sum()
+        dropped += np.count_nonzero(~kept & seen.any(axis=0))
+    assert kept_pairs > 100 and dropped > 1000  # the columns with candidates occur, and others go
 
 
 @pytest.fixture(scope="module")
