@@ -2031,6 +2031,10 @@ def _columns_within(lo, hi, var, x, z, b_xy, b_th, Q, t, reach):
         bxy, bth = float(b_xy.max()), float(b_th.max())
         r0 = _range_radius(d_hi, var, bxy, Q, t, reach)
         r1 = _bearing_radius(d_lo, var, bxy, bth, Q, t, reach)  # inf where the box holds the origin
+        # 0 * inf (a gap so small that 1 / d_lo overflows beside zero noise, t = 0 beside an infinite variance)
+        # bounds nothing: any range and any bearing, never a dropped candidate
+        r0[np.isnan(r0)] = np.inf
+        r1[np.isnan(r1)] = np.inf
         # the arc of directions: the corners' directions about the centre's (a box that leaves out the origin
         # spans less than pi), less the interval of the headings about the first particle's
         c = np.arctan2(0.5 * (e_lo[:, 1] + e_hi[:, 1]), 0.5 * (e_lo[:, 0] + e_hi[:, 0]))

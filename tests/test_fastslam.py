@@ -563,6 +563,37 @@ def test_fastslam2_column_boxes_keep_every_column_with_a_candidate():
     assert kept_pairs > 100 and dropped > 1000  # the columns with candidates occur, and others go
 
 
+def test_fastslam2_column_boxes_keep_their_candidates_at_degenerate_radii():
+    # the box's gap to the particles so small that 1 / d_lo overflows, beside no control noise or no landmark
+    # covariance (0 * inf in the bearing radius), and t = 0 beside an unheld slot's infinite covariance (0 * inf in
+    # the range radius): a radius that is not a number bounds nothing, so the column stays
+    from slamlib import fastslam as fs
+
+    Q = np.diag([0.05, 0.002])
+    lp = float(np.log(fs.fastslam_default_p0(Q)))
+    x = np.array([[0.0, 0.0, 0.0], [-1.0, 0.0, 0.0]])  # the landmark a hair before particle 0, 1 m before particle 1
+    z = np.array([[1.0, 0.0]])  # particle 1's prediction
+    one = np.ones((2, 1), bool)
+    cases = [(x, np.zeros((2, 3, 2)), np.full((2, 1, 2), [1e-310, 0.0]), np.tile(np.eye(2) * 0.01, (2, 1, 1, 1)),
+              one, z, lp),
+             (x, np.full((2, 3, 2), 0.01), np.full((2, 1, 2), [1e-310, 0.0]), np.zeros((2, 1, 2, 2)), one, z, lp),
+             (x, np.full((2, 3, 2), 0.01), np.full((2, 1, 2), [1e-200, 0.0]), np.zeros((2, 1, 2, 2)), one, z, lp),
+             (np.zeros((2, 3)), np.full((2, 3, 2), 0.01), np.full((2, 1, 2), [5.0, 0.0]),
+              np.stack([np.eye(2)[None] * 0.01, np.full((1, 2, 2), np.inf)]), np.array([[True], [False]]),
+              np.array([[5.0, 0.0]]), 50.0)]
+    for x, B, mu, Sigma, seen, z, log_p0 in cases:
+        b_xy = np.sqrt((B[:, :2] ** 2).sum(axis=(1, 2)))[:, None]
+        b_th = np.sqrt((B[:, 2] ** 2).sum(axis=1))[:, None]
+        with np.errstate(all="ignore"):
+            kept = fs._columns_within(*fs._column_boxes(mu, Sigma, seen), x, z, b_xy, b_th, Q,
+                                      fs._radii_t(Q, log_p0), fs._ETA_REACH)
+            dx, dy = mu[..., 0] - x[:, None, 0], mu[..., 1] - x[:, None, 1]
+            d = np.hypot(dx, dy)
+            r0, r1 = fs._pair_radii(d, Sigma[..., 0, 0] + Sigma[..., 1, 1], b_xy, b_th, Q, log_p0, fs._ETA_REACH)
+            exact = fs._within_reach(z, d, fs._wrap(np.arctan2(dy, dx) - x[:, None, 2]), seen, r0, r1, 1.0).any(axis=0)
+        assert kept.all() and (exact.all() or log_p0 == 50.0)  # (t = 0: no pair passes, the column may stay)
+
+
 @pytest.fixture(scope="module")
 def corridor():
     # a long drive past landmarks on both sides: the early landmarks fall far behind the robot
