@@ -105,8 +105,11 @@ def _landmark_measurement(x, m):
     Hx[..., 1, 0] = dy / q
     Hx[..., 1, 1] = -dx / q
     Hx[..., 1, 2] = -1.0
-    # H_m = d h / d m = -(d h / d x_xy) (h depends on m - x): dx / r, dy / r, -dy / q, dx / q, negated exactly
-    Hm = np.negative(Hx[..., :2])
+    Hm = np.empty(shape + (2, 2))
+    Hm[..., 0, 0] = dx / r
+    Hm[..., 0, 1] = dy / r
+    Hm[..., 1, 0] = -dy / q
+    Hm[..., 1, 1] = dx / q
     return z_hat, Hx, Hm
 
 
