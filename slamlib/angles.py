@@ -127,6 +127,6 @@ def _circular_mean(a, w, axis=0):
     s = np.sum(w * np.sin(a), axis=axis)
     c = np.sum(w * np.cos(a), axis=axis)
     m = np.arctan2(s, c)
-    if isinstance(m, np.float64) and math.isfinite(m):  # a finite scalar (the filters' per-step mean): what
-        return float(_wrap(np.asarray(m)))  # wrap_angle returns, without its checks
+    if isinstance(m, np.float64) and math.isfinite(m):  # a finite scalar (the filters' per-step mean):
+        return float(_wrap(np.asarray(m)))  # what wrap_angle returns, without its checks
     return wrap_angle(m)

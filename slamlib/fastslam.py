@@ -1945,14 +1945,22 @@ def _boxes_in_reach(lo, hi, margin, x, z):
     margin, every landmark that a per-particle test keeps is in a box kept here. An empty box
     (``lo = +inf``) is never kept.
     """
-    p_lo, p_hi = x[:, :2].min(axis=0), x[:, :2].max(axis=0)
     with np.errstate(invalid="ignore"):  # empty boxes: inf - inf
-        gap = np.maximum(np.maximum(lo - p_hi, p_lo - hi), 0.0)
-        far = np.maximum(np.abs(hi - p_lo), np.abs(p_hi - lo))
-        d_min, d_max = np.hypot(gap[:, 0], gap[:, 1]), np.hypot(far[:, 0], far[:, 1])
+        _, _, d_min, d_max = _offset_box(lo, hi, x)
         slack = 1e-9 * (1.0 + d_max)  # rounding of the bounds
         return (np.isfinite(d_min) & (d_min - slack <= z[:, 0].max() + margin)
                 & (d_max + slack >= z[:, 0].min() - margin))
+
+
+def _offset_box(lo, hi, x):
+    """The box ``[e_lo, e_hi] (W, 2)`` of the offsets ``mu - x`` between the boxes ``[lo, hi]`` of landmark
+    estimates and the box of the particles' positions ``x (M, >=2)``, and the least and largest distance
+    ``(W,)`` between the two boxes, which bound every particle's distance to every landmark in each box."""
+    p_lo, p_hi = x[:, :2].min(axis=0), x[:, :2].max(axis=0)
+    e_lo, e_hi = lo - p_hi, hi - p_lo
+    gap = np.maximum(np.maximum(e_lo, -e_hi), 0.0)
+    far = np.maximum(np.abs(e_lo), np.abs(e_hi))
+    return e_lo, e_hi, np.hypot(gap[:, 0], gap[:, 1]), np.hypot(far[:, 0], far[:, 1])
 
 
 def _margin2(spread, b, Q):
@@ -2021,13 +2029,9 @@ def _columns_within(lo, hi, var, x, z, b_xy, b_th, Q, t, reach):
     is kept when one measurement lies within them on both axes, widened by far more than rounding. An empty
     box (``lo = +inf``) is never kept.
     """
-    p_lo, p_hi = x[:, :2].min(axis=0), x[:, :2].max(axis=0)
     with np.errstate(invalid="ignore"):  # empty boxes: inf - inf
-        e_lo, e_hi = lo - p_hi, hi - p_lo  # (C, 2): the box of mu - x
-        gap = np.maximum(np.maximum(e_lo, -e_hi), 0.0)
-        far = np.maximum(np.abs(e_lo), np.abs(e_hi))
-        d_lo = np.hypot(gap[:, 0], gap[:, 1]) * (1.0 - 1e-9)
-        d_hi = np.hypot(far[:, 0], far[:, 1]) * (1.0 + 1e-9)
+        e_lo, e_hi, d_lo, d_hi = _offset_box(lo, hi, x)  # (C, 2): the box of mu - x; its distances
+        d_lo, d_hi = d_lo * (1.0 - 1e-9), d_hi * (1.0 + 1e-9)
         bxy, bth = float(b_xy.max()), float(b_th.max())
         r0 = _range_radius(d_hi, var, bxy, Q, t, reach)
         r1 = _bearing_radius(d_lo, var, bxy, bth, Q, t, reach)  # inf where the box holds the origin
